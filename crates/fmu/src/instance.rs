@@ -1,0 +1,708 @@
+//! One FMU instance: the FMI 2.0 co-simulation state machine around a [`Model`], in safe Rust.
+//!
+//! Every method returns `Result`; the C shims in [`crate::ffi`] turn it into a status and a
+//! logged message. A rejected call leaves the instance as it was.
+
+use serde::{Deserialize, Serialize};
+use std::ffi::{CStr, CString};
+
+use fmi_sys::fmi2::{fmi2CallbackFunctions, fmi2Status};
+
+use crate::error::FmuError;
+use crate::model::Model;
+use crate::variables::{Causality, Values, VarType, Variability, Variable, VariableTable};
+
+/// Tag at the start of every live instance, checked before any use of an instance pointer.
+pub(crate) const MAGIC: u64 = 0x4d31_4353_464d_5532; // "M1CSFMU2"
+const STATE_MAGIC: &[u8; 8] = b"M1CSST01";
+
+/// The FMI 2.0 co-simulation states.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum State {
+    /// After fmi2Instantiate or fmi2Reset.
+    Instantiated,
+    /// Between fmi2EnterInitializationMode and fmi2ExitInitializationMode.
+    InitializationMode,
+    /// Ready for fmi2DoStep.
+    StepComplete,
+    /// A step failed; outputs may be read.
+    StepFailed,
+    /// After fmi2Terminate.
+    Terminated,
+    /// After fmi2Error: only reset, free, get and FMU-state calls.
+    Error,
+    /// After fmi2Fatal: only free.
+    Fatal,
+}
+
+impl State {
+    /// Name used in messages.
+    pub fn name(self) -> &'static str {
+        match self {
+            State::Instantiated => "instantiated",
+            State::InitializationMode => "initializationMode",
+            State::StepComplete => "stepComplete",
+            State::StepFailed => "stepFailed",
+            State::Terminated => "terminated",
+            State::Error => "error",
+            State::Fatal => "fatal",
+        }
+    }
+}
+
+use State::*;
+
+/// A saved FMU state (fmi2GetFMUstate), also the unit of serialisation.
+#[derive(Clone, Serialize, Deserialize)]
+pub struct Snapshot<M> {
+    pub(crate) magic: u64,
+    guid: String,
+    state: State,
+    time: f64,
+    start_time: f64,
+    stop_time: Option<f64>,
+    outputs_stale: bool,
+    values: Values,
+    model: M,
+}
+
+/// An instance of model `M`.
+pub struct Instance<M: Model> {
+    pub(crate) magic: u64,
+    name: CString,
+    callbacks: Option<fmi2CallbackFunctions>,
+    logging_on: bool,
+    log_calls: bool,
+    state: State,
+    guid: String,
+    variant: String,
+    table: VariableTable,
+    pristine: (Values, M),
+    values: Values,
+    model: M,
+    time: f64,
+    start_time: f64,
+    stop_time: Option<f64>,
+    outputs_stale: bool,
+}
+
+fn resource_dir(location: &str) -> Option<std::path::PathBuf> {
+    let rest = location.strip_prefix("file://")?;
+    // file:///abs/path, file:/abs/path (some importers) or file://localhost/abs/path.
+    let rest = rest.strip_prefix("localhost").unwrap_or(rest);
+    let path = percent_decode(rest);
+    Some(std::path::PathBuf::from(path))
+}
+
+fn percent_decode(s: &str) -> String {
+    let b = s.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%'
+            && i + 2 < b.len()
+            && let Ok(v) = u8::from_str_radix(&s[i + 1..i + 3], 16)
+        {
+            out.push(v);
+            i += 3;
+            continue;
+        }
+        out.push(b[i]);
+        i += 1;
+    }
+    String::from_utf8_lossy(&out).into_owned()
+}
+
+/// Name of the resource file that records which variant an archive was packaged for.
+pub const VARIANT_FILE: &str = "variant.txt";
+
+impl<M: Model> Instance<M> {
+    /// fmi2Instantiate: finds the packaged variant whose description has this GUID.
+    pub fn new(
+        name: &str,
+        guid: &str,
+        resource_location: Option<&str>,
+        callbacks: Option<fmi2CallbackFunctions>,
+        logging_on: bool,
+    ) -> Result<Self, FmuError> {
+        let from_resources = resource_location
+            .and_then(resource_dir)
+            .and_then(|d| std::fs::read_to_string(d.join(VARIANT_FILE)).ok())
+            .map(|s| s.trim().to_string());
+        let candidates = match &from_resources {
+            Some(v) => vec![v.clone()],
+            None => M::variants(),
+        };
+        let mut expected = Vec::new();
+        for variant in candidates {
+            let (table, model) = M::new(&variant)?;
+            let g = crate::xml::guid(&M::INFO, &table);
+            if g == guid {
+                let values = table.initial_values();
+                return Ok(Self {
+                    magic: MAGIC,
+                    name: CString::new(name.replace('\0', " ")).unwrap_or_default(),
+                    callbacks,
+                    logging_on,
+                    log_calls: false,
+                    state: Instantiated,
+                    guid: g,
+                    variant,
+                    pristine: (values.clone(), model.clone()),
+                    table,
+                    values,
+                    model,
+                    time: 0.0,
+                    start_time: 0.0,
+                    stop_time: None,
+                    outputs_stale: true,
+                });
+            }
+            expected.push(format!("{variant}: {g}"));
+        }
+        Err(FmuError::Instantiate(format!(
+            "GUID {guid} matches no packaged variant of {} ({}); the modelDescription.xml and \
+             the binary come from different builds or layouts",
+            M::INFO.model_identifier,
+            expected.join(", ")
+        )))
+    }
+
+    /// The variant (layout) this instance was packaged for.
+    pub fn variant(&self) -> &str {
+        &self.variant
+    }
+
+    /// The variable table.
+    pub fn table(&self) -> &VariableTable {
+        &self.table
+    }
+
+    /// The current state.
+    pub fn state(&self) -> State {
+        self.state
+    }
+
+    /// The current time.
+    pub fn time(&self) -> f64 {
+        self.time
+    }
+
+    /// The model, for in-process use.
+    pub fn model(&self) -> &M {
+        &self.model
+    }
+
+    /// Sends a message through the importer's logger (errors always, others when logging is on).
+    pub fn log(&self, status: fmi2Status, category: &CStr, msg: &str) {
+        let is_error = matches!(status, fmi2Status::fmi2Error | fmi2Status::fmi2Fatal);
+        if !is_error && !self.logging_on {
+            return;
+        }
+        let Some(cb) = self.callbacks else { return };
+        let Some(logger) = cb.logger else { return };
+        let msg = CString::new(msg.replace('\0', " ")).unwrap_or_default();
+        // SAFETY: the importer's logger, called with a "%s" format and a valid C string, and
+        // a non-NULL category; the environment pointer is passed back as given.
+        unsafe {
+            logger(
+                cb.componentEnvironment,
+                self.name.as_ptr(),
+                status,
+                category.as_ptr(),
+                c"%s".as_ptr(),
+                msg.as_ptr(),
+            );
+        }
+    }
+
+    /// Logs a call when the `logCalls` category is enabled.
+    pub fn trace(&self, what: impl FnOnce() -> String) {
+        if self.log_calls {
+            self.log(fmi2Status::fmi2OK, c"logCalls", &what());
+        }
+    }
+
+    /// Marks the instance as failed fatally (after a caught panic).
+    pub(crate) fn set_fatal(&mut self) {
+        self.state = Fatal;
+    }
+
+    fn require(&self, function: &'static str, allowed: &[State]) -> Result<(), FmuError> {
+        if allowed.contains(&self.state) {
+            Ok(())
+        } else {
+            Err(FmuError::IllegalCall {
+                function,
+                state: self.state.name(),
+            })
+        }
+    }
+
+    /// fmi2SetDebugLogging.
+    pub fn set_debug_logging(&mut self, on: bool, categories: &[String]) -> Result<(), FmuError> {
+        self.require(
+            "fmi2SetDebugLogging",
+            &[
+                Instantiated,
+                InitializationMode,
+                StepComplete,
+                StepFailed,
+                Terminated,
+                Error,
+            ],
+        )?;
+        for c in categories {
+            if !crate::xml::LOG_CATEGORIES.iter().any(|(n, _)| n == c) {
+                return Err(FmuError::BadValue {
+                    variable: "log category".into(),
+                    value: c.clone(),
+                    reason: format!(
+                        "is not one of {}",
+                        crate::xml::LOG_CATEGORIES.map(|(n, _)| n).join(", ")
+                    ),
+                });
+            }
+        }
+        self.logging_on = on;
+        self.log_calls =
+            on && (categories.is_empty() || categories.iter().any(|c| c == "logCalls"));
+        Ok(())
+    }
+
+    /// fmi2SetupExperiment.
+    pub fn setup_experiment(&mut self, start: f64, stop: Option<f64>) -> Result<(), FmuError> {
+        self.require("fmi2SetupExperiment", &[Instantiated])?;
+        if !start.is_finite() {
+            return Err(FmuError::BadValue {
+                variable: "startTime".into(),
+                value: start.to_string(),
+                reason: "must be finite".into(),
+            });
+        }
+        if let Some(s) = stop
+            && !(s.is_finite() && s >= start)
+        {
+            return Err(FmuError::BadValue {
+                variable: "stopTime".into(),
+                value: s.to_string(),
+                reason: format!("must be finite and >= startTime {start}"),
+            });
+        }
+        self.start_time = start;
+        self.time = start;
+        self.stop_time = stop;
+        Ok(())
+    }
+
+    /// fmi2EnterInitializationMode.
+    pub fn enter_initialization_mode(&mut self) -> Result<(), FmuError> {
+        self.require("fmi2EnterInitializationMode", &[Instantiated])?;
+        self.state = InitializationMode;
+        self.outputs_stale = true;
+        Ok(())
+    }
+
+    /// fmi2ExitInitializationMode: the model checks its parameters; on failure the instance
+    /// stays in initialisation mode so that parameters can be corrected.
+    pub fn exit_initialization_mode(&mut self) -> Result<(), FmuError> {
+        self.require("fmi2ExitInitializationMode", &[InitializationMode])?;
+        self.model.initialize(&mut self.values, self.start_time)?;
+        self.outputs_stale = false;
+        self.time = self.start_time;
+        self.state = StepComplete;
+        Ok(())
+    }
+
+    /// fmi2Terminate.
+    pub fn terminate(&mut self) -> Result<(), FmuError> {
+        self.require("fmi2Terminate", &[StepComplete, StepFailed, Error])?;
+        self.state = Terminated;
+        Ok(())
+    }
+
+    /// fmi2Reset: back to the state after fmi2Instantiate.
+    pub fn reset(&mut self) -> Result<(), FmuError> {
+        self.require(
+            "fmi2Reset",
+            &[
+                Instantiated,
+                InitializationMode,
+                StepComplete,
+                StepFailed,
+                Terminated,
+                Error,
+            ],
+        )?;
+        self.values = self.pristine.0.clone();
+        self.model = self.pristine.1.clone();
+        self.state = Instantiated;
+        self.time = 0.0;
+        self.start_time = 0.0;
+        self.stop_time = None;
+        self.outputs_stale = true;
+        Ok(())
+    }
+
+    fn refresh_outputs(&mut self) -> Result<(), FmuError> {
+        if self.outputs_stale {
+            match self.state {
+                InitializationMode => {
+                    // Work on a copy: initialisation may be repeated with other parameters.
+                    let mut m = self.model.clone();
+                    m.initialize(&mut self.values, self.start_time)?;
+                }
+                StepComplete => self.model.update_outputs(&mut self.values)?,
+                _ => {}
+            }
+            self.outputs_stale = false;
+        }
+        Ok(())
+    }
+
+    const GET_STATES: [State; 5] = [
+        InitializationMode,
+        StepComplete,
+        StepFailed,
+        Terminated,
+        Error,
+    ];
+
+    fn type_range(&self, ty: VarType) -> std::ops::Range<u32> {
+        let c = self.table.counts();
+        let starts = [0, c[0], c[0] + c[1], c[0] + c[1] + c[2]];
+        let i = match ty {
+            VarType::Real => 0,
+            VarType::Integer => 1,
+            VarType::Boolean => 2,
+            VarType::String => 3,
+        };
+        let lo = starts[i] as u32;
+        lo..lo + c[i] as u32
+    }
+
+    fn slot(&self, ty: VarType, vr: u32, ty_name: &'static str) -> Result<usize, FmuError> {
+        let r = self.type_range(ty);
+        if r.contains(&vr) {
+            Ok((vr - r.start) as usize)
+        } else {
+            Err(FmuError::UnknownReference { vr, ty: ty_name })
+        }
+    }
+
+    /// fmi2GetReal.
+    pub fn get_real(&mut self, vrs: &[u32], out: &mut [f64]) -> Result<(), FmuError> {
+        self.require("fmi2GetReal", &Self::GET_STATES)?;
+        self.refresh_outputs()?;
+        for (vr, o) in vrs.iter().zip(out.iter_mut()) {
+            *o = self.values.reals[self.slot(VarType::Real, *vr, "Real")?];
+        }
+        Ok(())
+    }
+
+    /// fmi2GetInteger.
+    pub fn get_integer(&mut self, vrs: &[u32], out: &mut [i32]) -> Result<(), FmuError> {
+        self.require("fmi2GetInteger", &Self::GET_STATES)?;
+        self.refresh_outputs()?;
+        for (vr, o) in vrs.iter().zip(out.iter_mut()) {
+            *o = self.values.integers[self.slot(VarType::Integer, *vr, "Integer")?];
+        }
+        Ok(())
+    }
+
+    /// fmi2GetBoolean.
+    pub fn get_boolean(&mut self, vrs: &[u32], out: &mut [bool]) -> Result<(), FmuError> {
+        self.require("fmi2GetBoolean", &Self::GET_STATES)?;
+        self.refresh_outputs()?;
+        for (vr, o) in vrs.iter().zip(out.iter_mut()) {
+            *o = self.values.booleans[self.slot(VarType::Boolean, *vr, "Boolean")?];
+        }
+        Ok(())
+    }
+
+    /// fmi2GetString: pointers valid until the string is set again or the instance is freed.
+    pub fn get_string(
+        &mut self,
+        vrs: &[u32],
+        out: &mut [*const std::ffi::c_char],
+    ) -> Result<(), FmuError> {
+        self.require("fmi2GetString", &Self::GET_STATES)?;
+        self.refresh_outputs()?;
+        for (vr, o) in vrs.iter().zip(out.iter_mut()) {
+            *o = self.values.strings[self.slot(VarType::String, *vr, "String")?].as_ptr();
+        }
+        Ok(())
+    }
+
+    fn settable(&self, v: &Variable, i: usize) -> Result<(), FmuError> {
+        let ok = match self.state {
+            Instantiated | InitializationMode => {
+                v.causality == Causality::Input
+                    || (v.causality == Causality::Parameter
+                        && v.variability != Variability::Constant)
+            }
+            StepComplete => {
+                v.causality == Causality::Input
+                    || (v.causality == Causality::Parameter
+                        && v.variability == Variability::Tunable)
+            }
+            _ => false,
+        };
+        if ok {
+            Ok(())
+        } else {
+            Err(FmuError::NotSettable {
+                variable: v.scalar_name(i),
+                causality: v.causality.xml(),
+                variability: v.variability.xml(),
+                state: self.state.name(),
+            })
+        }
+    }
+
+    /// Validates a batch of scalars of one type; returns their slots. Nothing is written.
+    fn validate_set<T: Copy>(
+        &self,
+        function: &'static str,
+        ty: VarType,
+        ty_name: &'static str,
+        vrs: &[u32],
+        vals: &[T],
+        check: impl Fn(&VariableTable, &Variable, usize, T) -> Result<(), FmuError>,
+    ) -> Result<Vec<usize>, FmuError> {
+        self.require(function, &[Instantiated, InitializationMode, StepComplete])?;
+        let mut slots = Vec::with_capacity(vrs.len());
+        let mut current: Option<&Variable> = None;
+        for (vr, x) in vrs.iter().zip(vals) {
+            let slot = self.slot(ty, *vr, ty_name)?;
+            let var = match current {
+                Some(v) if v.contains(*vr) => v,
+                _ => {
+                    let (v, _) = self.table.lookup(*vr).ok_or(FmuError::UnknownReference {
+                        vr: *vr,
+                        ty: ty_name,
+                    })?;
+                    current = Some(v);
+                    v
+                }
+            };
+            let i = (*vr - var.vr) as usize;
+            self.settable(var, i)?;
+            check(&self.table, var, i, *x)?;
+            slots.push(slot);
+        }
+        Ok(slots)
+    }
+
+    /// fmi2SetReal: all values are checked before any is written.
+    pub fn set_real(&mut self, vrs: &[u32], vals: &[f64]) -> Result<(), FmuError> {
+        // Fast path for the master's bulk input transfers: one contiguous input array.
+        if self.state == StepComplete
+            && let (Some(&first), Some(&last)) = (vrs.first(), vrs.last())
+            && last >= first
+            && (last - first) as usize + 1 == vrs.len()
+            && let Some((v, _)) = self.table.lookup(first)
+            && v.ty == VarType::Real
+            && v.causality == Causality::Input
+            && v.contains(last)
+            && vrs.windows(2).all(|w| w[1] == w[0] + 1)
+        {
+            if let Some((k, x)) = vals.iter().enumerate().find(|(_, x)| !x.is_finite()) {
+                return Err(FmuError::BadValue {
+                    variable: v.scalar_name((first - v.vr) as usize + k),
+                    value: x.to_string(),
+                    reason: "must be a finite number".into(),
+                });
+            }
+            let s = first as usize;
+            self.values.reals[s..s + vals.len()].copy_from_slice(vals);
+            self.outputs_stale = true;
+            return Ok(());
+        }
+        let slots = self.validate_set(
+            "fmi2SetReal",
+            VarType::Real,
+            "Real",
+            vrs,
+            vals,
+            |t, v, i, x| t.check_real(v, i, x),
+        )?;
+        for (s, x) in slots.into_iter().zip(vals) {
+            self.values.reals[s] = *x;
+        }
+        self.outputs_stale = true;
+        Ok(())
+    }
+
+    /// fmi2SetInteger.
+    pub fn set_integer(&mut self, vrs: &[u32], vals: &[i32]) -> Result<(), FmuError> {
+        let slots = self.validate_set(
+            "fmi2SetInteger",
+            VarType::Integer,
+            "Integer",
+            vrs,
+            vals,
+            |t, v, i, x| t.check_integer(v, i, x),
+        )?;
+        for (s, x) in slots.into_iter().zip(vals) {
+            self.values.integers[s] = *x;
+        }
+        self.outputs_stale = true;
+        Ok(())
+    }
+
+    /// fmi2SetBoolean.
+    pub fn set_boolean(&mut self, vrs: &[u32], vals: &[bool]) -> Result<(), FmuError> {
+        let slots = self.validate_set(
+            "fmi2SetBoolean",
+            VarType::Boolean,
+            "Boolean",
+            vrs,
+            vals,
+            |_, _, _, _| Ok(()),
+        )?;
+        for (s, x) in slots.into_iter().zip(vals) {
+            self.values.booleans[s] = *x;
+        }
+        self.outputs_stale = true;
+        Ok(())
+    }
+
+    /// fmi2SetString.
+    pub fn set_string(&mut self, vrs: &[u32], vals: &[&str]) -> Result<(), FmuError> {
+        let slots = self.validate_set(
+            "fmi2SetString",
+            VarType::String,
+            "String",
+            vrs,
+            vals,
+            |t, v, i, x| t.check_string(v, i, x),
+        )?;
+        for (s, x) in slots.into_iter().zip(vals) {
+            self.values.strings[s] = CString::new(x.replace('\0', " ")).unwrap_or_default();
+        }
+        self.outputs_stale = true;
+        Ok(())
+    }
+
+    /// fmi2DoStep.
+    pub fn do_step(&mut self, t: f64, h: f64) -> Result<(), FmuError> {
+        self.require("fmi2DoStep", &[StepComplete])?;
+        let tol = 1e-9 * self.time.abs().max(1.0);
+        if !t.is_finite() || (t - self.time).abs() > tol {
+            return Err(FmuError::TimeMismatch {
+                given: t,
+                expected: self.time,
+            });
+        }
+        if !(h.is_finite() && h > 0.0) {
+            return Err(FmuError::BadValue {
+                variable: "communicationStepSize".into(),
+                value: h.to_string(),
+                reason: "must be a finite number > 0".into(),
+            });
+        }
+        if let Some(stop) = self.stop_time
+            && t + h > stop + tol
+        {
+            return Err(FmuError::Model(format!(
+                "fmi2DoStep: step to {} goes past the stopTime {stop} given to fmi2SetupExperiment",
+                t + h
+            )));
+        }
+        self.model.do_step(self.time, h, &mut self.values)?;
+        if self.values.reals.iter().any(|x| !x.is_finite()) {
+            self.state = StepFailed;
+            return Err(FmuError::Model(format!(
+                "fmi2DoStep: the model produced a non-finite value in the step from t = {t}"
+            )));
+        }
+        self.time = t + h;
+        self.outputs_stale = false;
+        Ok(())
+    }
+
+    /// fmi2GetFMUstate.
+    pub fn get_state(&self) -> Result<Snapshot<M>, FmuError> {
+        self.require(
+            "fmi2GetFMUstate",
+            &[
+                Instantiated,
+                InitializationMode,
+                StepComplete,
+                StepFailed,
+                Terminated,
+                Error,
+            ],
+        )?;
+        Ok(Snapshot {
+            magic: MAGIC,
+            guid: self.guid.clone(),
+            state: self.state,
+            time: self.time,
+            start_time: self.start_time,
+            stop_time: self.stop_time,
+            outputs_stale: self.outputs_stale,
+            values: self.values.clone(),
+            model: self.model.clone(),
+        })
+    }
+
+    /// fmi2SetFMUstate.
+    pub fn set_state(&mut self, s: &Snapshot<M>) -> Result<(), FmuError> {
+        self.require(
+            "fmi2SetFMUstate",
+            &[
+                Instantiated,
+                InitializationMode,
+                StepComplete,
+                StepFailed,
+                Terminated,
+                Error,
+            ],
+        )?;
+        if s.guid != self.guid {
+            return Err(FmuError::State(format!(
+                "the state was saved by an FMU with GUID {}, this one is {}",
+                s.guid, self.guid
+            )));
+        }
+        self.state = s.state;
+        self.time = s.time;
+        self.start_time = s.start_time;
+        self.stop_time = s.stop_time;
+        self.outputs_stale = s.outputs_stale;
+        self.values = s.values.clone();
+        self.model = s.model.clone();
+        Ok(())
+    }
+
+    /// Serialises a snapshot (fmi2SerializeFMUstate).
+    pub fn serialize(s: &Snapshot<M>) -> Result<Vec<u8>, FmuError> {
+        let mut out = STATE_MAGIC.to_vec();
+        let body = postcard::to_stdvec(s).map_err(|e| FmuError::State(e.to_string()))?;
+        out.extend_from_slice(&body);
+        Ok(out)
+    }
+
+    /// Reads a serialised snapshot back (fmi2DeSerializeFMUstate).
+    pub fn deserialize(&self, bytes: &[u8]) -> Result<Snapshot<M>, FmuError> {
+        let body = bytes
+            .strip_prefix(STATE_MAGIC.as_slice())
+            .ok_or_else(|| FmuError::State("not a serialized state of this FMU".into()))?;
+        let s: Snapshot<M> =
+            postcard::from_bytes(body).map_err(|e| FmuError::State(e.to_string()))?;
+        if s.guid != self.guid || s.values.reals.len() != self.values.reals.len() {
+            return Err(FmuError::State(format!(
+                "the state belongs to an FMU with GUID {}, this one is {}",
+                s.guid, self.guid
+            )));
+        }
+        Ok(s)
+    }
+
+    /// fmi2GetRealStatus(fmi2LastSuccessfulTime).
+    pub fn last_successful_time(&self) -> f64 {
+        self.time
+    }
+}

@@ -1,0 +1,28 @@
+//! The units the models may use, with their SI base-unit exponents for the UnitDefinitions of
+//! modelDescription.xml.
+
+/// Base-unit exponents (kg, m, s, A, K, mol, cd, rad) of a unit, or None if unknown.
+pub fn base_units(unit: &str) -> Option<[i32; 8]> {
+    // kg m s A K mol cd rad
+    Some(match unit {
+        "1" => [0; 8],
+        "m" => [0, 1, 0, 0, 0, 0, 0, 0],
+        "m/s" => [0, 1, -1, 0, 0, 0, 0, 0],
+        "kg" => [1, 0, 0, 0, 0, 0, 0, 0],
+        "kg.m2" => [1, 2, 0, 0, 0, 0, 0, 0],
+        "s" => [0, 0, 1, 0, 0, 0, 0, 0],
+        "Hz" => [0, 0, -1, 0, 0, 0, 0, 0],
+        "1/s" => [0, 0, -1, 0, 0, 0, 0, 0],
+        "N" => [1, 1, -2, 0, 0, 0, 0, 0],
+        "N/m" => [1, 0, -2, 0, 0, 0, 0, 0],
+        "N.s/m" => [1, 0, -1, 0, 0, 0, 0, 0],
+        "N/(m.s)" => [1, 0, -3, 0, 0, 0, 0, 0],
+        "Pa" => [1, -1, -2, 0, 0, 0, 0, 0],
+        "rad" => [0, 0, 0, 0, 0, 0, 0, 1],
+        "m.s" => [0, 1, 1, 0, 0, 0, 0, 0],
+        _ => return None,
+    })
+}
+
+/// Names of the base units in the order of [`base_units`], as FMI attribute names.
+pub const BASE_NAMES: [&str; 8] = ["kg", "m", "s", "A", "K", "mol", "cd", "rad"];

@@ -1,0 +1,31 @@
+//! The error type of the physics crate.
+
+use thiserror::Error;
+
+/// Errors raised by the physics models: each names the parameter or quantity at fault.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum M1Error {
+    /// A parameter value is outside its physical range.
+    #[error("parameter {name} = {value} is invalid: {reason}")]
+    InvalidParameter {
+        name: &'static str,
+        value: f64,
+        reason: &'static str,
+    },
+    /// A set of parameters gives an unstable closed loop.
+    #[error(
+        "the {channel} channel's closed loop is unstable (spectral radius {spectral_radius:.6} >= 1): {hint}"
+    )]
+    Unstable {
+        channel: &'static str,
+        spectral_radius: f64,
+        hint: &'static str,
+    },
+    /// Array arguments whose length disagrees with the model size.
+    #[error("{what} has length {found}, expected {expected}")]
+    SizeMismatch {
+        what: &'static str,
+        expected: usize,
+        found: usize,
+    },
+}

@@ -1,0 +1,11 @@
+//! Physics of segmented primary mirrors, free of any FFI: mirror layouts, segment assemblies with
+//! their actuators and encoder servos, and (as the project grows) geometry, interaction matrices,
+//! control and optics. The FMI glue lives in the `fmu` crate; each FMU wires the two together.
+//!
+//! Units are SI throughout (m, N, kg, s, rad) unless a name says otherwise.
+
+pub mod error;
+pub mod layout;
+pub mod segment;
+
+pub use error::M1Error;
