@@ -109,7 +109,7 @@ class SegmentReference:
             integ = ai * integ + ts * err
             deriv = ad * deriv - (1 - ad) / ts * (stroke - prev)
             prev = stroke
-            drive = kp * err + ki * integ + kd * deriv
+            drive = kp * (p["setpoint_weight"] * uc - stroke) + ki * integ + kd * deriv
             x = self.Ad @ x + self.Bd @ np.concatenate([drive, zc, fw])
             if (k + 1) % every == 0:
                 out.append(x[6:9].copy())
@@ -120,7 +120,10 @@ class SegmentReference:
         p = self.p
         ts = self.ts
         ai = np.exp(-2 * np.pi * p["integrator_leak"] * ts)
-        c0 = p["servo_kp"] + p["servo_ki"] * ts / (1 - ai)
+        if p["servo_ki"] > 0 and ai == 1.0:
+            c0 = np.inf
+        else:
+            c0 = p["servo_kp"] + p["servo_ki"] * ts / (1 - ai)
         if self.piezo:
             k2 = p["shunt_coupling"] ** 2 if p.get("shunt_enabled", False) else 0.0
             ka = p["piezo_stiffness"] * (1 - k2) * (1 + c0)

@@ -42,7 +42,7 @@
 //! error $\epsilon_k = u_{cmd} - s_k$, leaky integrator $I_{k+1} = a_i I_k + T_s\epsilon_k$
 //! ($a_i = e^{-2\pi f_{leak} T_s}$; $f_{leak} = 0$ is a pure integrator), derivative on the
 //! measurement through a first-order filter $D_{k} = a_d D_{k-1} - (1-a_d)(s_k - s_{k-1})/T_s$,
-//! output $u_k = k_p\epsilon_k + k_i I_{k+1} + k_d D_k$, applied by zero-order hold over
+//! output $u_k = k_p(b\,u_{cmd} - s_k) + k_i I_{k+1} + k_d D_k$ (setpoint weight $b$), applied by zero-order hold over
 //! $[t_k, t_{k+1})$. The leak gives the servo a finite static gain
 //! $C_0 = k_p + k_i T_s / (1 - a_i)$ and so a finite, analytic static stiffness.
 //!
@@ -168,6 +168,9 @@ pub struct ServoParams {
     pub derivative_cutoff: f64,
     /// Leak corner of the integrator (Hz); 0 makes it a pure integrator.
     pub integrator_leak: f64,
+    /// Weight b of the command in the proportional term, kp (b u_cmd - s): 1 is a plain PID,
+    /// less tames the command overshoot without changing stiffness or disturbance rejection.
+    pub setpoint_weight: f64,
 }
 
 /// Resonant LR shunt of a piezo stack.
@@ -239,7 +242,8 @@ impl ActuatorParams {
                 ki: 7.0e7,
                 kd: 1.5e4,
                 derivative_cutoff: 800.0,
-                integrator_leak: 0.1,
+                integrator_leak: 0.05,
+                setpoint_weight: 0.4,
             },
         }
     }
@@ -259,7 +263,8 @@ impl ActuatorParams {
                 ki: TAU * 5.0,
                 kd: 0.0,
                 derivative_cutoff: 800.0,
-                integrator_leak: 0.1,
+                integrator_leak: 0.0,
+                setpoint_weight: 1.0,
             },
         }
     }
@@ -429,6 +434,12 @@ impl SegmentModel {
             v.derivative_cutoff,
             v.derivative_cutoff > 0.0,
             "must be > 0",
+        )?;
+        check(
+            "setpoint_weight",
+            v.setpoint_weight,
+            (0.0..=1.0).contains(&v.setpoint_weight),
+            "must be in [0, 1]",
         )?;
         check(
             "integrator_leak",
@@ -629,7 +640,7 @@ impl SegmentModel {
             uw[j] = v.ki * gam[(INTEGRATOR, j)] + v.kd * gam[(DERIVATIVE, j)];
         }
         ux[NODE_POS] -= v.kp;
-        uw[0] += v.kp;
+        uw[0] += v.setpoint_weight * v.kp;
         uw[1] += v.kp;
         for j in 0..N_STATE {
             phi[(DRIVE, j)] = ux[j];

@@ -72,6 +72,7 @@ struct Vars {
     servo_kd: RealVar,
     derivative_cutoff: RealVar,
     integrator_leak: RealVar,
+    setpoint_weight: RealVar,
     static_stiffness_piston: RealVar,
     static_stiffness_tilt: RealVar,
     drive: DriveVars,
@@ -452,6 +453,14 @@ fn table<V: Variant>(layout: &Layout) -> Result<(VariableTable, Vars), FmuError>
         false,
         "Leak corner of the servo integrator (0: pure integrator)",
     );
+    let setpoint_weight = b.add_real(
+        T::real("setpoint_weight")
+            .parameter()
+            .unit("1")
+            .start(servo.setpoint_weight)
+            .check(fmu::Check::Range(0.0, 1.0))
+            .describe("Weight of the command in the proportional term (1: plain PID)"),
+    );
     let drive = V::declare(&mut b);
     let calc = |b: &mut T, name: &str, desc: &str| {
         b.add_real(
@@ -495,6 +504,7 @@ fn table<V: Variant>(layout: &Layout) -> Result<(VariableTable, Vars), FmuError>
             servo_kd,
             derivative_cutoff,
             integrator_leak,
+            setpoint_weight,
             static_stiffness_piston,
             static_stiffness_tilt,
             drive,
@@ -528,6 +538,7 @@ impl<V: Variant> Segments<V> {
             kd: s(x.servo_kd),
             derivative_cutoff: s(x.derivative_cutoff),
             integrator_leak: s(x.integrator_leak),
+            setpoint_weight: s(x.setpoint_weight),
         };
         SegmentModel {
             segment: SegmentParams {
