@@ -720,14 +720,14 @@ impl TableBuilder {
                     e.push(format!("{n}: only Reals carry a unit"));
                 }
             }
-            let start_ok = match (&v.start, v.ty) {
-                (None, _) => true,
-                (Some(Start::Real(_)), VarType::Real)
-                | (Some(Start::Integer(_)), VarType::Integer)
-                | (Some(Start::Boolean(_)), VarType::Boolean)
-                | (Some(Start::String(_)), VarType::String) => true,
-                _ => false,
-            };
+            let start_ok = matches!(
+                (&v.start, v.ty),
+                (None, _)
+                    | (Some(Start::Real(_)), VarType::Real)
+                    | (Some(Start::Integer(_)), VarType::Integer)
+                    | (Some(Start::Boolean(_)), VarType::Boolean)
+                    | (Some(Start::String(_)), VarType::String)
+            );
             if !start_ok {
                 e.push(format!("{n}: start value of the wrong type"));
             }
