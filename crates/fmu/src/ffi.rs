@@ -84,6 +84,13 @@ fn with<M: Model>(
         // SAFETY: checked above; the FMI contract gives the FMU exclusive use during a call.
         let inst = unsafe { &mut *p };
         inst.trace(|| function.to_string());
+        // After fmi2Fatal only freeing is allowed.
+        if inst.state() == crate::instance::State::Fatal && function != "fmi2FreeFMUstate" {
+            return Err(FmuError::IllegalCall {
+                function,
+                state: "fatal",
+            });
+        }
         body(inst)
     }));
     finish(p, function, r)

@@ -87,23 +87,37 @@ pub struct Instance<M: Model> {
 }
 
 fn resource_dir(location: &str) -> Option<std::path::PathBuf> {
-    let rest = location.strip_prefix("file://")?;
-    // file:///abs/path, file:/abs/path (some importers) or file://localhost/abs/path.
-    let rest = rest.strip_prefix("localhost").unwrap_or(rest);
-    let path = percent_decode(rest);
-    Some(std::path::PathBuf::from(path))
+    // file:///abs/path, file://localhost/abs/path, or file:/abs/path (some importers).
+    let rest = location.strip_prefix("file:")?;
+    let rest = rest
+        .strip_prefix("//localhost")
+        .or_else(|| rest.strip_prefix("//"))
+        .unwrap_or(rest);
+    Some(std::path::PathBuf::from(percent_decode(rest)))
 }
 
+fn hex_digit(b: u8) -> Option<u8> {
+    match b {
+        b'0'..=b'9' => Some(b - b'0'),
+        b'a'..=b'f' => Some(b - b'a' + 10),
+        b'A'..=b'F' => Some(b - b'A' + 10),
+        _ => None,
+    }
+}
+
+/// Decodes %XX escapes (two hex digits) byte by byte; anything else is kept as it is.
 fn percent_decode(s: &str) -> String {
     let b = s.as_bytes();
     let mut out = Vec::with_capacity(b.len());
     let mut i = 0;
     while i < b.len() {
         if b[i] == b'%'
-            && i + 2 < b.len()
-            && let Ok(v) = u8::from_str_radix(&s[i + 1..i + 3], 16)
+            && let (Some(hi), Some(lo)) = (
+                b.get(i + 1).copied().and_then(hex_digit),
+                b.get(i + 2).copied().and_then(hex_digit),
+            )
         {
-            out.push(v);
+            out.push(hi * 16 + lo);
             i += 3;
             continue;
         }
@@ -496,8 +510,10 @@ impl<M: Model> Instance<M> {
 
     /// fmi2SetReal: all values are checked before any is written.
     pub fn set_real(&mut self, vrs: &[u32], vals: &[f64]) -> Result<(), FmuError> {
-        // Fast path for the master's bulk input transfers: one contiguous input array.
+        // Fast path for the master's bulk input transfers: one contiguous run of one input
+        // array, checked with the variable's own check, then copied in one go.
         if self.state == StepComplete
+            && vals.len() == vrs.len()
             && let (Some(&first), Some(&last)) = (vrs.first(), vrs.last())
             && last >= first
             && (last - first) as usize + 1 == vrs.len()
@@ -507,12 +523,9 @@ impl<M: Model> Instance<M> {
             && v.contains(last)
             && vrs.windows(2).all(|w| w[1] == w[0] + 1)
         {
-            if let Some((k, x)) = vals.iter().enumerate().find(|(_, x)| !x.is_finite()) {
-                return Err(FmuError::BadValue {
-                    variable: v.scalar_name((first - v.vr) as usize + k),
-                    value: x.to_string(),
-                    reason: "must be a finite number".into(),
-                });
+            let offset = (first - v.vr) as usize;
+            for (k, x) in vals.iter().enumerate() {
+                self.table.check_real(v, offset + k, *x)?;
             }
             let s = first as usize;
             self.values.reals[s..s + vals.len()].copy_from_slice(vals);
