@@ -52,7 +52,10 @@
 //! the servo it forms one linear map per servo tick $X_{k+1} = \Phi X_k + \Gamma w$ with the held
 //! inputs $w = (u_{cmd}, z_c, f_{wind})$. A communication step of $M$ ticks applies
 //! $X_M = \Phi^M X_0 + (\sum_{i<M}\Phi^i)\Gamma w$, computed once per step size: the result is
-//! the 5 kHz sub-stepped trajectory, independent of the communication step.
+//! the 5 kHz sub-stepped trajectory, independent of the communication step. A communication
+//! point between two servo samples splits the period: the plant runs on with the drive held
+//! (exact partial-period maps), and the servo samples at its own instants, so any sequence of
+//! steps gives the trajectory of one long step with the same held inputs.
 
 use nalgebra::SMatrix;
 use serde::{Deserialize, Serialize};
@@ -320,6 +323,14 @@ impl SegmentModel {
         Self {
             segment: SegmentParams::default(),
             actuator: ActuatorParams::voice_coil(),
+        }
+    }
+
+    /// Default segment on hard piezo actuators with the LR shunt connected.
+    pub fn piezo_damped_default() -> Self {
+        Self {
+            segment: SegmentParams::default(),
+            actuator: ActuatorParams::piezo_damped(),
         }
     }
 
@@ -596,21 +607,56 @@ impl SegmentModel {
         1.0 / self.actuator.servo.rate
     }
 
-    /// One servo tick of the sampled closed loop of a channel: $X_{k+1} = \Phi X_k + \Gamma w$.
-    pub fn closed_loop(&self, ch: Channel) -> (Phi, Gamma) {
-        use state::*;
+    /// Zero-order-hold discretisation of a channel's continuous part over `d` seconds:
+    /// $\exp\left(\begin{bmatrix}A & B\\ 0 & 0\end{bmatrix} d\right) =
+    /// \begin{bmatrix}A_d & B_d\\ 0 & I\end{bmatrix}$.
+    pub fn zoh(
+        &self,
+        ch: Channel,
+        d: f64,
+    ) -> (SMatrix<f64, N_CONT, N_CONT>, SMatrix<f64, N_CONT, N_IN>) {
         let p = self.plant(ch);
-        let v = &self.actuator.servo;
-        let ts = self.servo_period();
-        // Zero-order hold: exp([[A, B], [0, 0]] Ts) = [[Ad, Bd], [0, I]].
         let mut m = SMatrix::<f64, { N_CONT + N_IN }, { N_CONT + N_IN }>::zeros();
         m.fixed_view_mut::<N_CONT, N_CONT>(0, 0)
-            .copy_from(&(p.a * ts));
+            .copy_from(&(p.a * d));
         m.fixed_view_mut::<N_CONT, N_IN>(0, N_CONT)
-            .copy_from(&(p.b * ts));
+            .copy_from(&(p.b * d));
         let e = m.exp();
-        let ad = e.fixed_view::<N_CONT, N_CONT>(0, 0).into_owned();
-        let bd = e.fixed_view::<N_CONT, N_IN>(0, N_CONT).into_owned();
+        (
+            e.fixed_view::<N_CONT, N_CONT>(0, 0).into_owned(),
+            e.fixed_view::<N_CONT, N_IN>(0, N_CONT).into_owned(),
+        )
+    }
+
+    /// The plant alone over `d` seconds with the drive held (no servo sample): used to finish
+    /// or start a servo period cut by a communication point.
+    pub fn plant_only(&self, ch: Channel, d: f64) -> (Phi, Gamma) {
+        let (ad, bd) = self.zoh(ch, d);
+        let mut phi = Phi::identity();
+        let mut gam = Gamma::zeros();
+        for i in 0..N_CONT {
+            for j in 0..N_CONT {
+                phi[(i, j)] = ad[(i, j)];
+            }
+            phi[(i, state::DRIVE)] = bd[(i, 0)];
+            gam[(i, 1)] = bd[(i, 1)];
+            gam[(i, 2)] = bd[(i, 2)];
+        }
+        (phi, gam)
+    }
+
+    /// One servo tick of the sampled closed loop of a channel: $X_{k+1} = \Phi X_k + \Gamma w$.
+    pub fn closed_loop(&self, ch: Channel) -> (Phi, Gamma) {
+        self.closed_loop_over(ch, self.servo_period())
+    }
+
+    /// A servo sample followed by `d` seconds of the plant with the new drive held
+    /// (`d` = the servo period for a whole tick).
+    pub fn closed_loop_over(&self, ch: Channel, d: f64) -> (Phi, Gamma) {
+        use state::*;
+        let v = &self.actuator.servo;
+        let ts = self.servo_period();
+        let (ad, bd) = self.zoh(ch, d);
 
         let ai = (-TAU * v.integrator_leak * ts).exp();
         let a_d = (-TAU * v.derivative_cutoff * ts).exp();
@@ -782,6 +828,8 @@ pub struct SegmentArray {
     cell_d: [SMatrix<f64, 1, N_IN>; 2],
     basis: SMatrix<f64, 3, 3>,
     maps: StepMaps,
+    /// Time since the last servo sample (s), in [0, servo period).
+    phase: f64,
     /// State by kind: `x[kind][s * n + c]` for state s of channel c.
     x: [Vec<f64>; 2],
     /// Scratch for the next state.
@@ -811,6 +859,7 @@ impl SegmentArray {
                 p: [pp, pt],
                 s: [gp, gt],
             },
+            phase: 0.0,
             x: counts.map(|n| vec![0.0; N_STATE * n]),
             next: counts.map(|n| vec![0.0; N_STATE * n]),
             w: counts.map(|n| vec![0.0; N_IN * n]),
@@ -838,14 +887,7 @@ impl SegmentArray {
         for x in &mut self.x {
             x.fill(0.0);
         }
-    }
-
-    /// Number of servo ticks in a step of `h` seconds, if `h` is a whole multiple of the servo
-    /// period (to 1e-9 relative).
-    pub fn ticks_in(&self, h: f64) -> Option<u64> {
-        let r = h * self.model.actuator.servo.rate;
-        let n = r.round();
-        (n >= 1.0 && (r - n).abs() <= 1e-9 * n && n < 1e15).then_some(n as u64)
+        self.phase = 0.0;
     }
 
     fn check_len(what: &'static str, v: &[f64], n: usize) -> Result<(), M1Error> {
@@ -868,27 +910,83 @@ impl SegmentArray {
         z_cell: &[f64],
         f_wind: &[f64],
     ) -> Result<(), M1Error> {
+        let h = ticks as f64 * self.model.servo_period();
+        self.advance(h, u_cmd, z_cell, f_wind)
+    }
+
+    /// Advances `h` seconds with the inputs held (actuator order, lengths 3N). The servo samples
+    /// at its own instants, multiples of its period from the start: a step that ends between two
+    /// samples carries the drive over into the next step, so any sequence of steps gives the
+    /// trajectory of one long step with the same held inputs.
+    pub fn advance(
+        &mut self,
+        h: f64,
+        u_cmd: &[f64],
+        z_cell: &[f64],
+        f_wind: &[f64],
+    ) -> Result<(), M1Error> {
         let na = self.n_actuators();
         Self::check_len("u_cmd", u_cmd, na)?;
         Self::check_len("z_cell", z_cell, na)?;
         Self::check_len("f_wind", f_wind, na)?;
-        if ticks == 0 {
-            return Ok(());
-        }
-        if self.maps.ticks != ticks {
-            let (p0, s0) = propagate(&self.tick[0], &self.tick_in[0], ticks);
-            let (p1, s1) = propagate(&self.tick[1], &self.tick_in[1], ticks);
-            self.maps = StepMaps {
-                ticks,
-                p: [p0, p1],
-                s: [s0, s1],
-            };
+        if !(h.is_finite() && h >= 0.0) {
+            return Err(M1Error::InvalidParameter {
+                name: "communicationStepSize",
+                value: h,
+                reason: "must be finite and >= 0",
+            });
         }
         self.load_inputs(u_cmd, z_cell, f_wind);
-        for k in 0..2 {
+        let ts = self.model.servo_period();
+        // Sample instants closer than this are the same instant (rounding of step sums).
+        let eps = 1e-9 * ts;
+        let mut rest = h;
+        if self.phase > 0.0 {
+            // Finish the servo period under way: plant only, drive held.
+            let d = (ts - self.phase).min(rest);
+            if d > eps {
+                let maps = Channel::ALL.map(|ch| self.model.plant_only(ch, d));
+                self.apply(&maps);
+            }
+            self.phase += d;
+            rest -= d;
+            if ts - self.phase > eps {
+                return Ok(());
+            }
+            self.phase = 0.0;
+        }
+        let ticks = ((rest + eps) / ts).floor();
+        if ticks >= 1.0 {
+            let ticks = ticks as u64;
+            if self.maps.ticks != ticks {
+                let (p0, s0) = propagate(&self.tick[0], &self.tick_in[0], ticks);
+                let (p1, s1) = propagate(&self.tick[1], &self.tick_in[1], ticks);
+                self.maps = StepMaps {
+                    ticks,
+                    p: [p0, p1],
+                    s: [s0, s1],
+                };
+            }
+            let maps = [
+                (self.maps.p[0], self.maps.s[0]),
+                (self.maps.p[1], self.maps.s[1]),
+            ];
+            self.apply(&maps);
+            rest -= ticks as f64 * ts;
+        }
+        if rest > eps {
+            // A servo sample, then part of its period.
+            let maps = Channel::ALL.map(|ch| self.model.closed_loop_over(ch, rest));
+            self.apply(&maps);
+            self.phase = rest;
+        }
+        Ok(())
+    }
+
+    /// Applies one linear map per channel kind to every channel: X <- P X + S w.
+    fn apply(&mut self, maps: &[(Phi, Gamma); 2]) {
+        for (k, (p, s)) in maps.iter().enumerate() {
             let n = self.x[k].len() / N_STATE;
-            let p = &self.maps.p[k];
-            let s = &self.maps.s[k];
             let x = &self.x[k];
             let w = &self.w[k];
             let next = &mut self.next[k];
@@ -910,7 +1008,6 @@ impl SegmentArray {
             }
             std::mem::swap(&mut self.x[k], &mut self.next[k]);
         }
-        Ok(())
     }
 
     /// Projects actuator-space inputs onto the channels: q = V^T a per segment.
@@ -1078,6 +1175,28 @@ mod tests {
                 let c = m.mirror_response(ch, f)[2].norm();
                 assert!(1.0 / c > 10e6, "{ch:?} {f} Hz: {} N/um", 1e-6 / c);
             }
+        }
+    }
+
+    #[test]
+    fn misaligned_steps_give_the_aligned_trajectory() {
+        // Steps of 0.13 ms and 0.07 ms (servo period 0.2 ms) against whole ticks: both land on
+        // t = 4 ms, where the states must agree.
+        let model = SegmentModel::piezo_damped_default();
+        let mut a = SegmentArray::new(2, model.clone()).expect("valid");
+        let mut b = SegmentArray::new(2, model).expect("valid");
+        let u = [1e-6, 0.0, -2e-7, 0.0, 3e-7, 0.0];
+        let zc = [0.0, 1e-7, 0.0, 0.0, 0.0, -1e-7];
+        let fw = [5.0, 0.0, 0.0, -3.0, 0.0, 1.0];
+        a.step(20, &u, &zc, &fw).expect("step");
+        for k in 0..40 {
+            let h = if k % 2 == 0 { 0.13e-3 } else { 0.07e-3 };
+            b.advance(h, &u, &zc, &fw).expect("advance");
+        }
+        assert!(b.phase.abs() < 1e-12, "{}", b.phase);
+        for k in 0..2 {
+            let d: Vec<f64> = a.x[k].iter().zip(&b.x[k]).map(|(x, y)| x - y).collect();
+            assert!(max_abs(&d) <= 1e-9 * max_abs(&a.x[k]), "{}", max_abs(&d));
         }
     }
 

@@ -113,7 +113,8 @@ discrete PID on the actuator stroke at <code>servo_rate</code> with a leaky inte
 (<code>integrator_leak</code>; 0 = pure integrator) and a filtered derivative on the measurement. \
 The continuous dynamics are discretised exactly (zero-order hold, matrix exponential) and the \
 communication step applies the exact multi-tick map, so results do not depend on the \
-communication step, which must be a whole multiple of the servo period.</p>\
+communication step. Steps need not be multiples of the servo period: the servo samples at its \
+own instants and a period cut by a communication point is completed exactly in the next step.</p>\
 <p><code>z</code> is the mirror displacement normal to the segment at each actuator, \
 <code>f_cell</code> the force of each actuator on the mirror cell (the drive applied over the \
 last servo period plus the spring on the current cell displacement, so it depends directly on \
@@ -613,20 +614,9 @@ impl<V: Variant> Model for Segments<V> {
         let Some(array) = &mut self.array else {
             return Err(FmuError::Model("the segments are not initialised".into()));
         };
-        let Some(ticks) = array.ticks_in(h) else {
-            return Err(FmuError::BadValue {
-                variable: "communicationStepSize".into(),
-                value: h.to_string(),
-                reason: format!(
-                    "is not a whole multiple of the servo period {} s (servo_rate {} Hz)",
-                    array.model().servo_period(),
-                    array.model().actuator.servo.rate
-                ),
-            });
-        };
         array
-            .step(
-                ticks,
+            .advance(
+                h,
                 v.real(vars.u_cmd),
                 v.real(vars.z_cell),
                 v.real(vars.f_wind),
