@@ -510,22 +510,30 @@ impl<M: Model> Instance<M> {
 
     /// fmi2SetReal: all values are checked before any is written.
     pub fn set_real(&mut self, vrs: &[u32], vals: &[f64]) -> Result<(), FmuError> {
-        // Fast path for the master's bulk input transfers: one contiguous run of one input
-        // array, checked with the variable's own check, then copied in one go.
+        // Fast path for the master's bulk input transfers: one contiguous run of value
+        // references over one or more Real inputs, each value checked with its variable's
+        // check, then copied in one go.
         if self.state == StepComplete
             && vals.len() == vrs.len()
             && let (Some(&first), Some(&last)) = (vrs.first(), vrs.last())
             && last >= first
             && (last - first) as usize + 1 == vrs.len()
-            && let Some((v, _)) = self.table.lookup(first)
-            && v.ty == VarType::Real
-            && v.causality == Causality::Input
-            && v.contains(last)
             && vrs.windows(2).all(|w| w[1] == w[0] + 1)
+            && self.type_range(VarType::Real).contains(&last)
         {
-            let offset = (first - v.vr) as usize;
-            for (k, x) in vals.iter().enumerate() {
-                self.table.check_real(v, offset + k, *x)?;
+            let mut pos = 0;
+            while pos < vals.len() {
+                let vr = first + pos as u32;
+                let (v, i) = self
+                    .table
+                    .lookup(vr)
+                    .ok_or(FmuError::UnknownReference { vr, ty: "Real" })?;
+                self.settable(v, i)?;
+                let count = (v.len - i).min(vals.len() - pos);
+                for (k, x) in vals[pos..pos + count].iter().enumerate() {
+                    self.table.check_real(v, i + k, *x)?;
+                }
+                pos += count;
             }
             let s = first as usize;
             self.values.reals[s..s + vals.len()].copy_from_slice(vals);
