@@ -34,7 +34,8 @@ enum Cmd {
         json: bool,
     },
     /// Reports a layout: segments, actuators, edges, sensors and the neighbour histogram.
-    Layout {
+    #[command(alias = "layout")]
+    Geometry {
         /// Mirror layout (keck, tmt, elt) or a JSON file of segment centres.
         #[arg(long, default_value = "tmt")]
         layout: String,
@@ -351,7 +352,7 @@ fn main() -> ExitCode {
             actuator,
             json,
         } => demo(&layout, &actuator, json),
-        Cmd::Layout { layout, json } => layout_report(&layout, json),
+        Cmd::Geometry { layout, json } => layout_report(&layout, json),
     };
     match r {
         Ok(()) => ExitCode::SUCCESS,
