@@ -7,6 +7,8 @@ use fmu::{Model, Values, VariableTable};
 use m1::layout::Layout;
 use m1::segment::{Channel, SegmentModel};
 
+mod plot;
+
 #[derive(Parser)]
 #[command(
     name = "m1cs",

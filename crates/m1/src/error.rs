@@ -28,4 +28,7 @@ pub enum M1Error {
         expected: usize,
         found: usize,
     },
+    /// A numerical method that failed (factorisation, SVD convergence).
+    #[error("numerical failure: {0}")]
+    Numerical(String),
 }

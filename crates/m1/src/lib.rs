@@ -5,7 +5,14 @@
 //! Units are SI throughout (m, N, kg, s, rad) unless a name says otherwise.
 
 pub mod error;
+pub mod geometry;
+pub mod interaction;
+pub mod krylov;
 pub mod layout;
+pub mod pssn;
+pub mod quasistatic;
+pub mod reconstructor;
 pub mod segment;
+pub mod zernike;
 
 pub use error::M1Error;

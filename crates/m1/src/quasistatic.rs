@@ -1,0 +1,776 @@
+//! The quasi-static analyses of the A-matrix: its singular structure, robustness of the control
+//! algorithm to interaction-matrix uncertainty, propagation of sensor noise, the error caused by
+//! in-plane clocking, and shear estimation from gaps (sensor calibration).
+//!
+//! # Robustness (the seed paper's Table 1)
+//!
+//! With $B_0$ the pseudo-inverse of the nominal $A_0$ and the true system $S A$ (sensor gains
+//! $S = I + \delta_S$), the algorithm sees $Q = B_0 S A$, ideally the identity on the observable
+//! subspace. Metrics over seeded realizations: the spectral radius $\rho(Q - I)$, the largest
+//! singular value $\bar\sigma(Q)$, and $\bar\sigma(\Gamma\Psi Q \Psi^T)$ with focus-mode's gain
+//! reduced by a factor (4 in the paper); by unitary invariance the last is $\bar\sigma(G Q)$ with
+//! $G = I - (1 - \gamma)\psi_f\psi_f^T$. $Q$ has an eigenvalue with real part $\le 0$ means the
+//! loop is unstable at any bandwidth. All quantities come from Krylov (Arnoldi) estimates on the
+//! operators $x \mapsto B_0 S A x$ and its transpose, applied through the sparse reconstructor,
+//! restricted to the observable subspace.
+//!
+//! # Noise propagation
+//!
+//! White sensor noise of unit rms gives actuator-space errors $z = B n$ with
+//! $E\|z\|^2 = \|B\|_F^2$: the rms per actuator is $\|B\|_F/\sqrt{n_a}$ (m per m of sensor noise),
+//! global piston/tip/tilt removed by construction; without focus-mode it is
+//! $\|(I - \psi_f\psi_f^T)B\|_F/\sqrt{n_a}$.
+//!
+//! # Clocking (eq. 3) and calibration (eq. 2)
+//!
+//! In-plane clocking $w$ of a segment moves the height readings by $A_{hw} w$, which the loop
+//! reads as out-of-plane error and corrects: $\hat z = A_{hz}^+ A_{hw} w$. Shear is estimated from
+//! the measured gaps as $\hat y_s = A_{sw} A_{gw}^+ y_g$; the torsion mode, unobservable in the
+//! gaps, and gap noise limit it.
+
+use faer::Mat;
+use faer::sparse::SparseColMat;
+use rand::SeedableRng;
+use rand::rngs::StdRng;
+use rand_distr::{Distribution, StandardNormal};
+use serde::Serialize;
+
+use crate::M1Error;
+use crate::geometry::{Geometry, GeometryParams};
+use crate::interaction::{a_matrix, global_ptt, interaction_matrices};
+use crate::krylov;
+use crate::layout::Layout;
+use crate::reconstructor::{ModalGain, SparseReconstructor};
+
+/// The SVD summary of an interaction matrix.
+#[derive(Debug, Clone, Serialize)]
+pub struct SvdSummary {
+    /// Rows x columns.
+    pub shape: (usize, usize),
+    /// Numerical rank (singular values above `rank_tolerance` x the largest).
+    pub rank: usize,
+    /// The relative threshold used for the rank.
+    pub rank_tolerance: f64,
+    /// Largest singular value.
+    pub largest: f64,
+    /// Smallest singular value counted in the rank.
+    pub smallest_nonzero: f64,
+    /// largest / smallest_nonzero.
+    pub condition_number: f64,
+    /// All singular values, largest first.
+    pub singular_values: Vec<f64>,
+}
+
+/// SVD of a dense matrix with its summary, and the right singular vectors (columns).
+pub fn svd_summary(a: &Mat<f64>, rank_tolerance: f64) -> Result<(SvdSummary, Mat<f64>), M1Error> {
+    let svd = a
+        .thin_svd()
+        .map_err(|e| M1Error::Numerical(format!("SVD did not converge: {e:?}")))?;
+    let s = svd.S().column_vector();
+    let sv: Vec<f64> = (0..s.nrows()).map(|i| s[i]).collect();
+    let largest = sv.first().copied().unwrap_or(0.0);
+    let rank = sv.iter().filter(|&&x| x > rank_tolerance * largest).count();
+    let smallest = if rank > 0 { sv[rank - 1] } else { 0.0 };
+    Ok((
+        SvdSummary {
+            shape: (a.nrows(), a.ncols()),
+            rank,
+            rank_tolerance,
+            largest,
+            smallest_nonzero: smallest,
+            condition_number: if smallest > 0.0 {
+                largest / smallest
+            } else {
+                f64::INFINITY
+            },
+            singular_values: sv,
+        },
+        svd.V().to_owned(),
+    ))
+}
+
+/// The nominal control setup of a geometry: A, the reconstructor, focus-mode.
+pub struct Nominal {
+    /// The geometry.
+    pub geometry: Geometry,
+    /// The A-matrix.
+    pub a: SparseColMat<usize, f64>,
+    /// $B_0$ (no modal gains).
+    pub b0: SparseReconstructor,
+    /// Focus-mode (unit norm), the least observable mode.
+    pub focus: Vec<f64>,
+    /// Its singular value.
+    pub focus_singular_value: f64,
+}
+
+impl Nominal {
+    /// Builds A and its reconstructor; focus-mode by inverse iteration on $A^TA$ restricted to
+    /// the observable subspace (the reconstructor's factorisation).
+    pub fn new(geometry: Geometry) -> Result<Self, M1Error> {
+        let a = a_matrix(&geometry);
+        let b0 = SparseReconstructor::new(&a, global_ptt(&geometry).as_ref(), Vec::new())?;
+        let (focus, sv) = least_observable_mode(&a, &b0)?;
+        Ok(Self {
+            geometry,
+            a,
+            b0,
+            focus,
+            focus_singular_value: sv,
+        })
+    }
+
+    /// The reconstructor with focus-mode's gain multiplied by `gain`.
+    pub fn with_focus_gain(&self, gain: f64) -> Result<SparseReconstructor, M1Error> {
+        SparseReconstructor::new(
+            &self.a,
+            self.b0.null_space(),
+            vec![ModalGain {
+                mode: self.focus.clone(),
+                gain,
+            }],
+        )
+    }
+}
+
+fn norm(x: &[f64]) -> f64 {
+    x.iter().map(|v| v * v).sum::<f64>().sqrt()
+}
+
+fn project_out(null: faer::MatRef<'_, f64>, x: &mut [f64]) {
+    for c in 0..null.ncols() {
+        let col = null.col(c);
+        let d: f64 = (0..x.len()).map(|i| col[i] * x[i]).sum();
+        for (i, xi) in x.iter_mut().enumerate() {
+            *xi -= d * col[i];
+        }
+    }
+}
+
+fn sparse_mul(a: &SparseColMat<usize, f64>, x: &[f64], y: &mut [f64]) {
+    let s = a.symbolic();
+    let (cp, ri, v) = (s.col_ptr(), s.row_idx(), a.val());
+    y.fill(0.0);
+    for (j, xj) in x.iter().enumerate() {
+        for k in cp[j]..cp[j + 1] {
+            y[ri[k]] += v[k] * xj;
+        }
+    }
+}
+
+/// Smallest non-zero singular value of A and its right singular vector, by inverse iteration:
+/// $x \leftarrow (A^TA)^+ x$, where $(A^TA)^+ = B_0 B_0^T$.
+pub fn least_observable_mode(
+    a: &SparseColMat<usize, f64>,
+    b0: &SparseReconstructor,
+) -> Result<(Vec<f64>, f64), M1Error> {
+    let na = a.ncols();
+    let mut x: Vec<f64> = (0..na)
+        .map(|i| 1.0 + ((i * 7919) % 97) as f64 / 97.0)
+        .collect();
+    project_out(b0.null_space(), &mut x);
+    let mut lambda = 0.0;
+    for _ in 0..200 {
+        let n = norm(&x);
+        if n == 0.0 {
+            return Err(M1Error::Numerical(
+                "inverse iteration lost its vector".into(),
+            ));
+        }
+        x.iter_mut().for_each(|v| *v /= n);
+        let y = b0.apply(&b0.apply_transpose(&x));
+        let next = x.iter().zip(&y).map(|(a, b)| a * b).sum::<f64>();
+        let done = (next - lambda).abs() <= 1e-12 * next.abs();
+        lambda = next;
+        x = y;
+        if done {
+            break;
+        }
+    }
+    let n = norm(&x);
+    x.iter_mut().for_each(|v| *v /= n);
+    // Rayleigh quotient of A^T A for the singular value.
+    let mut ax = vec![0.0; a.nrows()];
+    sparse_mul(a, &x, &mut ax);
+    Ok((x, norm(&ax)))
+}
+
+/// One source of interaction-matrix error.
+#[derive(Debug, Clone, Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Perturbation {
+    /// Sensor gains S = I + delta_S, delta_S ~ N(0, rms) per sensor.
+    SensorGain {
+        /// rms of the gain error (1 = 100 %).
+        rms: f64,
+    },
+    /// L_eff of the true system = factor x nominal (deterministic).
+    Leff {
+        /// The ratio.
+        factor: f64,
+    },
+    /// Every non-zero element of A multiplied by (1 + N(0, rms)).
+    ElementErrors {
+        /// rms relative error.
+        rms: f64,
+    },
+    /// Sensor installation: each sensor point moved in-plane (gap and shear directions) by
+    /// N(0, position_rms) and its height axis tilted by N(0, tilt_rms) about both in-plane axes.
+    SensorInstall {
+        /// m.
+        position_rms: f64,
+        /// rad.
+        tilt_rms: f64,
+    },
+    /// Segment installation: each segment's actuators moved in-plane by N(0, position_rms) and
+    /// clocked by N(0, clocking_rms) about its normal (sensors stay where they are).
+    SegmentInstall {
+        /// m.
+        position_rms: f64,
+        /// rad.
+        clocking_rms: f64,
+    },
+}
+
+/// A named robustness case.
+#[derive(Debug, Clone, Serialize)]
+pub struct Case {
+    /// Label.
+    pub name: String,
+    /// The error source.
+    pub perturbation: Perturbation,
+}
+
+impl Case {
+    /// The default set of cases (values marked in the docs as *assumed* where not published).
+    pub fn defaults() -> Vec<Case> {
+        let c = |name: &str, p| Case {
+            name: name.into(),
+            perturbation: p,
+        };
+        vec![
+            c("sensor gain 0.1%", Perturbation::SensorGain { rms: 1e-3 }),
+            c("sensor gain 1%", Perturbation::SensorGain { rms: 1e-2 }),
+            c("Leff +10%", Perturbation::Leff { factor: 1.1 }),
+            c("Leff -10%", Perturbation::Leff { factor: 0.9 }),
+            c(
+                "sensor install",
+                Perturbation::SensorInstall {
+                    position_rms: 0.5e-3,
+                    tilt_rms: 1e-3,
+                },
+            ),
+            c(
+                "segment install",
+                Perturbation::SegmentInstall {
+                    position_rms: 1e-3,
+                    clocking_rms: 1e-3,
+                },
+            ),
+            c("A elements 2%", Perturbation::ElementErrors { rms: 0.02 }),
+            c("A elements 5%", Perturbation::ElementErrors { rms: 0.05 }),
+        ]
+    }
+}
+
+/// Distribution of a metric over the realizations.
+#[derive(Debug, Clone, Serialize)]
+pub struct Stats {
+    /// Largest value (worst case).
+    pub worst: f64,
+    /// Median.
+    pub median: f64,
+    /// Mean.
+    pub mean: f64,
+    /// Every realization's value, in realization order.
+    pub values: Vec<f64>,
+}
+
+impl Stats {
+    fn of(values: Vec<f64>) -> Stats {
+        let mut s = values.clone();
+        s.sort_by(|a, b| a.total_cmp(b));
+        let n = s.len().max(1);
+        Stats {
+            worst: s.last().copied().unwrap_or(f64::NAN),
+            median: s.get(s.len() / 2).copied().unwrap_or(f64::NAN),
+            mean: s.iter().sum::<f64>() / n as f64,
+            values,
+        }
+    }
+}
+
+/// The metrics of one case.
+#[derive(Debug, Clone, Serialize)]
+pub struct CaseResult {
+    /// The case.
+    pub case: Case,
+    /// Number of realizations.
+    pub realizations: usize,
+    /// rho(Q - I).
+    pub rho_q_minus_i: Stats,
+    /// sigma_max(Q).
+    pub sigma_q: Stats,
+    /// sigma_max(Gamma Psi Q Psi^T).
+    pub sigma_gamma_q: Stats,
+    /// Smallest real part of an eigenvalue of Q (instability if <= 0).
+    pub min_real_eigenvalue: Stats,
+    /// Fraction of realizations with an eigenvalue of Q with real part <= 0.
+    pub unstable_fraction: f64,
+}
+
+/// Settings of the robustness analysis.
+#[derive(Debug, Clone, Serialize)]
+pub struct RobustnessParams {
+    /// Realizations per random case (default: 100).
+    pub realizations: usize,
+    /// Focus-mode gain reduction factor of Gamma (default: 4).
+    pub focus_gain_factor: f64,
+    /// Seed (default: 1).
+    pub seed: u64,
+    /// Krylov dimension of the estimates (default: 60).
+    pub krylov_dim: usize,
+}
+
+impl Default for RobustnessParams {
+    fn default() -> Self {
+        Self {
+            realizations: 100,
+            focus_gain_factor: 4.0,
+            seed: 1,
+            krylov_dim: 60,
+        }
+    }
+}
+
+fn rotate_about(v: [f64; 3], axis: [f64; 3], angle: f64) -> [f64; 3] {
+    // Small rotation: v + angle axis x v (first order), renormalised.
+    let c = [
+        axis[1] * v[2] - axis[2] * v[1],
+        axis[2] * v[0] - axis[0] * v[2],
+        axis[0] * v[1] - axis[1] * v[0],
+    ];
+    let r = [
+        v[0] + angle * c[0],
+        v[1] + angle * c[1],
+        v[2] + angle * c[2],
+    ];
+    let n = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
+    [r[0] / n, r[1] / n, r[2] / n]
+}
+
+/// The true A and sensor gains of one realization.
+fn realize(
+    nominal: &Nominal,
+    p: &Perturbation,
+    rng: &mut StdRng,
+) -> Result<(SparseColMat<usize, f64>, Vec<f64>), M1Error> {
+    let ns = nominal.a.nrows();
+    let gauss = |s: f64, rng: &mut StdRng| -> f64 {
+        let x: f64 = StandardNormal.sample(rng);
+        s * x
+    };
+    match p {
+        Perturbation::SensorGain { rms } => Ok((
+            nominal.a.clone(),
+            (0..ns).map(|_| 1.0 + gauss(*rms, rng)).collect(),
+        )),
+        Perturbation::Leff { factor } => {
+            let mut params = nominal.geometry.params;
+            params.leff *= factor;
+            let g = Geometry::new(&nominal.geometry.layout, params)?;
+            Ok((a_matrix(&g), vec![1.0; ns]))
+        }
+        Perturbation::ElementErrors { rms } => {
+            let mut a = nominal.a.clone();
+            for v in a.val_mut() {
+                *v *= 1.0 + gauss(*rms, rng);
+            }
+            Ok((a, vec![1.0; ns]))
+        }
+        Perturbation::SensorInstall {
+            position_rms,
+            tilt_rms,
+        } => {
+            let mut g = nominal.geometry.clone();
+            for s in &mut g.sensors {
+                let (a, b) = (gauss(*position_rms, rng), gauss(*position_rms, rng));
+                for k in 0..3 {
+                    s.point[k] += a * s.gap[k] + b * s.shear[k];
+                }
+                let (t1, t2) = (gauss(*tilt_rms, rng), gauss(*tilt_rms, rng));
+                s.height = rotate_about(rotate_about(s.height, s.gap, t1), s.shear, t2);
+            }
+            Ok((a_matrix(&g), vec![1.0; ns]))
+        }
+        Perturbation::SegmentInstall {
+            position_rms,
+            clocking_rms,
+        } => {
+            let mut g = nominal.geometry.clone();
+            for f in &mut g.segments {
+                let (a, b, c) = (
+                    gauss(*position_rms, rng),
+                    gauss(*position_rms, rng),
+                    gauss(*clocking_rms, rng),
+                );
+                for act in &mut f.actuators {
+                    let d = [
+                        act[0] - f.centre[0],
+                        act[1] - f.centre[1],
+                        act[2] - f.centre[2],
+                    ];
+                    let n = f.normal;
+                    // Clock by c about the normal (first order), then shift in-plane.
+                    let cross = [
+                        n[1] * d[2] - n[2] * d[1],
+                        n[2] * d[0] - n[0] * d[2],
+                        n[0] * d[1] - n[1] * d[0],
+                    ];
+                    for k in 0..3 {
+                        act[k] += c * cross[k] + a * f.radial[k] + b * f.azimuthal[k];
+                    }
+                }
+            }
+            Ok((a_matrix(&g), vec![1.0; ns]))
+        }
+    }
+}
+
+/// The metrics of one realization.
+fn metrics(
+    nominal: &Nominal,
+    gamma: &SparseReconstructor,
+    a: &SparseColMat<usize, f64>,
+    gains: &[f64],
+    m: usize,
+    seed: u64,
+) -> [f64; 4] {
+    let (na, ns) = (a.ncols(), a.nrows());
+    let null = nominal.b0.null_space();
+    let mut v0: Vec<f64> = {
+        let mut r = StdRng::seed_from_u64(seed);
+        (0..na).map(|_| StandardNormal.sample(&mut r)).collect()
+    };
+    project_out(null, &mut v0);
+    let sa = |x: &[f64]| {
+        let mut y = vec![0.0; ns];
+        sparse_mul(a, x, &mut y);
+        for (yi, g) in y.iter_mut().zip(gains) {
+            *yi *= g;
+        }
+        y
+    };
+    // Q^T x = P A^T S B^T x (restricted to the observable subspace).
+    let at_s = |y: &mut Vec<f64>| {
+        for (yi, g) in y.iter_mut().zip(gains) {
+            *yi *= g;
+        }
+        let s = a.symbolic();
+        let (cp, ri, v) = (s.col_ptr(), s.row_idx(), a.val());
+        let mut out = vec![0.0; na];
+        for (j, o) in out.iter_mut().enumerate() {
+            for k in cp[j]..cp[j + 1] {
+                *o += v[k] * y[ri[k]];
+            }
+        }
+        project_out(null, &mut out);
+        out
+    };
+    let q = |x: &[f64], out: &mut [f64]| {
+        let mut xp = x.to_vec();
+        project_out(null, &mut xp);
+        out.copy_from_slice(&nominal.b0.apply(&sa(&xp)));
+    };
+    // (Q - I) restricted to the observable subspace: P (Q P - I) P, so round-off in the
+    // projected-out directions cannot show up as spurious eigenvalues -1.
+    let ritz = krylov::ritz_values(na, m, &v0, 1.0, |x, out| {
+        q(x, out);
+        for (o, xi) in out.iter_mut().zip(x) {
+            *o -= xi;
+        }
+        project_out(null, out);
+    });
+    let rho = ritz.iter().map(|l| l.norm()).fold(0.0, f64::max);
+    let min_re = ritz
+        .iter()
+        .map(|l| l.re + 1.0)
+        .fold(f64::INFINITY, f64::min);
+    let sigma = krylov::largest_singular_value(na, m, &v0, q, |x, out| {
+        let mut y = nominal.b0.apply_transpose(x);
+        out.copy_from_slice(&at_s(&mut y));
+    });
+    let qg = |x: &[f64], out: &mut [f64]| {
+        let mut xp = x.to_vec();
+        project_out(null, &mut xp);
+        out.copy_from_slice(&gamma.apply(&sa(&xp)));
+    };
+    let sigma_g = krylov::largest_singular_value(na, m, &v0, qg, |x, out| {
+        let mut y = gamma.apply_transpose(x);
+        out.copy_from_slice(&at_s(&mut y));
+    });
+    [rho, sigma, sigma_g, min_re]
+}
+
+/// Runs the robustness cases: deterministic cases (Leff) once, random ones `realizations` times,
+/// each realization with its own seed derived from `params.seed`.
+pub fn robustness(
+    nominal: &Nominal,
+    cases: &[Case],
+    params: &RobustnessParams,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Vec<CaseResult>, M1Error> {
+    use rayon::prelude::*;
+    let gamma = nominal.with_focus_gain(1.0 / params.focus_gain_factor)?;
+    let total: usize = cases
+        .iter()
+        .map(|c| match c.perturbation {
+            Perturbation::Leff { .. } => 1,
+            _ => params.realizations,
+        })
+        .sum();
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    let mut out = Vec::new();
+    for case in cases {
+        let n = match case.perturbation {
+            Perturbation::Leff { .. } => 1,
+            _ => params.realizations,
+        };
+        let results: Result<Vec<[f64; 4]>, M1Error> = (0..n)
+            .into_par_iter()
+            .map(|r| {
+                // Common random numbers: realization r of every case uses the same draws, so
+                // cases of one kind differ only by their amplitude.
+                let seed = params.seed.wrapping_mul(1_000_003).wrapping_add(r as u64);
+                let mut rng = StdRng::seed_from_u64(seed);
+                let (a, gains) = realize(nominal, &case.perturbation, &mut rng)?;
+                let m = metrics(
+                    nominal,
+                    &gamma,
+                    &a,
+                    &gains,
+                    params.krylov_dim,
+                    seed ^ 0x5eed,
+                );
+                let k = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+                progress(k, total);
+                Ok(m)
+            })
+            .collect();
+        let results = results?;
+        let col = |k: usize| results.iter().map(|m| m[k]).collect::<Vec<f64>>();
+        let unstable = results.iter().filter(|m| m[3] <= 0.0).count();
+        out.push(CaseResult {
+            case: case.clone(),
+            realizations: n,
+            rho_q_minus_i: Stats::of(col(0)),
+            sigma_q: Stats::of(col(1)),
+            sigma_gamma_q: Stats::of(col(2)),
+            min_real_eigenvalue: Stats::of(col(3)),
+            unstable_fraction: unstable as f64 / n as f64,
+        });
+    }
+    Ok(out)
+}
+
+/// Noise propagation: rms actuator-space error per unit rms white sensor noise.
+#[derive(Debug, Clone, Serialize)]
+pub struct NoiseResult {
+    /// rms per actuator per unit sensor noise, global PTT removed (m/m).
+    pub rms_per_noise: f64,
+    /// The same without the focus-mode component.
+    pub rms_per_noise_without_focus: f64,
+    /// The focus-mode share of the variance.
+    pub focus_share: f64,
+}
+
+/// $\|B\|_F/\sqrt{n_a}$ with and without focus-mode, from B applied to the sensor basis.
+pub fn noise_propagation(nominal: &Nominal) -> NoiseResult {
+    let (na, ns) = (nominal.a.ncols(), nominal.a.nrows());
+    let mut total = 0.0;
+    let mut focus = 0.0;
+    let mut e = vec![0.0; ns];
+    for k in 0..ns {
+        e[k] = 1.0;
+        let z = nominal.b0.apply(&e);
+        e[k] = 0.0;
+        total += z.iter().map(|x| x * x).sum::<f64>();
+        let d: f64 = z.iter().zip(&nominal.focus).map(|(a, b)| a * b).sum();
+        focus += d * d;
+    }
+    NoiseResult {
+        rms_per_noise: (total / na as f64).sqrt(),
+        rms_per_noise_without_focus: ((total - focus) / na as f64).sqrt(),
+        focus_share: focus / total,
+    }
+}
+
+/// Clocking of one segment: the out-of-plane correction the loop makes.
+#[derive(Debug, Clone, Serialize)]
+pub struct ClockingResult {
+    /// The clocked segment.
+    pub segment: usize,
+    /// rms of the correction over all actuators, per mrad of clocking (m/mrad).
+    pub rms_per_mrad: f64,
+    /// rms without focus-mode (m/mrad).
+    pub rms_per_mrad_without_focus: f64,
+    /// The correction per mrad at every actuator (m).
+    pub z: Vec<f64>,
+}
+
+/// $\hat z = A_{hz}^+ A_{hw} w$ for a clocking of 1 mrad of `segment`.
+pub fn clocking(nominal: &Nominal, segment: usize) -> Result<ClockingResult, M1Error> {
+    let n = nominal.geometry.n_segments();
+    if segment >= n {
+        return Err(M1Error::SizeMismatch {
+            what: "segment index",
+            expected: n,
+            found: segment,
+        });
+    }
+    let im = interaction_matrices(&nominal.geometry);
+    let mut w = vec![0.0; 3 * n];
+    w[3 * segment + 2] = 1e-3;
+    let mut y = vec![0.0; nominal.a.nrows()];
+    sparse_mul(&im.a_hw, &w, &mut y);
+    let z = nominal.b0.apply(&y);
+    let na = z.len() as f64;
+    let rms = (z.iter().map(|x| x * x).sum::<f64>() / na).sqrt();
+    let d: f64 = z.iter().zip(&nominal.focus).map(|(a, b)| a * b).sum();
+    let rest = (z.iter().map(|x| x * x).sum::<f64>() - d * d).max(0.0);
+    Ok(ClockingResult {
+        segment,
+        rms_per_mrad: rms,
+        rms_per_mrad_without_focus: (rest / na).sqrt(),
+        z,
+    })
+}
+
+/// Shear estimation from gaps.
+#[derive(Debug, Clone, Serialize)]
+pub struct CalibrationResult {
+    /// Rank of A_gw and its size.
+    pub gap_rank: usize,
+    /// Number of in-plane coordinates (3N).
+    pub in_plane_dofs: usize,
+    /// rms shear estimation error for random in-plane motion of unit rms, noiseless gaps: the
+    /// part of the shear that lies in the gap-unobservable modes (m/m).
+    pub shear_error_unobservable: f64,
+    /// rms shear estimation error per unit rms gap noise (m/m).
+    pub shear_error_per_gap_noise: f64,
+}
+
+/// $\hat y_s = A_{sw}A_{gw}^+ y_g$: errors from the unobservable modes and from gap noise,
+/// by seeded Monte Carlo over `samples` draws (dense pseudo-inverse: keep to moderate sizes).
+pub fn calibration(
+    geometry: &Geometry,
+    samples: usize,
+    seed: u64,
+) -> Result<CalibrationResult, M1Error> {
+    let im = interaction_matrices(geometry);
+    let agw = im.a_gw.to_dense();
+    let asw = im.a_sw.to_dense();
+    let (summary, _) = svd_summary(&agw, 1e-9)?;
+    let svd = agw
+        .thin_svd()
+        .map_err(|e| M1Error::Numerical(format!("SVD of A_gw: {e:?}")))?;
+    let s = svd.S().column_vector();
+    let (u, v) = (svd.U(), svd.V());
+    let r = summary.rank;
+    // Pseudo-inverse applied via the SVD.
+    let pinv = |y: &Mat<f64>| -> Mat<f64> {
+        let ut_y = u.get(.., ..r).transpose() * y;
+        let mut scaled = ut_y.clone();
+        for i in 0..r {
+            for c in 0..scaled.ncols() {
+                scaled[(i, c)] = ut_y[(i, c)] / s[i];
+            }
+        }
+        v.get(.., ..r) * scaled
+    };
+    let (ns, nw) = (agw.nrows(), agw.ncols());
+    let mut rng = StdRng::seed_from_u64(seed);
+    let w = Mat::<f64>::from_fn(nw, samples, |_, _| StandardNormal.sample(&mut rng));
+    let noise = Mat::<f64>::from_fn(ns, samples, |_, _| StandardNormal.sample(&mut rng));
+    let ys = &asw * &w;
+    let est = &asw * pinv(&(&agw * &w));
+    let est_noise = &asw * pinv(&noise);
+    let rms = |m: &Mat<f64>| {
+        let mut s2 = 0.0;
+        for c in 0..m.ncols() {
+            for r in 0..m.nrows() {
+                s2 += m[(r, c)] * m[(r, c)];
+            }
+        }
+        (s2 / (m.nrows() * m.ncols()) as f64).sqrt()
+    };
+    Ok(CalibrationResult {
+        gap_rank: r,
+        in_plane_dofs: nw,
+        shear_error_unobservable: rms(&(&ys - &est)),
+        shear_error_per_gap_noise: rms(&est_noise),
+    })
+}
+
+/// The default geometry of a layout (curved prescription, or flat).
+pub fn default_geometry(
+    layout: &Layout,
+    flat: bool,
+    leff: Option<f64>,
+) -> Result<Geometry, M1Error> {
+    let mut p = GeometryParams::for_layout(layout);
+    p.flat = flat;
+    if let Some(l) = leff {
+        p.leff = l;
+    }
+    Geometry::new(layout, p)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sensor_gain_errors_never_destabilise_and_scale_with_the_error() {
+        let g = default_geometry(&Layout::keck(), false, None).expect("geometry");
+        let nominal = Nominal::new(g).expect("nominal");
+        let params = RobustnessParams {
+            realizations: 4,
+            ..Default::default()
+        };
+        let cases = vec![
+            Case {
+                name: "0.1%".into(),
+                perturbation: Perturbation::SensorGain { rms: 1e-3 },
+            },
+            Case {
+                name: "1%".into(),
+                perturbation: Perturbation::SensorGain { rms: 1e-2 },
+            },
+        ];
+        let r = robustness(&nominal, &cases, &params, &|_, _| {}).expect("robustness");
+        // Q - I is similar to the symmetric U^T dS U: with the same draws, rho scales exactly
+        // with the gain error (to the Krylov estimate's accuracy).
+        for k in 0..4 {
+            let ratio = r[1].rho_q_minus_i.values[k] / r[0].rho_q_minus_i.values[k];
+            assert!((ratio - 10.0).abs() < 1e-3, "{ratio}");
+        }
+        for c in &r {
+            assert_eq!(c.unstable_fraction, 0.0);
+            assert!(c.sigma_q.worst >= 1.0 - 1e-6);
+            // Reducing focus-mode's gain can only lower the worst singular value.
+            assert!(c.sigma_gamma_q.worst <= c.sigma_q.worst + 1e-9);
+        }
+    }
+
+    #[test]
+    fn no_error_gives_the_identity() {
+        let g = default_geometry(&Layout::keck(), false, None).expect("geometry");
+        let nominal = Nominal::new(g).expect("nominal");
+        let gains = vec![1.0; nominal.a.nrows()];
+        let gamma = nominal.with_focus_gain(0.25).expect("gamma");
+        let m = metrics(&nominal, &gamma, &nominal.a, &gains, 40, 3);
+        assert!(m[0] < 1e-9, "rho(Q - I) = {}", m[0]);
+        assert!((m[1] - 1.0).abs() < 1e-9, "sigma(Q) = {}", m[1]);
+        assert!((m[2] - 1.0).abs() < 1e-9, "sigma(GQ) = {}", m[2]);
+    }
+}
