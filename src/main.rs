@@ -7,6 +7,7 @@ use fmu::{Model, Values, VariableTable};
 use m1::layout::Layout;
 use m1::segment::{Channel, SegmentModel};
 
+mod commands;
 mod plot;
 
 #[derive(Parser)]
@@ -35,6 +36,22 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// SVD of the A-matrix: rank, near-null global piston/tip/tilt, focus-mode and the next
+    /// least observable modes (with their dominant Zernike), optional full-matrix ranks.
+    Amatrix(commands::quasistatic::AmatrixArgs),
+    /// Robustness to A-matrix errors (the seed paper's Table 1): rho(Q - I), sigma(Q),
+    /// sigma(Gamma Psi Q Psi^T) and the risk of instability over seeded realizations.
+    Robustness(commands::quasistatic::RobustnessArgs),
+    /// Propagation of white sensor noise to the mirror, with and without focus-mode.
+    Noise(commands::quasistatic::NoiseArgs),
+    /// Out-of-plane error the control introduces for in-plane clocking of one segment (eq. 3).
+    Clocking(commands::quasistatic::ClockingArgs),
+    /// Shear estimated from gap readings (eq. 2): the unobservable torsion mode and gap noise.
+    Calibration(commands::quasistatic::CalibrationArgs),
+    /// Zernike basis on the segmented aperture and its segment piston/tip/tilt projection.
+    Zernike(commands::optics::ZernikeArgs),
+    /// PSSN of a seeded random segment piston/tip/tilt state.
+    Pssn(commands::optics::PssnArgs),
     /// Reports a layout: segments, actuators, edges, sensors and the neighbour histogram.
     #[command(alias = "layout")]
     Geometry {
@@ -355,6 +372,13 @@ fn main() -> ExitCode {
             json,
         } => demo(&layout, &actuator, json),
         Cmd::Geometry { layout, json } => layout_report(&layout, json),
+        Cmd::Amatrix(a) => commands::quasistatic::amatrix(&a),
+        Cmd::Robustness(a) => commands::quasistatic::robustness(&a),
+        Cmd::Noise(a) => commands::quasistatic::noise(&a),
+        Cmd::Clocking(a) => commands::quasistatic::clocking(&a),
+        Cmd::Calibration(a) => commands::quasistatic::calibration(&a),
+        Cmd::Zernike(a) => commands::optics::run_zernike(&a),
+        Cmd::Pssn(a) => commands::optics::run_pssn(&a),
     };
     match r {
         Ok(()) => ExitCode::SUCCESS,

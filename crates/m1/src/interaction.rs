@@ -43,14 +43,19 @@
 //! `g` (gap, tangent, from `i` to `j`) and `t = h x g` (shear), reads
 //!
 //! ```text
-//! y_h = (u_i(s) - u_j(s)) . h + L_eff ((theta_i - theta_j) x g) . h,
+//! y_h = (u_i(s) - u_j(s)) . h + L_eff [((theta_i - theta_j) x g) . h + (u_i(s) - u_j(s)) . dh/dg],
 //! y_g = (u_j(s) - u_i(s)) . g          (positive: the gap opens),
 //! y_s = (u_i(s) - u_j(s)) . t.
 //! ```
 //!
 //! The `L_eff` term is the dihedral sensitivity: on a flat mirror `(theta x g) . h` is the slope
 //! of the segment across the edge, so `y_h = z_i(s) - z_j(s) + L_eff (t_i - t_j) . g`, the
-//! classic A-matrix formula. A single segment `i` pistoned by `p` reads `y_h = +p` on the sensors
+//! classic A-matrix formula. On a curved mirror the dihedral is the change of the surfaces'
+//! slope difference across the edge at the fixed sensor point: the derivative along `g` of the
+//! normal displacement field `u(r) . h(r)`, which adds the curvature term `u . dh/dg`. With it a
+//! rigid motion along a sphere (a segment clocked about its normal, or slid along the surface)
+//! changes no dihedral, as it must; what remains on the conic comes from its asphericity.
+//! A single segment `i` pistoned by `p` reads `y_h = +p` on the sensors
 //! of edges where it is the first segment and `-p` where it is the second.
 //!
 //! # Matrices
@@ -66,9 +71,9 @@
 //! readings, so the full matrix has rank `6 N - 6`. On a flat mirror the out-of-plane part of a
 //! global translation along `z` and of rotations about `x` and `y` ([`global_ptt`]) is pure `z`
 //! and `A` annihilates it exactly. On a curved mirror no rigid motion is purely out-of-plane in
-//! these coordinates: the `z` part of global piston/tip/tilt leaves small readings of order
-//! `L_eff pitch / R^2` (the `w` part of the rigid motion cancels them in the full matrix), so
-//! `A` is there only nearly rank-deficient.
+//! these coordinates: the `z` part of global piston/tip/tilt leaves small readings (falling as
+//! `1/R^4`; the `w` part of the rigid motion cancels them in the full matrix), so `A` is there
+//! only nearly rank-deficient and the reconstructor projects global piston/tip/tilt out.
 
 use faer::Mat;
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
@@ -174,6 +179,19 @@ pub fn segment_coordinates(
     (z, [dr, da, theta.dot(&n)])
 }
 
+/// Derivative of the prescription's unit normal along the tangent `dir` at `point`, by a central
+/// difference over 1 mm (the normal field depends on x and y only; error O(1e-6) relative).
+fn normal_derivative(geometry: &Geometry, point: [f64; 3], dir: [f64; 3]) -> Vector3<f64> {
+    let p = &geometry.prescription;
+    if p.is_flat() {
+        return Vector3::zeros();
+    }
+    let d = 1e-3;
+    let plus = v3(p.normal(point[0] + d * dir[0], point[1] + d * dir[1]));
+    let minus = v3(p.normal(point[0] - d * dir[0], point[1] - d * dir[1]));
+    (plus - minus) / (2.0 * d)
+}
+
 /// Readings `(y_h, y_g, y_s)` of sensor `n` when its two segments move by `mi` (segment `i`) and
 /// `mj` (segment `j`), by the formulas of the [module documentation](self).
 ///
@@ -191,8 +209,13 @@ pub fn sensor_reading(
     let uj = v3(mj.displacement(geometry.segments[s.j].centre, s.point));
     let du = ui - uj;
     let dtheta = v3(mi.rotation) - v3(mj.rotation);
+    // Dihedral: the change of the surfaces' slope difference across the edge at the (fixed)
+    // sensor point. The normal displacement field is u(r).h(r); its derivative along g is
+    // (theta x g).h + u.(dh/dg). The curvature term makes a motion along the prescription (a
+    // clocking or sliding of a segment on a sphere) change no dihedral, as it must.
+    let dh_dg = normal_derivative(geometry, s.point, s.gap);
     [
-        du.dot(&h) + geometry.params.leff * dtheta.cross(&g).dot(&h),
+        du.dot(&h) + geometry.params.leff * (dtheta.cross(&g).dot(&h) + du.dot(&dh_dg)),
         -du.dot(&g),
         du.dot(&t),
     ]

@@ -129,8 +129,9 @@ fn global_ptt_annihilated_exactly_on_flat_mirror() {
 }
 
 /// On a curved mirror no rigid motion is purely out-of-plane: the z part of global
-/// piston/tip/tilt leaves readings of order L_eff pitch / R^2 (measured 4.4e-6 relative for Keck
-/// at R = 35 m), falling as 1/R^2.
+/// piston/tip/tilt leaves small readings. With the curvature-consistent dihedral term (a motion
+/// along the sphere changes no dihedral) what remains falls as 1/R^4 (measured ratio 15.96
+/// between R = 70 m and 140 m).
 #[test]
 fn global_ptt_nearly_annihilated_on_curved_mirror() {
     let residual = |g: &Geometry| relative_residual(&a_matrix(g), &global_ptt(g));
@@ -141,9 +142,9 @@ fn global_ptt_nearly_annihilated_on_curved_mirror() {
     assert!(r35 < 1e-5, "Keck: {r35:e}");
     let r70 = residual(&keck_with_radius(70.0));
     let r140 = residual(&keck_with_radius(140.0));
-    // 1/R^2 to within 10 % (measured ratio 3.89 between 70 m and 140 m).
+    // 1/R^4 to within 5 %.
     let ratio = r70 / r140;
-    assert!((ratio - 4.0).abs() < 0.4, "residual ratio {ratio}");
+    assert!((ratio - 16.0).abs() < 0.8, "residual ratio {ratio}");
 }
 
 #[test]
@@ -244,8 +245,10 @@ fn flat_mirror_decouples_in_plane_and_out_of_plane() {
     }
 }
 
-/// Curved: the coupling blocks are non-zero and scale as 1/R (ratio 2 between R and 2R, to
-/// within 2 %; measured 1.99).
+/// Curved: the coupling blocks are non-zero. Gap and shear versus out-of-plane motion scale as
+/// 1/R (ratio 2 between R and 2R, to within 2 %). Height versus in-plane motion cancels to first
+/// order on a sphere (sliding or clocking along the prescription changes neither height nor
+/// dihedral): what remains scales as 1/R^3 (ratio 8 to within 5 %; measured 7.94).
 #[test]
 fn curved_coupling_blocks_scale_as_inverse_radius() {
     let m1 = interaction_matrices(&keck_with_radius(KECK_RADIUS_OF_CURVATURE));
@@ -256,9 +259,13 @@ fn curved_coupling_blocks_scale_as_inverse_radius() {
         ("sz", &m1.a_sz, &m2.a_sz),
     ] {
         let (n1, n2) = (frobenius(b1), frobenius(b2));
-        assert!(n1 > 1e-3, "A_{name} = {n1:e}");
+        assert!(n1 > 1e-6, "A_{name} = {n1:e}");
         let ratio = n1 / n2;
-        assert!((ratio - 2.0).abs() < 0.04, "A_{name}: ratio {ratio}");
+        let expected = if name == "hw" { 8.0 } else { 2.0 };
+        assert!(
+            (ratio - expected).abs() < 0.05 * expected,
+            "A_{name}: ratio {ratio}, expected {expected}"
+        );
     }
 }
 

@@ -1,0 +1,4 @@
+//! The analysis subcommands of `m1cs`, one module per family.
+
+pub mod optics;
+pub mod quasistatic;

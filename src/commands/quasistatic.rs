@@ -1,0 +1,590 @@
+//! `m1cs amatrix | robustness | noise | clocking | calibration`: the quasi-static analyses of the
+//! interaction matrix, each with a readable summary, `--json` (one JSON object on stdout) and
+//! `--plot FILE` (PNG).
+
+use clap::Args;
+use serde_json::json;
+
+use m1::geometry::Geometry;
+use m1::interaction::{a_matrix, global_ptt, interaction_matrices};
+use m1::layout::Layout;
+use m1::quasistatic::{self, Case, Nominal, RobustnessParams, default_geometry, svd_summary};
+use m1::zernike::{ZernikeBasis, noll_to_nm};
+
+use crate::plot;
+
+/// Options shared by the analyses: which mirror.
+#[derive(Args, Debug, Clone)]
+pub struct MirrorArgs {
+    /// Mirror layout (keck, tmt, elt) or a JSON file of segment centres.
+    #[arg(long, default_value = "tmt")]
+    pub layout: String,
+    /// Treat the mirror as flat (ignore the prescription's curvature).
+    #[arg(long)]
+    pub flat: bool,
+    /// Effective moment arm of the sensors' dihedral sensitivity, m (default 0.1).
+    #[arg(long)]
+    pub leff: Option<f64>,
+    /// Print one JSON object instead of the summary.
+    #[arg(long)]
+    pub json: bool,
+}
+
+fn load(m: &MirrorArgs) -> Result<(Layout, Geometry), String> {
+    let layout = if m.layout.ends_with(".json") {
+        Layout::from_json_file(std::path::Path::new(&m.layout)).map_err(|e| e.to_string())?
+    } else {
+        Layout::preset(&m.layout).map_err(|e| e.to_string())?
+    };
+    if let Some(l) = m.leff
+        && !(l.is_finite() && l >= 0.0)
+    {
+        return Err(format!("--leff {l}: must be a finite length >= 0 (m)"));
+    }
+    let g = default_geometry(&layout, m.flat, m.leff).map_err(|e| e.to_string())?;
+    Ok((layout, g))
+}
+
+/// Segment piston/tip/tilt (aperture-plane slopes) of an actuator-space pattern: solves
+/// z_k = p + tx (x_k - cx) + ty (y_k - cy) for each segment.
+pub fn actuators_to_ptt(g: &Geometry, z: &[f64]) -> Vec<[f64; 3]> {
+    g.segments
+        .iter()
+        .enumerate()
+        .map(|(i, f)| {
+            let m = nalgebra::Matrix3::from_fn(|k, c| match c {
+                0 => 1.0,
+                1 => f.actuators[k][0] - f.centre[0],
+                _ => f.actuators[k][1] - f.centre[1],
+            });
+            let rhs = nalgebra::Vector3::new(z[3 * i], z[3 * i + 1], z[3 * i + 2]);
+            let s = m.lu().solve(&rhs).unwrap_or_else(nalgebra::Vector3::zeros);
+            [s[0], s[1], s[2]]
+        })
+        .collect()
+}
+
+/// The actuator-space pattern of a segment PTT state (inverse of [`actuators_to_ptt`]).
+pub fn ptt_to_actuators(g: &Geometry, ptt: &[[f64; 3]]) -> Vec<f64> {
+    let mut z = Vec::with_capacity(3 * ptt.len());
+    for (f, s) in g.segments.iter().zip(ptt) {
+        for a in &f.actuators {
+            z.push(s[0] + s[1] * (a[0] - f.centre[0]) + s[2] * (a[1] - f.centre[1]));
+        }
+    }
+    z
+}
+
+fn unit(v: &mut [f64]) {
+    let n = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+    if n > 0.0 {
+        v.iter_mut().for_each(|x| *x /= n);
+    }
+}
+
+/// The Zernike (Noll j, n, m) that dominates an actuator pattern, and its share of the fit.
+fn dominant_zernike(g: &Geometry, basis: &ZernikeBasis, z: &[f64]) -> (usize, u32, i32, f64) {
+    let ptt = actuators_to_ptt(g, z);
+    match basis.fit(&ptt) {
+        Ok(c) => {
+            let total: f64 = c.iter().skip(3).map(|x| x * x).sum();
+            let (j, v) = c.iter().enumerate().skip(3).fold((0, 0.0), |acc, (j, x)| {
+                if x * x > acc.1 { (j, x * x) } else { acc }
+            });
+            let (n, m) = noll_to_nm(j + 1);
+            (j + 1, n, m, if total > 0.0 { v / total } else { 0.0 })
+        }
+        Err(_) => (0, 0, 0, 0.0),
+    }
+}
+
+/// `m1cs amatrix`.
+#[derive(Args, Debug)]
+pub struct AmatrixArgs {
+    #[command(flatten)]
+    pub mirror: MirrorArgs,
+    /// Also the rank of the full interaction matrix (eq. 1) and of A_gw (dense SVDs of the
+    /// larger blocks: seconds for Keck, minutes for TMT).
+    #[arg(long)]
+    pub full: bool,
+    /// Singular-value spectrum PNG.
+    #[arg(long)]
+    pub plot: Option<String>,
+    /// Maps of focus-mode and the next modes: FILE gets "-focus", "-mode2".. suffixes.
+    #[arg(long)]
+    pub maps: Option<String>,
+    /// Number of least-observable modes to report after focus-mode.
+    #[arg(long, default_value_t = 5)]
+    pub next: usize,
+}
+
+/// Runs `m1cs amatrix`.
+pub fn amatrix(a: &AmatrixArgs) -> Result<(), String> {
+    let (layout, g) = load(&a.mirror)?;
+    let am = a_matrix(&g);
+    let dense = am.to_dense();
+    // SVD of A itself: the near-null global piston/tip/tilt and the rank.
+    let (raw, _) = svd_summary(&dense, 1e-9).map_err(|e| e.to_string())?;
+    // SVD of A P (global PTT projected out): the observable modes.
+    let n = m1::reconstructor::orthonormalize(global_ptt(&g).as_ref());
+    let ap = &dense - (&dense * &n) * n.transpose();
+    let (obs, v) = svd_summary(&ap, 1e-9).map_err(|e| e.to_string())?;
+    let r = obs.rank;
+    let na = g.n_actuators();
+    let basis = ZernikeBasis::up_to_degree(&layout, 8).map_err(|e| e.to_string())?;
+    // Focus-mode against Z4.
+    let focus: Vec<f64> = (0..na).map(|i| v[(i, r - 1)]).collect();
+    let z4 = basis.mode(4).ok_or("no Z4 in the basis")?;
+    let mut z4a = ptt_to_actuators(&g, &z4);
+    for c in 0..3 {
+        let d: f64 = (0..na).map(|i| n[(i, c)] * z4a[i]).sum();
+        for (i, x) in z4a.iter_mut().enumerate() {
+            *x -= d * n[(i, c)];
+        }
+    }
+    unit(&mut z4a);
+    let corr = focus
+        .iter()
+        .zip(&z4a)
+        .map(|(a, b)| a * b)
+        .sum::<f64>()
+        .abs();
+    let mut next = Vec::new();
+    for k in 0..a.next.min(r.saturating_sub(1)) {
+        let col = r - 2 - k;
+        let mode: Vec<f64> = (0..na).map(|i| v[(i, col)]).collect();
+        let (j, nn, mm, share) = dominant_zernike(&g, &basis, &mode);
+        next.push(json!({
+            "index": col + 1,
+            "singular_value": obs.singular_values[col],
+            "dominant_zernike": {"noll": j, "n": nn, "m": mm, "share": share},
+        }));
+    }
+    let near_null: Vec<f64> =
+        raw.singular_values[raw.singular_values.len().saturating_sub(3)..].to_vec();
+    let full = if a.full {
+        let im = interaction_matrices(&g);
+        let (f, _) = svd_summary(&im.full().to_dense(), 1e-9).map_err(|e| e.to_string())?;
+        let (gw, _) = svd_summary(&im.a_gw.to_dense(), 1e-9).map_err(|e| e.to_string())?;
+        Some(json!({
+            "full_shape": f.shape, "full_rank": f.rank, "full_expected_rank": 6 * g.n_segments() - 6,
+            "a_gw_shape": gw.shape, "a_gw_rank": gw.rank,
+            "a_gw_smallest": gw.singular_values[gw.singular_values.len().saturating_sub(5)..].to_vec(),
+        }))
+    } else {
+        None
+    };
+    let out = json!({
+        "layout": layout.name,
+        "flat": a.mirror.flat || g.prescription.is_flat(),
+        "leff_m": g.params.leff,
+        "shape": raw.shape,
+        "rank_of_a": raw.rank,
+        "global_ptt_singular_values": near_null,
+        "observable_rank": r,
+        "largest": obs.largest,
+        "smallest_nonzero": obs.smallest_nonzero,
+        "condition_number": obs.condition_number,
+        "focus_singular_value": obs.smallest_nonzero,
+        "focus_z4_correlation": corr,
+        "next_modes": next,
+        "full": full,
+        "singular_values": obs.singular_values,
+    });
+    if let Some(p) = &a.plot {
+        let mut marks = vec![(r - 1, "focus-mode")];
+        if r >= 2 {
+            marks.push((r - 2, "next (astigmatism-like)"));
+        }
+        let title = format!(
+            "Singular values of A ({}, {} x {}), global PTT projected out",
+            layout.name, raw.shape.0, raw.shape.1
+        );
+        plot::spectrum(
+            p,
+            &obs.singular_values[..r],
+            &title,
+            "singular value",
+            true,
+            &marks,
+        )
+        .map_err(|e| e.to_string())?;
+    }
+    if let Some(base) = &a.maps {
+        let stem = base.trim_end_matches(".png");
+        let ptt = actuators_to_ptt(&g, &focus);
+        plot::mirror_map_ptt(
+            format!("{stem}-focus.png"),
+            &layout,
+            &ptt,
+            "Focus-mode (unit norm)",
+            "",
+        )
+        .map_err(|e| e.to_string())?;
+        for k in 0..3.min(r.saturating_sub(1)) {
+            let col = r - 2 - k;
+            let mode: Vec<f64> = (0..na).map(|i| v[(i, col)]).collect();
+            let ptt = actuators_to_ptt(&g, &mode);
+            let title = format!(
+                "Mode {} (singular value {:.3e})",
+                col + 1,
+                obs.singular_values[col]
+            );
+            plot::mirror_map_ptt(
+                format!("{stem}-mode{}.png", k + 2),
+                &layout,
+                &ptt,
+                &title,
+                "",
+            )
+            .map_err(|e| e.to_string())?;
+        }
+    }
+    if a.mirror.json {
+        println!("{out}");
+        return Ok(());
+    }
+    println!(
+        "A-matrix of {} ({}; Leff = {} m): {} sensors x {} actuators",
+        layout.name,
+        if g.prescription.is_flat() {
+            "flat"
+        } else {
+            "curved prescription"
+        },
+        g.params.leff,
+        raw.shape.0,
+        raw.shape.1
+    );
+    println!("  rank of A (1e-9 relative): {}", raw.rank);
+    println!(
+        "  global piston/tip/tilt singular values (weakly observable through curvature): {:.3e} {:.3e} {:.3e}",
+        near_null.first().copied().unwrap_or(0.0),
+        near_null.get(1).copied().unwrap_or(0.0),
+        near_null.get(2).copied().unwrap_or(0.0)
+    );
+    println!("  with global PTT projected out: rank {r} of {na}");
+    println!(
+        "  largest singular value {:.4}, smallest non-zero (focus-mode) {:.4e}, condition number {:.1}",
+        obs.largest, obs.smallest_nonzero, obs.condition_number
+    );
+    println!("  focus-mode correlation with Zernike Z4: {corr:.5}");
+    println!("  next least observable modes:");
+    for m in &next {
+        println!(
+            "    #{:>5}  sv {:.4e}  dominant Z{} (n={}, m={}), {:.0}% of the fit",
+            m["index"],
+            m["singular_value"].as_f64().unwrap_or(0.0),
+            m["dominant_zernike"]["noll"],
+            m["dominant_zernike"]["n"],
+            m["dominant_zernike"]["m"],
+            100.0 * m["dominant_zernike"]["share"].as_f64().unwrap_or(0.0)
+        );
+    }
+    if let Some(f) = out["full"].as_object() {
+        let shape = |v: &serde_json::Value| format!("{} x {}", v[0], v[1]);
+        println!(
+            "  full matrix {}: rank {} (expected 6N - 6 = {}); A_gw {}: rank {}",
+            shape(&f["full_shape"]),
+            f["full_rank"],
+            f["full_expected_rank"],
+            shape(&f["a_gw_shape"]),
+            f["a_gw_rank"]
+        );
+    }
+    Ok(())
+}
+
+/// `m1cs robustness`.
+#[derive(Args, Debug)]
+pub struct RobustnessArgs {
+    #[command(flatten)]
+    pub mirror: MirrorArgs,
+    /// Realizations per random case.
+    #[arg(long, default_value_t = 100)]
+    pub realizations: usize,
+    /// Focus-mode gain reduction factor of Gamma.
+    #[arg(long, default_value_t = 4.0)]
+    pub focus_gain_factor: f64,
+    /// Seed of the realizations.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Krylov dimension of the eigenvalue and singular-value estimates.
+    #[arg(long, default_value_t = 60)]
+    pub krylov: usize,
+    /// Histogram PNG of sigma_max(Gamma Psi Q Psi^T) over the realizations of every case.
+    #[arg(long)]
+    pub plot: Option<String>,
+}
+
+/// Runs `m1cs robustness`.
+pub fn robustness(a: &RobustnessArgs) -> Result<(), String> {
+    if a.realizations == 0 {
+        return Err("--realizations must be at least 1".into());
+    }
+    if !(a.focus_gain_factor.is_finite() && a.focus_gain_factor >= 1.0) {
+        return Err(format!(
+            "--focus-gain-factor {}: must be >= 1",
+            a.focus_gain_factor
+        ));
+    }
+    if a.krylov < 4 {
+        return Err("--krylov must be at least 4".into());
+    }
+    let (layout, g) = load(&a.mirror)?;
+    let nominal = Nominal::new(g).map_err(|e| e.to_string())?;
+    let params = RobustnessParams {
+        realizations: a.realizations,
+        focus_gain_factor: a.focus_gain_factor,
+        seed: a.seed,
+        krylov_dim: a.krylov,
+    };
+    let cases = Case::defaults();
+    let bar = indicatif::ProgressBar::new(0);
+    if a.mirror.json {
+        bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+    }
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{bar:40} {pos}/{len} realizations, {elapsed} (eta {eta})",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let t0 = std::time::Instant::now();
+    let results = quasistatic::robustness(&nominal, &cases, &params, &|k, n| {
+        bar.set_length(n as u64);
+        bar.set_position(k as u64);
+    })
+    .map_err(|e| e.to_string())?;
+    bar.finish_and_clear();
+    let seconds = t0.elapsed().as_secs_f64();
+    if let Some(p) = &a.plot {
+        let series: Vec<(String, Vec<(f64, f64)>)> = results
+            .iter()
+            .map(|r| {
+                let mut v = r.sigma_gamma_q.values.clone();
+                v.sort_by(|a, b| a.total_cmp(b));
+                let n = v.len() as f64;
+                (
+                    r.case.name.clone(),
+                    v.iter()
+                        .enumerate()
+                        .map(|(i, x)| (*x, (i + 1) as f64 / n))
+                        .collect(),
+                )
+            })
+            .collect();
+        let refs: Vec<(&str, &[(f64, f64)])> = series
+            .iter()
+            .map(|(n, s)| (n.as_str(), s.as_slice()))
+            .collect();
+        plot::lines(
+            p,
+            &refs,
+            &format!(
+                "Cumulative distribution of sigma_max(Gamma Psi Q Psi^T), {}",
+                layout.name
+            ),
+            "sigma_max(Gamma Psi Q Psi^T)",
+            "fraction of realizations",
+            true,
+            false,
+        )
+        .map_err(|e| e.to_string())?;
+    }
+    if a.mirror.json {
+        let out = json!({
+            "layout": layout.name,
+            "params": params,
+            "focus_singular_value": nominal.focus_singular_value,
+            "seconds": seconds,
+            "cases": results,
+        });
+        println!("{out}");
+        return Ok(());
+    }
+    println!(
+        "Robustness of the reconstructor to A-matrix errors, {} ({} realizations per random case, focus gain / {}):",
+        layout.name, a.realizations, a.focus_gain_factor
+    );
+    println!(
+        "{:<20} {:>12} {:>12} {:>12} {:>12} {:>12} {:>10}",
+        "case", "rho(Q-I)", "sigma(Q)", "sigma(GQ)", "median sQ", "min Re eig", "unstable"
+    );
+    for r in &results {
+        println!(
+            "{:<20} {:>12.3e} {:>12.3} {:>12.3} {:>12.3} {:>12.3} {:>9.1}%",
+            r.case.name,
+            r.rho_q_minus_i.worst,
+            r.sigma_q.worst,
+            r.sigma_gamma_q.worst,
+            r.sigma_q.median,
+            r.min_real_eigenvalue
+                .values
+                .iter()
+                .copied()
+                .fold(f64::INFINITY, f64::min),
+            100.0 * r.unstable_fraction
+        );
+    }
+    println!(
+        "(worst case over the realizations; stable if rho(Q - I) < 1 and every eigenvalue of Q has a positive real part; {seconds:.1} s)"
+    );
+    Ok(())
+}
+
+/// `m1cs noise`.
+#[derive(Args, Debug)]
+pub struct NoiseArgs {
+    #[command(flatten)]
+    pub mirror: MirrorArgs,
+}
+
+/// Runs `m1cs noise`.
+pub fn noise(a: &NoiseArgs) -> Result<(), String> {
+    let (layout, g) = load(&a.mirror)?;
+    let nominal = Nominal::new(g).map_err(|e| e.to_string())?;
+    let r = quasistatic::noise_propagation(&nominal);
+    if a.mirror.json {
+        println!(
+            "{}",
+            json!({"layout": layout.name, "noise": r, "focus_singular_value": nominal.focus_singular_value})
+        );
+    } else {
+        println!(
+            "Sensor-noise propagation, {} (global piston/tip/tilt removed):",
+            layout.name
+        );
+        println!(
+            "  rms actuator error per unit rms sensor noise: {:.3} (m/m)",
+            r.rms_per_noise
+        );
+        println!(
+            "  without focus-mode:                           {:.3} (m/m)",
+            r.rms_per_noise_without_focus
+        );
+        println!(
+            "  focus-mode share of the variance:             {:.1}%",
+            100.0 * r.focus_share
+        );
+    }
+    Ok(())
+}
+
+/// `m1cs clocking`.
+#[derive(Args, Debug)]
+pub struct ClockingArgs {
+    #[command(flatten)]
+    pub mirror: MirrorArgs,
+    /// The clocked segment: its name (A1..F82 for TMT) or index.
+    #[arg(long, default_value = "A1")]
+    pub segment: String,
+    /// Map PNG of the out-of-plane correction.
+    #[arg(long)]
+    pub plot: Option<String>,
+}
+
+/// Runs `m1cs clocking`.
+pub fn clocking(a: &ClockingArgs) -> Result<(), String> {
+    let (layout, g) = load(&a.mirror)?;
+    let seg = layout
+        .find(&a.segment)
+        .or_else(|| {
+            a.segment
+                .parse::<usize>()
+                .ok()
+                .filter(|&i| i < layout.n_segments())
+        })
+        .ok_or_else(|| {
+            format!(
+                "--segment {}: no such segment in {}",
+                a.segment, layout.name
+            )
+        })?;
+    let nominal = Nominal::new(g).map_err(|e| e.to_string())?;
+    let r = quasistatic::clocking(&nominal, seg).map_err(|e| e.to_string())?;
+    if let Some(p) = &a.plot {
+        let ptt = actuators_to_ptt(&nominal.geometry, &r.z);
+        let ptt_nm: Vec<[f64; 3]> = ptt
+            .iter()
+            .map(|s| [s[0] * 1e9, s[1] * 1e9, s[2] * 1e9])
+            .collect();
+        plot::mirror_map_ptt(
+            p,
+            &layout,
+            &ptt_nm,
+            &format!(
+                "Correction for 1 mrad clocking of {}",
+                layout.segments[seg].name
+            ),
+            "nm",
+        )
+        .map_err(|e| e.to_string())?;
+    }
+    if a.mirror.json {
+        println!(
+            "{}",
+            json!({"layout": layout.name, "segment": layout.segments[seg].name, "clocking": r})
+        );
+    } else {
+        println!(
+            "Clocking of segment {} by 1 mrad on {} ({}):",
+            layout.segments[seg].name,
+            layout.name,
+            if nominal.geometry.prescription.is_flat() {
+                "flat"
+            } else {
+                "curved prescription"
+            }
+        );
+        println!(
+            "  rms out-of-plane correction: {:.3} nm per mrad ({:.3} nm without focus-mode)",
+            r.rms_per_mrad * 1e9,
+            r.rms_per_mrad_without_focus * 1e9
+        );
+    }
+    Ok(())
+}
+
+/// `m1cs calibration`.
+#[derive(Args, Debug)]
+pub struct CalibrationArgs {
+    #[command(flatten)]
+    pub mirror: MirrorArgs,
+    /// Monte-Carlo samples.
+    #[arg(long, default_value_t = 50)]
+    pub samples: usize,
+    /// Seed.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+}
+
+/// Runs `m1cs calibration`.
+pub fn calibration(a: &CalibrationArgs) -> Result<(), String> {
+    if a.samples == 0 {
+        return Err("--samples must be at least 1".into());
+    }
+    let (layout, g) = load(&a.mirror)?;
+    let r = quasistatic::calibration(&g, a.samples, a.seed).map_err(|e| e.to_string())?;
+    if a.mirror.json {
+        println!("{}", json!({"layout": layout.name, "calibration": r}));
+    } else {
+        println!(
+            "Shear estimated from gaps (y_s = A_sw A_gw^+ y_g), {}:",
+            layout.name
+        );
+        println!(
+            "  rank of A_gw: {} of {} in-plane coordinates",
+            r.gap_rank, r.in_plane_dofs
+        );
+        println!(
+            "  shear error from gap-unobservable motion: {:.3} m per m rms in-plane motion",
+            r.shear_error_unobservable
+        );
+        println!(
+            "  shear error per unit rms gap noise:       {:.3} m/m",
+            r.shear_error_per_gap_noise
+        );
+    }
+    Ok(())
+}

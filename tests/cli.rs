@@ -1,0 +1,113 @@
+//! End-to-end tests of the `m1cs` analysis commands on Keck: JSON output that parses, with the
+//! physics identities the analyses must show, and clear errors for bad input.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::process::Command;
+
+fn m1cs(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_m1cs"))
+        .args(args)
+        .output()
+        .expect("run m1cs");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn json(args: &[&str]) -> serde_json::Value {
+    let (ok, out, err) = m1cs(args);
+    assert!(ok, "m1cs {args:?} failed: {err}");
+    serde_json::from_str(&out).unwrap_or_else(|e| panic!("not one JSON object ({e}): {out}"))
+}
+
+#[test]
+fn geometry_counts() {
+    let v = json(&["geometry", "--layout", "keck", "--json"]);
+    assert_eq!(v["segments"], 36);
+    assert_eq!(v["actuators"], 108);
+    assert_eq!(v["sensors"], 168);
+    let v = json(&["geometry", "--layout", "tmt", "--json"]);
+    assert_eq!(
+        (v["segments"].as_u64(), v["sensors"].as_u64()),
+        (Some(492), Some(2772))
+    );
+}
+
+#[test]
+fn amatrix_structure_on_keck() {
+    let v = json(&["amatrix", "--layout", "keck", "--full", "--json"]);
+    // Global piston/tip/tilt projected out: na - 3 observable modes.
+    assert_eq!(v["observable_rank"], 105);
+    assert!(v["focus_z4_correlation"].as_f64().unwrap() > 0.99);
+    // The next least observable modes are astigmatism (n = 2, |m| = 2).
+    let next = v["next_modes"].as_array().unwrap();
+    for m in &next[..2] {
+        assert_eq!(m["dominant_zernike"]["n"], 2, "{m}");
+    }
+    assert_eq!(v["full"]["full_rank"], v["full"]["full_expected_rank"]);
+    // Flat mirror with Leff = 0: focus-mode becomes unobservable too.
+    let v = json(&[
+        "amatrix", "--layout", "keck", "--flat", "--leff", "0", "--json",
+    ]);
+    assert_eq!(v["observable_rank"], 104);
+}
+
+#[test]
+fn robustness_sensor_gains_never_destabilise() {
+    let v = json(&[
+        "robustness",
+        "--layout",
+        "keck",
+        "--realizations",
+        "5",
+        "--json",
+    ]);
+    for case in v["cases"].as_array().unwrap() {
+        let name = case["case"]["name"].as_str().unwrap();
+        if name.starts_with("sensor gain") {
+            assert_eq!(case["unstable_fraction"], 0.0, "{name}");
+            // Reducing focus-mode's gain can only help.
+            let s = case["sigma_q"]["worst"].as_f64().unwrap();
+            let sg = case["sigma_gamma_q"]["worst"].as_f64().unwrap();
+            assert!(sg <= s + 1e-9, "{name}: {sg} > {s}");
+        }
+    }
+}
+
+#[test]
+fn clocking_is_an_effect_of_curvature() {
+    let flat = json(&[
+        "clocking",
+        "--layout",
+        "keck",
+        "--flat",
+        "--segment",
+        "1",
+        "--json",
+    ]);
+    assert!(flat["clocking"]["rms_per_mrad"].as_f64().unwrap() < 1e-15);
+    let curved = json(&["clocking", "--layout", "keck", "--segment", "1", "--json"]);
+    assert!(curved["clocking"]["rms_per_mrad"].as_f64().unwrap() > 1e-12);
+}
+
+#[test]
+fn noise_is_dominated_by_focus_mode() {
+    let v = json(&["noise", "--layout", "keck", "--json"]);
+    let total = v["noise"]["rms_per_noise"].as_f64().unwrap();
+    let rest = v["noise"]["rms_per_noise_without_focus"].as_f64().unwrap();
+    assert!(rest < total && total > 1.0);
+}
+
+#[test]
+fn bad_input_is_named() {
+    let (ok, _, err) = m1cs(&["amatrix", "--layout", "nosuch"]);
+    assert!(!ok && err.contains("nosuch"), "{err}");
+    let (ok, _, err) = m1cs(&["robustness", "--layout", "keck", "--realizations", "0"]);
+    assert!(!ok && err.contains("--realizations"), "{err}");
+    let (ok, _, err) = m1cs(&["clocking", "--layout", "keck", "--segment", "Z99"]);
+    assert!(!ok && err.contains("Z99"), "{err}");
+    let (ok, _, err) = m1cs(&["amatrix", "--layout", "keck", "--leff=-1"]);
+    assert!(!ok && err.contains("--leff"), "{err}");
+}
