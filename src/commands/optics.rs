@@ -59,19 +59,19 @@ pub struct PssnArgs {
     #[arg(long, default_value_t = 256)]
     pub samples: usize,
     /// Evaluation wavelength (m).
-    #[arg(long, default_value_t = 500e-9)]
+    #[arg(long, default_value = "500e-9", allow_negative_numbers = true)]
     pub wavelength: f64,
     /// Fried parameter at 500 nm (m); scaled to the wavelength as lambda^(6/5).
-    #[arg(long, default_value_t = 0.2)]
+    #[arg(long, default_value_t = 0.2, allow_negative_numbers = true)]
     pub r0: f64,
     /// Outer scale of the von Karman turbulence (m; `inf` for Kolmogorov).
-    #[arg(long, default_value_t = 30.0)]
+    #[arg(long, default_value_t = 30.0, allow_negative_numbers = true)]
     pub l0: f64,
     /// Rms of the random segment pistons (m).
-    #[arg(long, default_value_t = 10e-9)]
+    #[arg(long, default_value = "10e-9", allow_negative_numbers = true)]
     pub piston_rms: f64,
     /// Rms of each random segment tilt axis, tx and ty (rad).
-    #[arg(long, default_value_t = 10e-9)]
+    #[arg(long, default_value = "10e-9", allow_negative_numbers = true)]
     pub tilt_rms: f64,
     /// Seed of the random segment state.
     #[arg(long, default_value_t = 1)]
@@ -189,14 +189,26 @@ fn tilt_rms_per_axis(state: &[[f64; 3]]) -> f64 {
     (state.iter().map(|s| s[1] * s[1] + s[2] * s[2]).sum::<f64>() / (2 * state.len()) as f64).sqrt()
 }
 
-/// Least-squares `k` of `y = k x^2` through the origin over the points `(x, y)`:
-/// `sum y x^2 / sum x^4` (NaN without a non-zero `x`).
-fn quadratic_coefficient(points: &[(f64, f64)]) -> f64 {
-    let (num, den) = points.iter().fold((0.0, 0.0), |(n, d), &(x, y)| {
-        let x2 = x * x;
-        (n + y * x2, d + x2 * x2)
-    });
-    if den > 0.0 { num / den } else { f64::NAN }
+/// Small-error coefficient `k = lim y / x^2` (x -> 0) of the points `(x, y)` of a curve
+/// `y = k x^2 - c x^4 + ...`: with the two smallest positive `x1 < x2` and `r = y / x^2`,
+/// the Richardson extrapolation `(r1 x2^2 - r2 x1^2) / (x2^2 - x1^2)` (exact for
+/// `y = k x^2 - c x^4`); `r1` with a single positive `x`; NaN with none.
+fn small_error_coefficient(points: &[(f64, f64)]) -> f64 {
+    let mut usable: Vec<(f64, f64)> = points
+        .iter()
+        .copied()
+        .filter(|&(x, y)| x > 0.0 && x.is_finite() && y.is_finite())
+        .collect();
+    usable.sort_by(|a, b| a.0.total_cmp(&b.0));
+    usable.dedup_by(|a, b| a.0 == b.0);
+    match usable[..] {
+        [] => f64::NAN,
+        [(x, y)] => y / (x * x),
+        [(x1, y1), (x2, y2), ..] => {
+            let (q1, q2) = (x1 * x1, x2 * x2);
+            (y1 / q1 * q2 - y2 / q2 * q1) / (q2 - q1)
+        }
+    }
 }
 
 /// The Noll mode to draw, checked against the `n_modes` of the basis: `--mode` if given, else
@@ -225,16 +237,12 @@ fn pssn_params(a: &PssnArgs) -> Result<PssnParams, String> {
             a.samples
         ));
     }
-    let positive = |name: &str, v: f64, allow_inf: bool| {
-        if v > 0.0 && (v.is_finite() || allow_inf) {
-            Ok(())
-        } else {
-            Err(format!("--{name} {v}: must be a finite number > 0"))
+    for (name, v) in [("wavelength", a.wavelength), ("r0", a.r0)] {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(format!("--{name} {v:e}: must be a finite number > 0"));
         }
-    };
-    positive("wavelength", a.wavelength, false)?;
-    positive("r0", a.r0, false)?;
-    if !(a.l0 > 0.0) {
+    }
+    if a.l0.is_nan() || a.l0 <= 0.0 {
         return Err(format!(
             "--l0 {}: must be > 0 (or inf for Kolmogorov)",
             a.l0
@@ -242,7 +250,7 @@ fn pssn_params(a: &PssnArgs) -> Result<PssnParams, String> {
     }
     for (name, v) in [("piston-rms", a.piston_rms), ("tilt-rms", a.tilt_rms)] {
         if !(v.is_finite() && v >= 0.0) {
-            return Err(format!("--{name} {v}: must be a finite number >= 0"));
+            return Err(format!("--{name} {v:e}: must be a finite number >= 0"));
         }
     }
     Ok(PssnParams {
@@ -278,6 +286,8 @@ struct ModeStats {
     /// Share of the mode's variance over the segments that segment piston/tip/tilt reproduce:
     /// `sum_i (A p_i^2 + I |t_i|^2) / sum_i int_hex_i Z^2 dA` (1 for Z1..Z3).
     ptt_fraction: f64,
+    /// Rms over the segment surfaces of what segment piston/tip/tilt miss (m per m).
+    residual_rms: f64,
 }
 
 /// Statistics of Noll mode `j` of `basis` on `layout`; `rule` is a hexagon quadrature exact to
@@ -309,6 +319,10 @@ fn mode_stats(
                 .sum::<f64>()
         })
         .sum();
+    let captured = area * p2 + second * t2;
+    // What PTT misses, zero at round-off level (Z1..Z3, where it is exactly zero).
+    let missed = z2 - captured;
+    let missed = if missed > 1e-12 * z2 { missed } else { 0.0 };
     Some(ModeStats {
         j,
         n,
@@ -316,7 +330,8 @@ fn mode_stats(
         piston_rms: (p2 / count).sqrt(),
         tilt_rms: (t2 / count).sqrt(),
         surface_rms: (z2 / (count * area)).sqrt(),
-        ptt_fraction: (area * p2 + second * t2) / z2,
+        ptt_fraction: captured / z2,
+        residual_rms: (missed / (count * area)).sqrt(),
     })
 }
 
@@ -403,24 +418,26 @@ pub fn run_zernike(a: &ZernikeArgs) -> Result<(), String> {
         TABLE_DEGREE.min(basis.max_degree())
     );
     println!(
-        "{:>4} {:>3} {:>4} {:>14} {:>15} {:>15} {:>10}",
-        "j", "n", "m", "piston rms", "tilt rms", "rms on segs", "PTT share"
+        "{:>4} {:>3} {:>4} {:>14} {:>15} {:>15} {:>10} {:>13}",
+        "j", "n", "m", "piston rms", "tilt rms", "rms on segs", "PTT share", "residual"
     );
     for s in &r.table {
         println!(
-            "{:>4} {:>3} {:>4} {:>11.4} nm {:>9.4} nrad {:>12.4} nm {:>9.3}%",
+            "{:>4} {:>3} {:>4} {:>11.4} nm {:>9.4} nrad {:>12.4} nm {:>9.4}% {:>10.2e} nm",
             s.j,
             s.n,
             s.m,
             s.piston_rms,
             s.tilt_rms,
             s.surface_rms,
-            100.0 * s.ptt_fraction
+            100.0 * s.ptt_fraction,
+            s.residual_rms
         );
     }
     println!(
-        "(tilt rms: of the tilt magnitude sqrt(tx^2 + ty^2); PTT share: variance of the mode \
-         over the segments that segment piston/tip/tilt reproduce)"
+        "(tilt rms: of the tilt magnitude sqrt(tx^2 + ty^2); rms on segs: of the mode itself \
+         over the segment surfaces; PTT share: its variance there that segment piston/tip/tilt \
+         reproduce; residual: rms of what they miss)"
     );
     if let (Some(path), Some(j)) = (&a.plot, r.plot_mode) {
         println!("\nmap of Z{j} written to {}", path.display());
@@ -449,7 +466,7 @@ struct PssnReport {
     product: f64,
     /// `(piston rms m, PSSN)`, piston pattern of the random state scaled, no tilt.
     scan: Vec<(f64, f64)>,
-    /// `k` of `1 - PSSN = k rms^2` fitted to the scan (1/m^2).
+    /// Small-error coefficient `k` of `1 - PSSN = k rms^2` from the scan (1/m^2).
     quadratic: f64,
 }
 
@@ -494,7 +511,7 @@ fn pssn_report(a: &PssnArgs) -> Result<PssnReport, String> {
         tilt_only,
         product: pssn_small_error(&[piston_only, tilt_only]),
         scan,
-        quadratic: quadratic_coefficient(&deficits),
+        quadratic: small_error_coefficient(&deficits),
     })
 }
 
@@ -519,7 +536,7 @@ pub fn run_pssn(a: &PssnArgs) -> Result<(), String> {
             path,
             &[
                 ("1 - PSSN (random pistons)", &measured),
-                ("quadratic fit k rms²", &fit),
+                ("small-error law k rms²", &fit),
             ],
             &title,
             "piston rms [nm]",
@@ -533,7 +550,14 @@ pub fn run_pssn(a: &PssnArgs) -> Result<(), String> {
         let scan: Vec<serde_json::Value> = r
             .scan
             .iter()
-            .map(|&(x, p)| serde_json::json!({ "piston_rms_m": x, "pssn": p, "deficit": 1.0 - p }))
+            .map(|&(x, p)| {
+                serde_json::json!({
+                    "piston_rms_m": x,
+                    "pssn": p,
+                    "deficit": 1.0 - p,
+                    "small_error_law": r.quadratic * x * x,
+                })
+            })
             .collect();
         let out = serde_json::json!({
             "layout": r.layout,
@@ -557,7 +581,7 @@ pub fn run_pssn(a: &PssnArgs) -> Result<(), String> {
                 "product": r.product,
             },
             "scan": scan,
-            "quadratic_coefficient_per_m2": r.quadratic,
+            "small_error_coefficient_per_m2": r.quadratic,
             "plot": a.plot.as_ref().map(|p| p.display().to_string()),
         });
         println!("{out}");
@@ -599,38 +623,49 @@ pub fn run_pssn(a: &PssnArgs) -> Result<(), String> {
     let (dc, dp) = (1.0 - r.combined, 1.0 - r.product);
     if dc > 0.0 {
         println!(
-            "multiplicative rule: deficit of the product is {:+.2}% off the combined deficit",
+            "multiplicative rule: the product's deficit is {:+.2}% off the combined deficit \
+             (it neglects the piston-tilt cross term of this realisation and higher orders)",
             100.0 * (dp - dc) / dc
         );
     }
     println!(
-        "\nScan: the piston pattern of this seed scaled to rms 0..{:.0} nm, no tilt:",
+        "\nScan: the piston pattern of this seed scaled to rms 0..{:.0} nm, no tilt",
         SCAN_MAX * 1e9
     );
     println!(
-        "{:>10} {:>10} {:>12} {:>16} {:>10}",
-        "rms (nm)", "PSSN", "1 - PSSN", "deficit/rms^2", "fit"
+        "{:>10} {:>10} {:>12} {:>12} {:>12}",
+        "rms (nm)", "PSSN", "1 - PSSN", "k rms^2", "ratio"
     );
     for &(x, p) in &r.scan {
-        let d = 1.0 - p;
-        let ratio = if x > 0.0 {
-            format!("{:.4e}", d / (x * 1e9).powi(2))
+        let (d, law) = (1.0 - p, r.quadratic * x * x);
+        let ratio = if law > 0.0 {
+            format!("{:.4}", d / law)
         } else {
             "-".into()
         };
         println!(
-            "{:>10.1} {:>10.6} {:>12.4e} {:>16} {:>10.4e}",
+            "{:>10.1} {:>10.6} {:>12.4e} {:>12.4e} {:>12}",
             x * 1e9,
             p,
             d,
-            ratio,
-            r.quadratic * x * x
+            law,
+            ratio
         );
     }
     println!(
-        "quadratic deficit: 1 - PSSN = k rms^2 with k = {:.4e} per nm^2 (deficit/rms^2 per nm^2)",
+        "small-error law: 1 - PSSN = k rms^2, k = {:.4e} per nm^2 (limit of deficit/rms^2 at \
+         rms -> 0, extrapolated from the two smallest non-zero rms)",
         r.quadratic * 1e-18
     );
+    if let [_, (x1, p1), (x2, p2), ..] = r.scan[..] {
+        println!(
+            "log-log slope of the deficit between {:.0} and {:.0} nm: {:.3} (2 = quadratic); \
+             below the law at larger rms as the phase error nears a radian",
+            x1 * 1e9,
+            x2 * 1e9,
+            ((1.0 - p2) / (1.0 - p1)).ln() / (x2 / x1).ln()
+        );
+    }
     if let Some(path) = &a.plot {
         println!("\nscan plot written to {}", path.display());
     }
@@ -745,10 +780,17 @@ mod tests {
     }
 
     #[test]
-    fn quadratic_coefficient_of_exact_and_degenerate_data() {
-        let pts: Vec<(f64, f64)> = (0..6).map(|k| (k as f64, 3.0 * (k * k) as f64)).collect();
-        assert!((quadratic_coefficient(&pts) - 3.0).abs() < 1e-14);
-        assert!(quadratic_coefficient(&[(0.0, 1.0)]).is_nan());
+    fn small_error_coefficient_of_exact_and_degenerate_data() {
+        // y = 3 x^2 - 0.5 x^4, unsorted, with the origin and a repeated point.
+        let y = |x: f64| 3.0 * x * x - 0.5 * x.powi(4);
+        let pts: Vec<(f64, f64)> = [2.0, 0.0, 0.5, 1.0, 0.5]
+            .iter()
+            .map(|&x| (x, y(x)))
+            .collect();
+        assert!((small_error_coefficient(&pts) - 3.0).abs() < 1e-12);
+        assert!((small_error_coefficient(&[(0.0, 0.0), (2.0, 8.0)]) - 2.0).abs() < 1e-15);
+        assert!(small_error_coefficient(&[(0.0, 1.0)]).is_nan());
+        assert!(small_error_coefficient(&[]).is_nan());
     }
 
     #[test]
@@ -828,11 +870,15 @@ mod tests {
         assert!((t[0].piston_rms - 1.0).abs() < 1e-12 && t[0].tilt_rms < 1e-12);
         for s in &t[..3] {
             assert!((s.ptt_fraction - 1.0).abs() < 1e-10, "{s:?}");
+            assert_eq!(s.residual_rms, 0.0);
         }
         // Tilt Z2 = 2 x / R: slope 2 / R on every segment.
         assert!((t[1].tilt_rms - 2.0 / r.basis.radius()).abs() < 1e-12);
         for s in &t[3..] {
             assert!(s.ptt_fraction > 0.0 && s.ptt_fraction < 1.0, "{s:?}");
+            let total = s.surface_rms.powi(2);
+            let parts = s.residual_rms.powi(2) + s.ptt_fraction * total;
+            assert!((parts / total - 1.0).abs() < 1e-12, "{s:?}");
             assert_eq!((s.n, s.m), noll_to_nm(s.j));
         }
     }
@@ -856,18 +902,30 @@ mod tests {
         for p in [r.combined, r.piston_only, r.tilt_only, r.product] {
             assert!(p > 0.9 && p < 1.0, "{p}");
         }
-        // Small independent errors: deficits add.
-        let (dc, dp) = (1.0 - r.combined, 1.0 - r.product);
-        assert!(((dp - dc) / dc).abs() < 0.05, "{dc} {dp}");
+        // Small errors: the deficit is a quadratic form, d(p + t) = d(p) + d(t) + 2 c(p, t); the
+        // cross term c of one realisation is not zero, but cancels in d(p + t) + d(p - t).
+        let a = pssn_args();
+        let layout = load_layout(&a.layout).unwrap();
+        let pssn = Pssn::new(&layout, pssn_params(&a).unwrap()).unwrap();
+        let state = random_state(layout.n_segments(), a.piston_rms, a.tilt_rms, a.seed);
+        let flipped: Vec<[f64; 3]> = state.iter().map(|s| [s[0], -s[1], -s[2]]).collect();
+        let d_minus = 1.0 - pssn.pssn_ptt(&flipped).unwrap();
+        let (d_plus, d_sum) = (1.0 - r.combined, 2.0 - r.piston_only - r.tilt_only);
+        assert!(
+            ((d_plus + d_minus) / (2.0 * d_sum) - 1.0).abs() < 0.02,
+            "{d_plus} {d_minus} {d_sum}"
+        );
+        assert!(((1.0 - r.product) / d_sum - 1.0).abs() < 0.02);
         assert_eq!(r.scan.len(), SCAN_POINTS);
-        assert_eq!(r.scan[0], (0.0, 1.0));
-        // Quadratic: deficit / rms^2 nearly constant, deficit increasing.
+        assert!((r.scan[0].1 - 1.0).abs() < 1e-12 && r.scan[0].0 == 0.0);
+        // Deficit increasing, quadratic at small rms (within 1 % at 5 nm), then below the law.
         for w in r.scan.windows(2) {
             assert!(w[1].1 < w[0].1);
         }
-        for &(x, p) in &r.scan[1..] {
-            let k = (1.0 - p) / (x * x);
-            assert!((k / r.quadratic - 1.0).abs() < 0.05, "{k} {}", r.quadratic);
+        let ratio = |k: usize| (1.0 - r.scan[k].1) / (r.quadratic * r.scan[k].0.powi(2));
+        assert!((ratio(1) - 1.0).abs() < 0.01, "{}", ratio(1));
+        for k in 2..SCAN_POINTS {
+            assert!(ratio(k) < ratio(k - 1));
         }
     }
 
