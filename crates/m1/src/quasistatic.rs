@@ -40,7 +40,7 @@ use crate::geometry::{Geometry, GeometryParams};
 use crate::interaction::{a_matrix, global_ptt, interaction_matrices};
 use crate::krylov;
 use crate::layout::Layout;
-use crate::reconstructor::{ModalGain, SparseReconstructor};
+use crate::reconstructor::{ModalGain, SparseReconstructor, at_mul, sparse_mul};
 
 /// The SVD summary of an interaction matrix.
 #[derive(Debug, Clone, Serialize)]
@@ -142,17 +142,6 @@ fn project_out(null: faer::MatRef<'_, f64>, x: &mut [f64]) {
         let d: f64 = (0..x.len()).map(|i| col[i] * x[i]).sum();
         for (i, xi) in x.iter_mut().enumerate() {
             *xi -= d * col[i];
-        }
-    }
-}
-
-fn sparse_mul(a: &SparseColMat<usize, f64>, x: &[f64], y: &mut [f64]) {
-    let s = a.symbolic();
-    let (cp, ri, v) = (s.col_ptr(), s.row_idx(), a.val());
-    y.fill(0.0);
-    for (j, xj) in x.iter().enumerate() {
-        for k in cp[j]..cp[j + 1] {
-            y[ri[k]] += v[k] * xj;
         }
     }
 }
@@ -465,14 +454,8 @@ fn metrics(
         for (yi, g) in y.iter_mut().zip(gains) {
             *yi *= g;
         }
-        let s = a.symbolic();
-        let (cp, ri, v) = (s.col_ptr(), s.row_idx(), a.val());
         let mut out = vec![0.0; na];
-        for (j, o) in out.iter_mut().enumerate() {
-            for k in cp[j]..cp[j + 1] {
-                *o += v[k] * y[ri[k]];
-            }
-        }
+        at_mul(a, y, &mut out);
         project_out(null, &mut out);
         out
     };

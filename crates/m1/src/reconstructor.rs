@@ -40,7 +40,7 @@ fn csc_parts(a: &SparseColMat<usize, f64>) -> (&[usize], &[usize], &[f64]) {
 }
 
 /// $y \mapsto A^T y$ for a CSC matrix (columns are actuators).
-fn at_mul(a: &SparseColMat<usize, f64>, y: &[f64], out: &mut [f64]) {
+pub fn at_mul(a: &SparseColMat<usize, f64>, y: &[f64], out: &mut [f64]) {
     let (cp, ri, v) = csc_parts(a);
     for (j, o) in out.iter_mut().enumerate() {
         let mut s = 0.0;
@@ -52,7 +52,7 @@ fn at_mul(a: &SparseColMat<usize, f64>, y: &[f64], out: &mut [f64]) {
 }
 
 /// $y = A x$ for a CSC matrix.
-fn sparse_mul_into(a: &SparseColMat<usize, f64>, x: &[f64], y: &mut [f64]) {
+pub fn sparse_mul(a: &SparseColMat<usize, f64>, x: &[f64], y: &mut [f64]) {
     let (cp, ri, v) = csc_parts(a);
     y.fill(0.0);
     for (j, xj) in x.iter().enumerate() {
@@ -298,7 +298,7 @@ impl SparseReconstructor {
         let mut z = vec![0.0; na];
         self.expand(&zr, &mut z);
         let mut az = vec![0.0; self.a.nrows()];
-        sparse_mul_into(&self.a, &z, &mut az);
+        sparse_mul(&self.a, &z, &mut az);
         at_mul(&self.a, &az, &mut aty);
         let mut r = self.restrict(&aty);
         for i in 0..r.nrows() {
@@ -322,13 +322,8 @@ impl SparseReconstructor {
         self.solve_reduced(&mut r);
         let mut z = vec![0.0; self.a.ncols()];
         self.expand(&r, &mut z);
-        let (cp, ri, val) = csc_parts(&self.a);
         let mut y = vec![0.0; self.a.nrows()];
-        for (j, zj) in z.iter().enumerate() {
-            for k in cp[j]..cp[j + 1] {
-                y[ri[k]] += val[k] * zj;
-            }
-        }
+        sparse_mul(&self.a, &z, &mut y);
         y
     }
 
