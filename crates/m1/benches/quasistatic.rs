@@ -265,7 +265,8 @@ fn bench_svd(c: &mut Criterion) {
     let mut group = c.benchmark_group("svd_tmt");
     group.sample_size(10);
     group.warm_up_time(Duration::from_secs(2));
-    group.measurement_time(Duration::from_secs(20));
+    // 10 samples of a 1.5-3 s call.
+    group.measurement_time(Duration::from_secs(35));
     group.bench_function("to_dense", |b| b.iter(|| black_box(&a).to_dense()));
     group.bench_function("faer_thin_svd", |b| {
         b.iter(|| black_box(&ad).thin_svd().expect("svd"));
@@ -292,13 +293,15 @@ fn bench_reconstructors(c: &mut Criterion) {
         let de = DenseReconstructor::new(ad.as_ref(), null.as_ref(), 1e-10, &[]).expect("dense");
         let y = reading(&a, 11);
         let mut group = c.benchmark_group(format!("reconstructor_{name}"));
+        // 100 samples of the dense apply (~1.3 ms for TMT) need ~7 s.
+        group.measurement_time(Duration::from_secs(10));
         group.bench_function("sparse_apply", |b| b.iter(|| sp.apply(black_box(&y))));
         group.bench_function("dense_apply", |b| b.iter(|| de.apply(black_box(&y))));
         group.sample_size(10);
         group.bench_function("sparse_setup", |b| {
             b.iter(|| SparseReconstructor::new(black_box(&a), null.as_ref(), vec![]))
         });
-        group.measurement_time(Duration::from_secs(20));
+        group.measurement_time(Duration::from_secs(35));
         group.bench_function("dense_setup", |b| {
             b.iter(|| DenseReconstructor::new(black_box(ad.as_ref()), null.as_ref(), 1e-10, &[]))
         });
