@@ -7,22 +7,23 @@
 //! - `svd_tmt/faer_thin_svd`: `thin_svd` of the dense A (U, S, V), faer's default parallelism
 //!   (rayon's global pool, one thread per core); `faer_thin_svd_seq` the same on one thread;
 //!   `faer_singular_values` the singular values only; `to_dense` the conversion alone.
-//! - `reconstructor_<layout>/sparse_apply` and `dense_apply`: one `apply(&y)` per iteration;
+//! - `reconstructor_<layout>/sparse_apply` and `dense_apply`: one `apply(&y)` per iteration
+//!   (`dense_apply_seq`: the dense one with faer on one thread; the sparse one is sequential);
 //!   `sparse_setup` (`SparseReconstructor::new`: A^T A, sparse Cholesky, Woodbury terms) and
 //!   `dense_setup` (`DenseReconstructor::new` on the dense A: projection, SVD, B = V S^-1 U^T).
 //!
 //! After criterion, unless a filter that does not match `robustness` is given (or under
-//! `--test`/`--list`/`--profile-time`), `main` times one run of `quasistatic::robustness` on TMT with the default
-//! cases and parameters (100 realizations) with `std::time::Instant`, and prints the total and
-//! the time of every case (from the progress callback: a case ends when the running count of
-//! finished realizations reaches its cumulative total).
+//! `--test`, `--list` or `--profile-time`), `main` times one run of `quasistatic::robustness`
+//! on TMT with the default cases and parameters (100 realizations) with `std::time::Instant`,
+//! and prints the total and the time of every case (from the progress callback: a case ends
+//! when the running count of finished realizations reaches its cumulative total).
 //!
 //! Before criterion, `main` writes the dense TMT A (Fortran order) and faer's singular values
 //! as NPY v1.0 files to `target/m1-bench/` (or `$M1_BENCH_OUT`) for `benches/numpy_svd.py`,
 //! and prints a one-off accuracy check of faer's SVD and of sparse against dense `apply`.
 //!
 //! Run (from the workspace root):
-//! - everything: `cargo bench -p m1 --bench quasistatic` (about 5 min);
+//! - everything: `cargo bench -p m1 --bench quasistatic` (about 10 min on 2 cores);
 //! - one part: `cargo bench -p m1 --bench quasistatic -- reconstructor_tmt` (criterion filter;
 //!   the robustness timing is skipped) or `... -- robustness` (robustness timing only);
 //! - then `.venv/bin/python benches/numpy_svd.py`.
@@ -35,7 +36,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
-use criterion::Criterion;
+use criterion::{Criterion, SamplingMode};
 use faer::sparse::SparseColMat;
 use faer::{Mat, Par};
 use m1::geometry::{Geometry, GeometryParams};
@@ -265,8 +266,10 @@ fn bench_svd(c: &mut Criterion) {
     let mut group = c.benchmark_group("svd_tmt");
     group.sample_size(10);
     group.warm_up_time(Duration::from_secs(2));
-    // 10 samples of a 1.5-3 s call.
-    group.measurement_time(Duration::from_secs(35));
+    // Flat sampling, 10 s: one call per sample for the 1-3 s SVDs (linear sampling would make
+    // 55 calls).
+    group.sampling_mode(SamplingMode::Flat);
+    group.measurement_time(Duration::from_secs(10));
     group.bench_function("to_dense", |b| b.iter(|| black_box(&a).to_dense()));
     group.bench_function("faer_thin_svd", |b| {
         b.iter(|| black_box(&ad).thin_svd().expect("svd"));
@@ -297,11 +300,17 @@ fn bench_reconstructors(c: &mut Criterion) {
         group.measurement_time(Duration::from_secs(10));
         group.bench_function("sparse_apply", |b| b.iter(|| sp.apply(black_box(&y))));
         group.bench_function("dense_apply", |b| b.iter(|| de.apply(black_box(&y))));
+        // The same on one thread (faer's matrix-vector product is parallel by default).
+        let par = faer::get_global_parallelism();
+        faer::set_global_parallelism(Par::Seq);
+        group.bench_function("dense_apply_seq", |b| b.iter(|| de.apply(black_box(&y))));
+        faer::set_global_parallelism(par);
         group.sample_size(10);
         group.bench_function("sparse_setup", |b| {
             b.iter(|| SparseReconstructor::new(black_box(&a), null.as_ref(), vec![]))
         });
-        group.measurement_time(Duration::from_secs(35));
+        group.sampling_mode(SamplingMode::Flat);
+        group.measurement_time(Duration::from_secs(10));
         group.bench_function("dense_setup", |b| {
             b.iter(|| DenseReconstructor::new(black_box(ad.as_ref()), null.as_ref(), 1e-10, &[]))
         });
