@@ -61,7 +61,8 @@ def openblas_info():
     for path in sorted(glob.glob(str(libs_dir / "*openblas*.so*"))):
         lib = ctypes.CDLL(path)
         # scipy-openblas wheels prefix and suffix their symbols; plain OpenBLAS does not.
-        for prefix, suffix in (("scipy_openblas_", "64_"), ("scipy_openblas_", ""), ("openblas_", "")):
+        candidates = (("scipy_openblas_", "64_"), ("scipy_openblas_", ""), ("openblas_", ""))
+        for prefix, suffix in candidates:
             try:
                 get_config = getattr(lib, f"{prefix}get_config{suffix}")
                 get_core = getattr(lib, f"{prefix}get_corename{suffix}")
@@ -95,7 +96,8 @@ def print_config():
     deps = np.show_config(mode="dicts").get("Build Dependencies", {})
     for name in ("blas", "lapack"):
         d = deps.get(name, {})
-        print(f"numpy {name}: {d.get('name')} {d.get('version')} ({d.get('openblas configuration', '')})")
+        config = d.get("openblas configuration", "")
+        print(f"numpy {name}: {d.get('name')} {d.get('version')} ({config})")
 
 
 def timed(fn, repeat):

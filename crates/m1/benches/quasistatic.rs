@@ -25,7 +25,8 @@
 //! Run (from the workspace root):
 //! - everything: `cargo bench -p m1 --bench quasistatic` (about 10 min on 2 cores);
 //! - one part: `cargo bench -p m1 --bench quasistatic -- reconstructor_tmt` (criterion filter;
-//!   the robustness timing is skipped) or `... -- robustness` (robustness timing only);
+//!   the robustness timing is skipped), `... -- robustness` (robustness timing only) or
+//!   `... -- 'reconstructor_keck|robustness'` (criterion takes a single regex filter);
 //! - then `.venv/bin/python benches/numpy_svd.py`.
 
 #![allow(clippy::expect_used, clippy::unwrap_used, clippy::panic)]
@@ -442,12 +443,14 @@ fn main() {
     let quick = args
         .iter()
         .any(|a| a == "--test" || a == "--list" || a == "--profile-time");
-    // A part runs when no filter is given or a filter and its name contain one another.
+    // A part runs when no filter is given or an alternative of the filter (criterion takes one
+    // regex; `|` separates alternatives) and its name contain one another.
     let matches = |name: &str| {
         filters.is_empty()
             || filters
                 .iter()
-                .any(|f| name.contains(f.as_str()) || f.contains(name))
+                .flat_map(|f| f.split('|'))
+                .any(|f| name.contains(f) || f.contains(name))
     };
 
     if !quick && (matches("svd_tmt") || matches("reconstructor_tmt")) {
