@@ -8,8 +8,9 @@
 //!   (rayon's global pool, one thread per core); `faer_thin_svd_seq` the same on one thread;
 //!   `faer_singular_values` the singular values only; `to_dense` the conversion alone.
 //! - `reconstructor_<layout>/sparse_apply` and `dense_apply`: one `apply(&y)` per iteration
+//!   (`sparse_apply_into`: into preallocated buffers, no allocation)
 //!   (`dense_apply_seq`: the dense one with faer on one thread; the sparse one is sequential);
-//!   `sparse_setup` (`SparseReconstructor::new`: A^T A, sparse Cholesky, Woodbury terms) and
+//!   `sparse_setup` (`SparseReconstructor::new`: A^T A, block Cholesky, constraint terms) and
 //!   `dense_setup` (`DenseReconstructor::new` on the dense A: projection, SVD, B = V S^-1 U^T).
 //!
 //! After criterion, unless a filter that does not match `robustness` is given (or under
@@ -300,6 +301,11 @@ fn bench_reconstructors(c: &mut Criterion) {
         // 100 samples of the dense apply (~1.3 ms for TMT) need ~7 s.
         group.measurement_time(Duration::from_secs(10));
         group.bench_function("sparse_apply", |b| b.iter(|| sp.apply(black_box(&y))));
+        // Into preallocated buffers, as the global controller uses it.
+        let (mut z, mut work) = (vec![0.0; a.ncols()], vec![0.0; sp.work_len()]);
+        group.bench_function("sparse_apply_into", |b| {
+            b.iter(|| sp.apply_into(black_box(&y), &mut z, &mut work))
+        });
         group.bench_function("dense_apply", |b| b.iter(|| de.apply(black_box(&y))));
         // The same on one thread (faer's matrix-vector product is parallel by default).
         let par = faer::get_global_parallelism();

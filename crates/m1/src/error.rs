@@ -28,6 +28,9 @@ pub enum M1Error {
         expected: usize,
         found: usize,
     },
+    /// Input data that is malformed (an index out of range, a structure violated).
+    #[error("invalid input: {0}")]
+    InvalidInput(String),
     /// A numerical method that failed (factorisation, SVD convergence).
     #[error("numerical failure: {0}")]
     Numerical(String),

@@ -4,6 +4,7 @@
 //!
 //! Units are SI throughout (m, N, kg, s, rad) unless a name says otherwise.
 
+pub mod blockchol;
 pub mod error;
 pub mod geometry;
 pub mod interaction;

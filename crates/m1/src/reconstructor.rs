@@ -14,16 +14,21 @@
 //!
 //! Two exact paths compute $B y$:
 //! - **dense**: $B$ formed once from the SVD of $A P$ (a dense matrix-vector product per use);
-//! - **sparse**: the constraint $N^T z = 0$ is solved for one pinned actuator per column of $N$
-//!   (pins chosen by pivoted Gram-Schmidt on the rows of $N$): $z = E z_r$ with
-//!   $z_p = -N_p^{-T} N_r^T z_r$. Then $A E = A_r - U N_r^T$ with $U = A_p N_p^{-T}$ (three
-//!   columns), and the normal matrix $E^T A^T A E = K + W C W^T$ is the sparse
-//!   $K = A_r^T A_r$ (sparse Cholesky) plus a rank-6 term handled by the Woodbury identity.
+//! - **sparse**: the constrained normal equations $A^T A z + N\lambda = A^T y$, $N^T z = 0$ are
+//!   solved with the sparse, block-structured (3 x 3 per segment) matrix
+//!   $K = A^T A + G G^T$, where $G = \sqrt\beta\,[e_{p_1} \dots e_{p_k}]$ pins one actuator per
+//!   column of $N$ (chosen by pivoted Gram-Schmidt on the rows of $N$, $\beta$ the mean diagonal
+//!   of $A^T A$) so that $K$ is well conditioned even where $A N \approx 0$. Writing
+//!   $A^T A = K - G G^T$, the solution is $z = x_0 + Z\,[c; \lambda]$ with $x_0 = K^{-1} A^T y$,
+//!   $Z = [K^{-1} G, -K^{-1} N]$ and the $2k \times 2k$ system from $c = G^T z$, $N^T z = 0$:
+//!   one block Cholesky solve ([`crate::blockchol`]) and $2k$ dot products and updates per
+//!   use, no refinement step needed (agreement with the dense path ~1e-11 on TMT).
 
-use faer::sparse::{SparseColMat, Triplet};
-use faer::{Mat, MatRef, Side};
+use faer::sparse::SparseColMat;
+use faer::{Mat, MatRef};
 
 use crate::M1Error;
+use crate::blockchol::{Block, BlockCholesky};
 
 /// One modal gain: an orthonormal mode (length n_a) and its gain (1 = unchanged).
 #[derive(Debug, Clone)]
@@ -94,23 +99,27 @@ fn choose_pins(null: MatRef<'_, f64>) -> Vec<usize> {
     pins
 }
 
+/// Block size of the normal matrix: the three actuators of a segment.
+const BLOCK: usize = 3;
+
+/// Most modes the sparse path projects out (global piston/tip/tilt are 3; rigid-body 6).
+const MAX_PROJECTED: usize = 8;
+
 /// The sparse reconstructor.
+#[derive(Debug, Clone)]
 pub struct SparseReconstructor {
     a: SparseColMat<usize, f64>,
-    /// Full index of each reduced unknown.
-    keep: Vec<usize>,
-    /// The pinned actuators.
+    /// Block Cholesky factor of $K = A^T A + G G^T$ (padded to a multiple of the block size).
+    chol: BlockCholesky<BLOCK>,
+    /// The pinned actuators and $\sqrt\beta$ (so $G = \sqrt\beta\,[e_p]$).
     pins: Vec<usize>,
-    llt: faer::sparse::linalg::solvers::Llt<usize, f64>,
-    /// N (orthonormal), and its rows at the kept indices.
+    sqrt_beta: f64,
+    /// N (orthonormal).
     null: Mat<f64>,
-    /// T = N_p^{-T} (k x k).
-    t: Mat<f64>,
-    /// W = [A_r^T U, N_r] and Y = K^{-1} W (n x 2k).
-    w: Mat<f64>,
-    y: Mat<f64>,
-    /// S^{-1} with S = C^{-1} + W^T K^{-1} W (2k x 2k).
-    s_inv: Mat<f64>,
+    /// $Z = [K^{-1} G, -K^{-1} N]$ ($n_a \times 2k$).
+    z: Mat<f64>,
+    /// $H = M^{-1}$, the inverse of the $2k \times 2k$ constraint system.
+    h: Mat<f64>,
     modes: Vec<ModalGain>,
 }
 
@@ -126,14 +135,16 @@ fn invert_small(m: &Mat<f64>) -> Result<Mat<f64>, M1Error> {
 impl SparseReconstructor {
     /// Factorises the reconstructor of `a` with the columns of `null` (any basis of the modes to
     /// project out, e.g. global piston/tip/tilt; orthonormalised here) projected out.
+    ///
+    /// # Errors
+    /// [`M1Error::SizeMismatch`] for a null-space basis or mode of the wrong length,
+    /// [`M1Error::Numerical`] if $A$ has unobservable modes beyond those of `null`.
     pub fn new(
         a: &SparseColMat<usize, f64>,
         null: MatRef<'_, f64>,
         modes: Vec<ModalGain>,
     ) -> Result<Self, M1Error> {
-        use faer::linalg::solvers::Solve;
         let na = a.ncols();
-        let ns = a.nrows();
         if null.nrows() != na {
             return Err(M1Error::SizeMismatch {
                 what: "null-space basis rows",
@@ -152,178 +163,191 @@ impl SparseReconstructor {
         }
         let null = orthonormalize(null);
         let k = null.ncols();
+        if k > MAX_PROJECTED {
+            return Err(M1Error::InvalidInput(format!(
+                "{k} modes to project out; the sparse reconstructor takes at most {MAX_PROJECTED}"
+            )));
+        }
         let pins = choose_pins(null.as_ref());
-        let keep: Vec<usize> = (0..na).filter(|i| pins.binary_search(i).is_err()).collect();
-        let mut reduced_of = vec![usize::MAX; na];
-        for (r, &i) in keep.iter().enumerate() {
-            reduced_of[i] = r;
-        }
-        // K = A_r^T A_r, lower triangle, from the rows of A (each row couples few actuators).
+        let nb = na.div_ceil(BLOCK);
+        // K = A^T A + beta sum_p e_p e_p^T in blocks, from the rows of A (each row couples
+        // few actuators); beta = mean diagonal of A^T A keeps K's scale.
         let (cp, ri, v) = csc_parts(a);
-        let mut rows: Vec<Vec<(usize, f64)>> = vec![Vec::new(); ns];
+        let mut rows: Vec<Vec<(usize, f64)>> = vec![Vec::new(); a.nrows()];
+        let mut diag_sum = 0.0;
         for j in 0..na {
-            if reduced_of[j] == usize::MAX {
-                continue;
-            }
             for kk in cp[j]..cp[j + 1] {
-                rows[ri[kk]].push((reduced_of[j], v[kk]));
+                rows[ri[kk]].push((j, v[kk]));
+                diag_sum += v[kk] * v[kk];
             }
         }
-        let mut trip = Vec::new();
+        let beta = if diag_sum > 0.0 {
+            diag_sum / na as f64
+        } else {
+            1.0
+        };
+        let mut blocks: Vec<(usize, usize, Block<BLOCK>)> = Vec::new();
         for row in &rows {
             for &(p, x) in row {
                 for &(q, y) in row {
-                    if p >= q {
-                        trip.push(Triplet::new(p, q, x * y));
+                    let (bp, bq) = (p / BLOCK, q / BLOCK);
+                    if bp >= bq {
+                        let mut b = [[0.0; BLOCK]; BLOCK];
+                        b[p % BLOCK][q % BLOCK] = x * y;
+                        blocks.push((bp, bq, b));
                     }
                 }
             }
         }
-        let n = keep.len();
-        let ata = SparseColMat::<usize, f64>::try_new_from_triplets(n, n, &trip)
-            .map_err(|e| M1Error::Numerical(format!("building A^T A: {e:?}")))?;
-        let llt = ata.sp_cholesky(Side::Lower).map_err(|e| {
-            M1Error::Numerical(format!(
-                "A^T A with {} pinned actuators is not positive definite ({e:?}): A has \
+        for &p in &pins {
+            let mut b = [[0.0; BLOCK]; BLOCK];
+            b[p % BLOCK][p % BLOCK] = beta;
+            blocks.push((p / BLOCK, p / BLOCK, b));
+        }
+        // Padding unknowns (when n_a is not a multiple of the block size) are decoupled.
+        for p in na..nb * BLOCK {
+            let mut b = [[0.0; BLOCK]; BLOCK];
+            b[p % BLOCK][p % BLOCK] = 1.0;
+            blocks.push((p / BLOCK, p / BLOCK, b));
+        }
+        let chol = BlockCholesky::<BLOCK>::new(nb, &blocks).map_err(|e| match e {
+            M1Error::Numerical(msg) => M1Error::Numerical(format!(
+                "A^T A with {} pinned actuators is not positive definite ({msg}): A has \
                  unobservable modes beyond the {k} projected out",
                 pins.len()
-            ))
+            )),
+            other => other,
         })?;
-        // T = N_p^{-T}, U = A_p T.
-        let np = Mat::from_fn(k, k, |i, j| null[(pins[i], j)]);
-        let t = invert_small(&np.transpose().to_owned())?;
-        let mut ap = Mat::<f64>::zeros(ns, k);
-        for (c, &p) in pins.iter().enumerate() {
-            for kk in cp[p]..cp[p + 1] {
-                ap[(ri[kk], c)] = v[kk];
+        let sqrt_beta = beta.sqrt();
+        // Z = [K^-1 G, -K^-1 N].
+        let mut z = Mat::<f64>::zeros(na, 2 * k);
+        let mut col = vec![0.0; nb * BLOCK];
+        let mut work = vec![0.0; nb * BLOCK];
+        for c in 0..2 * k {
+            col.fill(0.0);
+            if c < k {
+                col[pins[c]] = sqrt_beta;
+            } else {
+                for i in 0..na {
+                    col[i] = null[(i, c - k)];
+                }
+            }
+            chol.solve_in_place(&mut col, &mut work);
+            let sign = if c < k { 1.0 } else { -1.0 };
+            for i in 0..na {
+                z[(i, c)] = sign * col[i];
             }
         }
-        let u = &ap * &t;
-        // W = [A_r^T U, N_r].
-        let mut w = Mat::<f64>::zeros(n, 2 * k);
-        let mut col = vec![0.0; na];
-        for c in 0..k {
-            let uc: Vec<f64> = (0..ns).map(|r| u[(r, c)]).collect();
-            at_mul(a, &uc, &mut col);
-            for (r, &i) in keep.iter().enumerate() {
-                w[(r, c)] = col[i];
-                w[(r, k + c)] = null[(i, c)];
+        // With z = x0 + Z [c; l], c = G^T z and N^T z = 0:
+        // M = [[I - G^T Z_G, -G^T Z_N], [N^T Z_G, N^T Z_N]] (Z_N = -K^-1 N),
+        // M [c; l] = [G^T x0; -N^T x0].
+        let mut m = Mat::<f64>::zeros(2 * k, 2 * k);
+        for c in 0..2 * k {
+            for r in 0..k {
+                let gz = sqrt_beta * z[(pins[r], c)];
+                m[(r, c)] = if r == c { 1.0 - gz } else { -gz };
+                m[(k + r, c)] = (0..na).map(|i| null[(i, r)] * z[(i, c)]).sum();
             }
         }
-        let mut y = w.clone();
-        llt.solve_in_place(y.as_mut());
-        // C^{-1} = [[-U^T U, -I], [-I, 0]].
-        let utu = u.transpose() * &u;
-        let mut s_mat = w.transpose() * &y;
-        for i in 0..k {
-            for j in 0..k {
-                s_mat[(i, j)] -= utu[(i, j)];
-            }
-            s_mat[(i, k + i)] -= 1.0;
-            s_mat[(k + i, i)] -= 1.0;
-        }
-        let s_inv = invert_small(&s_mat)?;
+        let h = invert_small(&m)?;
         Ok(Self {
             a: a.clone(),
-            keep,
+            chol,
             pins,
-            llt,
+            sqrt_beta,
             null,
-            t,
-            w,
-            y,
-            s_inv,
+            z,
+            h,
             modes,
         })
     }
 
-    /// $x \leftarrow M^{-1} x$ for the reduced normal matrix $M = K + W C W^T$ (Woodbury).
-    fn solve_reduced(&self, x: &mut Mat<f64>) {
-        use faer::linalg::solvers::Solve;
-        self.llt.solve_in_place(x.as_mut());
-        let wt_x = self.w.transpose() * &*x;
-        let corr = &self.y * (&self.s_inv * wt_x);
-        for r in 0..x.nrows() {
-            x[(r, 0)] -= corr[(r, 0)];
+    /// $v \mapsto z$: the constrained solution $z = (I + Z H R) K^{-1} v$ with
+    /// $R x = [G^T x; -N^T x]$. `x` holds $v$ (padded) on entry and $z$ on exit.
+    fn solve_constrained(&self, x: &mut [f64], work: &mut [f64]) {
+        self.chol.solve_in_place(x, work);
+        let k = self.pins.len();
+        let mut r = [0.0; 2 * MAX_PROJECTED];
+        let r = &mut r[..2 * k];
+        for (c, &p) in self.pins.iter().enumerate() {
+            r[c] = self.sqrt_beta * x[p];
+            r[k + c] = -dot(self.null.col(c), x);
+        }
+        for c in 0..2 * k {
+            let coef: f64 = (0..2 * k).map(|q| self.h[(c, q)] * r[q]).sum();
+            axpy(coef, self.z.col(c), x);
         }
     }
 
-    /// $z = E z_r$: the pinned entries from the constraint $N^T z = 0$.
-    fn expand(&self, zr: &Mat<f64>, z: &mut [f64]) {
+    /// $v \mapsto (I + R^T H^T Z^T) v$, the transpose of the correction in
+    /// [`Self::solve_constrained`], applied before $K^{-1}$.
+    fn correct_transposed(&self, v: &mut [f64]) {
         let k = self.pins.len();
-        z.fill(0.0);
-        for (r, &i) in self.keep.iter().enumerate() {
-            z[i] = zr[(r, 0)];
+        let mut zt = [0.0; 2 * MAX_PROJECTED];
+        let zt = &mut zt[..2 * k];
+        for (c, t) in zt.iter_mut().enumerate() {
+            *t = dot(self.z.col(c), v);
         }
-        // z_p = -T N_r^T z_r
-        let mut nrz = vec![0.0; k];
-        for (c, v) in nrz.iter_mut().enumerate() {
-            *v = self
-                .keep
-                .iter()
-                .enumerate()
-                .map(|(r, &i)| self.null[(i, c)] * zr[(r, 0)])
-                .sum();
-        }
-        for (pi, &p) in self.pins.iter().enumerate() {
-            z[p] = -(0..k).map(|c| self.t[(pi, c)] * nrz[c]).sum::<f64>();
+        for q in 0..2 * k {
+            let coef: f64 = (0..2 * k).map(|c| self.h[(c, q)] * zt[c]).sum();
+            if q < k {
+                v[self.pins[q]] += self.sqrt_beta * coef;
+            } else {
+                axpy(-coef, self.null.col(q - k), v);
+            }
         }
     }
 
-    /// $E^T x$ (length n_a - k).
-    fn restrict(&self, x: &[f64]) -> Mat<f64> {
-        let k = self.pins.len();
-        // E^T x = x_r - N_r T^T x_p
-        let xp: Vec<f64> = self.pins.iter().map(|&p| x[p]).collect();
-        let ttxp: Vec<f64> = (0..k)
-            .map(|c| (0..k).map(|pi| self.t[(pi, c)] * xp[pi]).sum())
-            .collect();
-        Mat::from_fn(self.keep.len(), 1, |r, _| {
-            let i = self.keep[r];
-            x[i] - (0..k).map(|c| self.null[(i, c)] * ttxp[c]).sum::<f64>()
-        })
+    /// The factor's dimension (n_a rounded up to whole blocks).
+    fn padded(&self) -> usize {
+        self.chol.dim()
+    }
+
+    /// $\hat z = B y$ into `z` (length n_a), without allocating: `work` must hold
+    /// [`Self::work_len`] values.
+    ///
+    /// # Panics
+    /// If a slice has the wrong length.
+    pub fn apply_into(&self, y: &[f64], z: &mut [f64], work: &mut [f64]) {
+        let na = self.a.ncols();
+        let n = self.padded();
+        assert_eq!(y.len(), self.a.nrows(), "reading vector length");
+        assert_eq!(z.len(), na, "estimate length");
+        assert_eq!(work.len(), 2 * n, "work length");
+        let (x, w) = work.split_at_mut(n);
+        at_mul(&self.a, y, &mut x[..na]);
+        x[na..].fill(0.0);
+        self.solve_constrained(x, w);
+        z.copy_from_slice(&x[..na]);
+        apply_modal_gains(&self.modes, z);
+    }
+
+    /// Length of the `work` slice of [`Self::apply_into`].
+    pub fn work_len(&self) -> usize {
+        2 * self.padded()
     }
 
     /// $\hat z = B y$.
     pub fn apply(&self, y: &[f64]) -> Vec<f64> {
-        let na = self.a.ncols();
-        let mut aty = vec![0.0; na];
-        at_mul(&self.a, y, &mut aty);
-        // E^T A^T y = A_r^T y - N_r U^T y, and the pinned rows of A^T y enter through E^T.
-        let b = self.restrict(&aty);
-        let mut zr = b.clone();
-        self.solve_reduced(&mut zr);
-        // One step of iterative refinement on the normal equations E^T A^T A E z_r = b: the
-        // factorisation's error grows with the condition number of A^T A.
-        let mut z = vec![0.0; na];
-        self.expand(&zr, &mut z);
-        let mut az = vec![0.0; self.a.nrows()];
-        sparse_mul(&self.a, &z, &mut az);
-        at_mul(&self.a, &az, &mut aty);
-        let mut r = self.restrict(&aty);
-        for i in 0..r.nrows() {
-            r[(i, 0)] = b[(i, 0)] - r[(i, 0)];
-        }
-        self.solve_reduced(&mut r);
-        for i in 0..zr.nrows() {
-            zr[(i, 0)] += r[(i, 0)];
-        }
-        self.expand(&zr, &mut z);
-        apply_modal_gains(&self.modes, &mut z);
+        let mut z = vec![0.0; self.a.ncols()];
+        let mut work = vec![0.0; self.work_len()];
+        self.apply_into(y, &mut z, &mut work);
         z
     }
 
-    /// $y = B^T x = A E M^{-1} E^T G x$ (length n_s): the transpose of [`Self::apply`], for
-    /// singular-value estimates of products with B.
+    /// $y = B^T x$ (length n_s): the transpose of [`Self::apply`], for singular-value
+    /// estimates of products with B.
     pub fn apply_transpose(&self, x: &[f64]) -> Vec<f64> {
-        let mut v = x.to_vec();
-        apply_modal_gains(&self.modes, &mut v);
-        let mut r = self.restrict(&v);
-        self.solve_reduced(&mut r);
-        let mut z = vec![0.0; self.a.ncols()];
-        self.expand(&r, &mut z);
+        let na = self.a.ncols();
+        let n = self.padded();
+        let mut v = vec![0.0; n];
+        v[..na].copy_from_slice(x);
+        apply_modal_gains(&self.modes, &mut v[..na]);
+        self.correct_transposed(&mut v[..na]);
+        let mut work = vec![0.0; n];
+        self.chol.solve_in_place(&mut v, &mut work);
         let mut y = vec![0.0; self.a.nrows()];
-        sparse_mul(&self.a, &z, &mut y);
+        sparse_mul(&self.a, &v[..na], &mut y);
         y
     }
 
@@ -335,6 +359,25 @@ impl SparseReconstructor {
     /// The basis it projects out (orthonormal columns).
     pub fn null_space(&self) -> MatRef<'_, f64> {
         self.null.as_ref()
+    }
+
+    /// Number of 3 x 3 blocks in the Cholesky factor (its memory is 72 bytes per block).
+    pub fn factor_blocks(&self) -> usize {
+        self.chol.n_blocks()
+    }
+}
+
+fn dot(a: faer::ColRef<'_, f64>, b: &[f64]) -> f64 {
+    let mut s = 0.0;
+    for (i, bi) in b.iter().enumerate().take(a.nrows()) {
+        s += a[i] * bi;
+    }
+    s
+}
+
+fn axpy(alpha: f64, a: faer::ColRef<'_, f64>, y: &mut [f64]) {
+    for (i, yi) in y.iter_mut().enumerate().take(a.nrows()) {
+        *yi += alpha * a[i];
     }
 }
 
@@ -442,6 +485,7 @@ impl DenseReconstructor {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use faer::sparse::Triplet;
 
     /// A ring of n nodes with differences between neighbours: null space = constants; `leak`
     /// adds a weak absolute reading so the constant is only weakly observable (full rank).

@@ -552,8 +552,18 @@ fn tmt_report() {
 /// 1e-9 relative, with and without a focus-mode gain, and B0 A P = P on observable patterns.
 #[test]
 fn reconstructor_paths_agree_on_keck() {
+    reconstructor_paths_agree(&Layout::keck());
+}
+
+/// The same on TMT (the size the sparse path is for; release mode: a 2772 x 1476 SVD).
+#[test]
+fn reconstructor_paths_agree_on_tmt() {
+    reconstructor_paths_agree(&Layout::tmt());
+}
+
+fn reconstructor_paths_agree(layout: &Layout) {
     use m1::reconstructor::{DenseReconstructor, ModalGain, SparseReconstructor, orthonormalize};
-    let g = geometry(&Layout::keck(), false, 0.1);
+    let g = geometry(layout, false, 0.1);
     let a = a_matrix(&g);
     let null = global_ptt(&g);
     let n = orthonormalize(null.as_ref());
@@ -584,6 +594,21 @@ fn reconstructor_paths_agree_on_keck() {
             .zip(&zd)
             .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
         assert!(err <= 1e-9 * scale, "gain {gain}: {err:e} vs {scale:e}");
+        // The transpose (used by the robustness estimates) against the dense B^T.
+        let x: Vec<f64> = (0..na).map(|i| (i as f64 * 0.29).cos()).collect();
+        let ys = sp.apply_transpose(&x);
+        let yd: Vec<f64> = (0..a.nrows())
+            .map(|c| (0..na).map(|r| de.b[(r, c)] * x[r]).sum())
+            .collect();
+        let scale = yd.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let err = ys
+            .iter()
+            .zip(&yd)
+            .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+        assert!(
+            err <= 1e-9 * scale,
+            "transpose, gain {gain}: {err:e} vs {scale:e}"
+        );
     }
     // B0 A P = P.
     let sp = SparseReconstructor::new(&a, null.as_ref(), vec![]).expect("sparse");
@@ -604,4 +629,22 @@ fn reconstructor_paths_agree_on_keck() {
         .zip(&x)
         .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
     assert!(err < 1e-9, "B0 A P - P: {err:e}");
+}
+
+/// With Leff = 0 on a flat mirror, A has a fourth unobservable mode (focus-mode) besides global
+/// piston/tip/tilt: the sparse reconstructor refuses to factorise rather than return noise.
+#[test]
+fn reconstructor_refuses_extra_unobservable_modes() {
+    use m1::M1Error;
+    use m1::reconstructor::SparseReconstructor;
+    let g = keck(true, 0.0);
+    let a = a_matrix(&g);
+    match SparseReconstructor::new(&a, global_ptt(&g).as_ref(), vec![]) {
+        Err(M1Error::Numerical(msg)) => assert!(msg.contains("unobservable"), "{msg}"),
+        Err(e) => panic!("wrong error: {e}"),
+        Ok(_) => panic!("factorised a singular normal matrix"),
+    }
+    // With Leff > 0 the same flat mirror factorises.
+    let g = keck(true, 0.1);
+    assert!(SparseReconstructor::new(&a_matrix(&g), global_ptt(&g).as_ref(), vec![]).is_ok());
 }
