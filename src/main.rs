@@ -61,6 +61,9 @@ enum Cmd {
         /// Print one JSON object.
         #[arg(long)]
         json: bool,
+        /// Map PNG of the segments coloured by their number of neighbours.
+        #[arg(long)]
+        plot: Option<String>,
     },
 }
 
@@ -330,9 +333,22 @@ fn demo(layout: &str, actuators: &[Actuator], json: bool) -> Result<(), String> 
     Ok(())
 }
 
-fn layout_report(name: &str, json: bool) -> Result<(), String> {
+fn layout_report(name: &str, json: bool, plot: Option<&str>) -> Result<(), String> {
     let l = load_layout(name)?;
     let hist = l.neighbour_histogram();
+    if let Some(p) = plot {
+        let degree: Vec<f64> = (0..l.n_segments())
+            .map(|i| l.neighbours(i).len() as f64)
+            .collect();
+        plot::mirror_map(
+            p,
+            &l,
+            &degree,
+            &format!("{}: neighbours per segment", l.name),
+            "neighbours",
+        )
+        .map_err(|e| e.to_string())?;
+    }
     if json {
         let out = serde_json::json!({
             "layout": l.name,
@@ -371,7 +387,7 @@ fn main() -> ExitCode {
             actuator,
             json,
         } => demo(&layout, &actuator, json),
-        Cmd::Geometry { layout, json } => layout_report(&layout, json),
+        Cmd::Geometry { layout, json, plot } => layout_report(&layout, json, plot.as_deref()),
         Cmd::Amatrix(a) => commands::quasistatic::amatrix(&a),
         Cmd::Robustness(a) => commands::quasistatic::robustness(&a),
         Cmd::Noise(a) => commands::quasistatic::noise(&a),

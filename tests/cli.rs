@@ -98,6 +98,55 @@ fn noise_is_dominated_by_focus_mode() {
     let total = v["noise"]["rms_per_noise"].as_f64().unwrap();
     let rest = v["noise"]["rms_per_noise_without_focus"].as_f64().unwrap();
     assert!(rest < total && total > 1.0);
+    // The per-segment distribution has the same mean square as the whole.
+    let per: Vec<f64> = v["noise"]["per_segment_rms"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    assert_eq!(per.len(), 36);
+    let ms = per.iter().map(|x| x * x).sum::<f64>() / 36.0;
+    assert!(
+        (ms.sqrt() - total).abs() < 1e-9 * total,
+        "{} vs {total}",
+        ms.sqrt()
+    );
+}
+
+#[test]
+fn calibration_reports_the_gap_rank() {
+    let v = json(&["calibration", "--layout", "keck", "--flat", "--json"]);
+    assert_eq!(v["calibration"]["gap_rank"], 104);
+    let (ok, _, err) = m1cs(&["calibration", "--layout", "keck", "--rank-tolerance", "2"]);
+    assert!(!ok && err.contains("--rank-tolerance"), "{err}");
+}
+
+/// Every `--plot` writes a PNG.
+#[test]
+fn plots_are_written() {
+    let dir = std::env::temp_dir().join(format!("m1cs-cli-plots-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = |name: &str| dir.join(name).to_string_lossy().into_owned();
+    let cases: Vec<(Vec<&str>, String)> = vec![
+        (vec!["geometry", "--layout", "keck"], file("geometry.png")),
+        (vec!["noise", "--layout", "keck"], file("noise.png")),
+        (
+            vec!["calibration", "--layout", "keck", "--samples", "5"],
+            file("calibration.png"),
+        ),
+        (vec!["clocking", "--layout", "keck"], file("clocking.png")),
+        (vec!["amatrix", "--layout", "keck"], file("amatrix.png")),
+    ];
+    for (args, png) in &cases {
+        let mut a = args.clone();
+        a.extend(["--plot", png.as_str()]);
+        let (ok, _, err) = m1cs(&a);
+        assert!(ok, "m1cs {a:?}: {err}");
+        let bytes = std::fs::read(png).unwrap_or_else(|e| panic!("{png}: {e}"));
+        assert!(bytes.starts_with(b"\x89PNG") && bytes.len() > 5000, "{png}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]

@@ -438,6 +438,9 @@ pub fn robustness(a: &RobustnessArgs) -> Result<(), String> {
 pub struct NoiseArgs {
     #[command(flatten)]
     pub mirror: MirrorArgs,
+    /// Map PNG of the rms error per segment per unit rms sensor noise.
+    #[arg(long)]
+    pub plot: Option<String>,
 }
 
 /// Runs `m1cs noise`.
@@ -445,6 +448,16 @@ pub fn noise(a: &NoiseArgs) -> Result<(), String> {
     let (layout, g) = load(&a.mirror)?;
     let nominal = Nominal::new(g).map_err(|e| e.to_string())?;
     let r = quasistatic::noise_propagation(&nominal);
+    if let Some(p) = &a.plot {
+        plot::mirror_map(
+            p,
+            &layout,
+            &r.per_segment_rms,
+            "rms error per segment per unit rms sensor noise",
+            "m/m",
+        )
+        .map_err(|e| e.to_string())?;
+    }
     if a.mirror.json {
         println!(
             "{}",
@@ -476,9 +489,10 @@ pub fn noise(a: &NoiseArgs) -> Result<(), String> {
 pub struct ClockingArgs {
     #[command(flatten)]
     pub mirror: MirrorArgs,
-    /// The clocked segment: its name (A1..F82 for TMT) or index.
-    #[arg(long, default_value = "A1")]
-    pub segment: String,
+    /// The clocked segment: its name (A1..F82 for TMT) or index [default: the layout's first
+    /// segment, A1 for TMT].
+    #[arg(long)]
+    pub segment: Option<String>,
     /// Map PNG of the out-of-plane correction.
     #[arg(long)]
     pub plot: Option<String>,
@@ -487,20 +501,18 @@ pub struct ClockingArgs {
 /// Runs `m1cs clocking`.
 pub fn clocking(a: &ClockingArgs) -> Result<(), String> {
     let (layout, g) = load(&a.mirror)?;
+    let name = a
+        .segment
+        .clone()
+        .unwrap_or_else(|| layout.segments[0].name.clone());
     let seg = layout
-        .find(&a.segment)
+        .find(&name)
         .or_else(|| {
-            a.segment
-                .parse::<usize>()
+            name.parse::<usize>()
                 .ok()
                 .filter(|&i| i < layout.n_segments())
         })
-        .ok_or_else(|| {
-            format!(
-                "--segment {}: no such segment in {}",
-                a.segment, layout.name
-            )
-        })?;
+        .ok_or_else(|| format!("--segment {name}: no such segment in {}", layout.name))?;
     let nominal = Nominal::new(g).map_err(|e| e.to_string())?;
     let r = quasistatic::clocking(&nominal, seg).map_err(|e| e.to_string())?;
     if let Some(p) = &a.plot {
@@ -551,12 +563,19 @@ pub fn clocking(a: &ClockingArgs) -> Result<(), String> {
 pub struct CalibrationArgs {
     #[command(flatten)]
     pub mirror: MirrorArgs,
-    /// Monte-Carlo samples.
+    /// Monte Carlo samples of the check of the exact figures.
     #[arg(long, default_value_t = 50)]
     pub samples: usize,
-    /// Seed.
+    /// Seed of the Monte Carlo check.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Relative singular-value threshold of the pseudo-inverse of A_gw: smaller singular values
+    /// (gap-unobservable and weakly observable in-plane modes) are not inverted.
+    #[arg(long, default_value_t = quasistatic::SHEAR_RANK_TOLERANCE)]
+    pub rank_tolerance: f64,
+    /// Map PNG of the rms shear error per segment from gap-unobservable in-plane motion.
+    #[arg(long)]
+    pub plot: Option<String>,
 }
 
 /// Runs `m1cs calibration`.
@@ -564,8 +583,25 @@ pub fn calibration(a: &CalibrationArgs) -> Result<(), String> {
     if a.samples == 0 {
         return Err("--samples must be at least 1".into());
     }
+    if !(a.rank_tolerance > 0.0 && a.rank_tolerance < 1.0) {
+        return Err(format!(
+            "--rank-tolerance {}: must be in (0, 1)",
+            a.rank_tolerance
+        ));
+    }
     let (layout, g) = load(&a.mirror)?;
-    let r = quasistatic::calibration(&g, a.samples, a.seed).map_err(|e| e.to_string())?;
+    let r = quasistatic::calibration(&g, a.samples, a.seed, a.rank_tolerance)
+        .map_err(|e| e.to_string())?;
+    if let Some(p) = &a.plot {
+        plot::mirror_map(
+            p,
+            &layout,
+            &r.per_segment_shear_error_unobservable,
+            "Shear error from gap-unobservable motion (per unit in-plane rms)",
+            "m/m",
+        )
+        .map_err(|e| e.to_string())?;
+    }
     if a.mirror.json {
         println!("{}", json!({"layout": layout.name, "calibration": r}));
     } else {
@@ -574,16 +610,27 @@ pub fn calibration(a: &CalibrationArgs) -> Result<(), String> {
             layout.name
         );
         println!(
-            "  rank of A_gw: {} of {} in-plane coordinates",
-            r.gap_rank, r.in_plane_dofs
+            "  A_gw: {} of {} in-plane coordinates inverted (singular values above {:.0e} of the \
+             largest; smallest kept {:.2e})",
+            r.gap_rank, r.in_plane_dofs, r.rank_tolerance, r.smallest_kept_relative
+        );
+        if r.weakly_observable > 0 {
+            println!(
+                "  {} weakly observable in-plane modes not inverted (largest {:.2e} of the \
+                 largest singular value)",
+                r.weakly_observable, r.largest_dropped_relative
+            );
+        }
+        println!(
+            "  shear error from gap-unobservable motion: {:.4} m per m rms in-plane motion \
+             (Monte Carlo, {} samples: {:.4})",
+            r.shear_error_unobservable,
+            r.monte_carlo.samples,
+            r.monte_carlo.shear_error_unobservable
         );
         println!(
-            "  shear error from gap-unobservable motion: {:.3} m per m rms in-plane motion",
-            r.shear_error_unobservable
-        );
-        println!(
-            "  shear error per unit rms gap noise:       {:.3} m/m",
-            r.shear_error_per_gap_noise
+            "  shear error per unit rms gap noise:       {:.4} m/m (Monte Carlo: {:.4})",
+            r.shear_error_per_gap_noise, r.monte_carlo.shear_error_per_gap_noise
         );
     }
     Ok(())
