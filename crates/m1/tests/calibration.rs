@@ -1,6 +1,8 @@
 //! Sensor calibration (eq. 2 of the seed paper): shear estimated from gaps through the truncated
 //! pseudo-inverse of A_gw.
 
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
 use faer::Mat;
 use m1::M1Error;
 use m1::geometry::{Geometry, GeometryParams};

@@ -3,6 +3,8 @@
 //! eigenvalue of Q equal those of the dense Q = P B0 A P computed with faer's eigenvalue and
 //! singular-value decompositions, and the Monte Carlo instability count is the exact one.
 
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
 use faer::Mat;
 use m1::geometry::{Geometry, GeometryParams};
 use m1::interaction::global_ptt;
@@ -51,7 +53,7 @@ fn krylov_estimates_equal_dense_eigen_and_singular_values_on_keck() {
         let q = &p * (&de.b * a.to_dense()) * &p;
         let ev = q.eigenvalues().expect("eigenvalues");
         // Three exact zeros belong to the projected-out global piston/tip/tilt.
-        let mut obs: Vec<_> = ev.iter().copied().collect();
+        let mut obs: Vec<_> = ev.to_vec();
         obs.sort_by(|a, b| a.norm().total_cmp(&b.norm()));
         assert!(
             obs[2].norm() < 1e-10,
