@@ -17,6 +17,30 @@ def test_validates_without_problems(layout, path):
 
 
 @pytest.mark.parametrize("layout,path", FMUS, ids=IDS)
+def test_simulates_its_default_experiment_briefly(layout, path):
+    """Every FMU runs 50 communication steps of its default step size on its defaults, and every
+    Real output stays finite."""
+    md = read_model_description(str(path))
+    outputs = [v.name for v in md.modelVariables if v.causality == "output" and v.type == "Real"]
+    assert outputs, "no Real output"
+    step = float(md.defaultExperiment.stepSize)
+    r = simulate_fmu(
+        str(path),
+        stop_time=50 * step,
+        step_size=step,
+        output_interval=step,
+        output=outputs,
+    )
+    assert len(r) == 51
+    for name in outputs:
+        assert np.all(np.isfinite(r[name])), name
+
+
+SEGMENTS = [(layout, p) for layout, p in FMUS if p.stem.startswith("segments")]
+SEGMENT_IDS = [f"{layout}/{p.stem}" for layout, p in SEGMENTS]
+
+
+@pytest.mark.parametrize("layout,path", SEGMENTS, ids=SEGMENT_IDS)
 def test_simulates_a_command_step(layout, path):
     md = read_model_description(str(path))
     n = {v.name: v for v in md.modelVariables}["n_segments"]

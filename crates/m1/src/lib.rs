@@ -5,15 +5,21 @@
 //! Units are SI throughout (m, N, kg, s, rad) unless a name says otherwise.
 
 pub mod blockchol;
+pub mod controller;
 pub mod error;
 pub mod geometry;
 pub mod interaction;
 pub mod krylov;
 pub mod layout;
+pub mod metrics;
 pub mod pssn;
 pub mod quasistatic;
 pub mod reconstructor;
 pub mod segment;
+pub mod sensors;
+pub mod structure;
+pub mod vibration;
+pub mod wind;
 pub mod zernike;
 
 pub use error::M1Error;

@@ -1,0 +1,1 @@
+//! The global edge-sensor control loop (reconstructor, modal integral control).

@@ -1,0 +1,1 @@
+//! Optical metrics of a mirror state (rms surface, focus-mode, PSSN).

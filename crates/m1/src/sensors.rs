@@ -1,0 +1,1 @@
+//! Edge-sensor readings with gain errors, noise and installation errors.

@@ -1,0 +1,1 @@
+//! Pier vibration sources (tones and band-limited noise).

@@ -1,0 +1,1 @@
+//! Wind loads on the segments (von Karman pressure screens, frozen flow).
