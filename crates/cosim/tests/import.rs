@@ -1,0 +1,265 @@
+//! The importer on FMUs the tests build themselves (a tiny FMU written in plain C, compiled
+//! with the system C compiler) and on this project's packaged FMUs.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use cosim::description::{Causality, Start, VarType};
+use cosim::{CosimError, Fmu, ModelDescription};
+
+const FIXTURES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures");
+
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("m1cs-cosim-test-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Compiles tiny.c to a shared library in `dir`.
+fn compile_tiny(dir: &Path, defines: &[&str]) -> PathBuf {
+    let so = dir.join("tiny.so");
+    let mut cmd = Command::new(std::env::var("CC").unwrap_or_else(|_| "cc".into()));
+    cmd.args(["-shared", "-fPIC", "-O1", "-o"])
+        .arg(&so)
+        .arg(Path::new(FIXTURES).join("tiny.c"));
+    for d in defines {
+        cmd.arg(format!("-D{d}"));
+    }
+    let out = cmd.output().expect("run the C compiler");
+    assert!(
+        out.status.success(),
+        "cc failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    so
+}
+
+/// Zips `entries` (archive path, bytes) into `path`.
+fn zip_fmu(path: &Path, entries: &[(&str, Vec<u8>)]) {
+    let f = std::fs::File::create(path).unwrap();
+    let mut z = zip::ZipWriter::new(f);
+    let opts = zip::write::SimpleFileOptions::default()
+        .compression_method(zip::CompressionMethod::Deflated);
+    for (name, bytes) in entries {
+        z.start_file(*name, opts).unwrap();
+        z.write_all(bytes).unwrap();
+    }
+    z.finish().unwrap();
+}
+
+fn tiny_fmu(name: &str, xml: &str, defines: &[&str], with_binary: bool) -> PathBuf {
+    let dir = scratch(name);
+    let mut entries = vec![("modelDescription.xml", xml.as_bytes().to_vec())];
+    if with_binary {
+        let so = compile_tiny(&dir, defines);
+        entries.push(("binaries/linux64/tiny.so", std::fs::read(so).unwrap()));
+    }
+    let path = dir.join("tiny.fmu");
+    zip_fmu(&path, &entries);
+    path
+}
+
+fn tiny_xml() -> String {
+    std::fs::read_to_string(Path::new(FIXTURES).join("tiny.xml")).unwrap()
+}
+
+#[test]
+fn tiny_c_fmu_runs_and_integrates_exactly() {
+    let path = tiny_fmu("runs", &tiny_xml(), &[], true);
+    let fmu = Fmu::open(&path).unwrap();
+    let md = &fmu.description;
+    assert_eq!(md.co_simulation.model_identifier, "tiny");
+    assert_eq!(md.default_experiment.step_size, Some(0.1));
+    let u = md.variable_by_name("u").unwrap();
+    assert_eq!((u.causality, u.var_type), (Causality::Input, VarType::Real));
+    assert_eq!(
+        md.variable_by_name("k").unwrap().start,
+        Some(Start::Real(1.0))
+    );
+    assert_eq!(md.outputs.len(), 2);
+    assert_eq!(md.outputs[0].dependencies, Some(vec![]));
+
+    let mut a = fmu.instantiate("a", false).unwrap();
+    let mut b = fmu.instantiate("b", false).unwrap();
+    for inst in [&mut a, &mut b] {
+        inst.setup_experiment(None, 0.0, Some(1.0)).unwrap();
+        inst.enter_initialization_mode().unwrap();
+        inst.exit_initialization_mode().unwrap();
+    }
+    a.set_real(&[2], &[3.0]).unwrap();
+    a.set_real(&[0], &[0.5]).unwrap();
+    b.set_real(&[0], &[-1.0]).unwrap();
+    let h = 0.1;
+    for k in 0..10 {
+        a.do_step(k as f64 * h, h).unwrap();
+        b.do_step(k as f64 * h, h).unwrap();
+    }
+    let mut y = [0.0];
+    a.get_real(&[1], &mut y).unwrap();
+    assert!((y[0] - 3.0 * 0.5 * 1.0).abs() < 1e-12, "{}", y[0]);
+    b.get_real(&[1], &mut y).unwrap();
+    assert!(
+        (y[0] + 1.0).abs() < 1e-12,
+        "instances are independent: {}",
+        y[0]
+    );
+    let mut steps = [0];
+    a.get_integer(&[0], &mut steps).unwrap();
+    assert_eq!(steps[0], 10);
+    a.terminate().unwrap();
+    // The library stays loaded while instances live, even once the Fmu is dropped.
+    drop(fmu);
+    b.do_step(1.0, h).unwrap();
+    b.get_real(&[1], &mut y).unwrap();
+    assert!((y[0] + 1.1).abs() < 1e-12);
+}
+
+#[test]
+fn fmu_errors_come_back_with_the_logged_message() {
+    let path = tiny_fmu("status", &tiny_xml(), &[], true);
+    let fmu = Fmu::open(&path).unwrap();
+    let mut a = fmu.instantiate("a", false).unwrap();
+    a.setup_experiment(None, 0.0, None).unwrap();
+    a.enter_initialization_mode().unwrap();
+    a.exit_initialization_mode().unwrap();
+    // The variadic logger formats "%s (%g)" with its arguments.
+    let e = a.set_real(&[2], &[-2.0]).unwrap_err().to_string();
+    assert!(
+        e.contains("fmi2SetReal") && e.contains("k must be >= 0, got (-2)"),
+        "{e}"
+    );
+    let e = a.do_step(0.5, -1.0).unwrap_err().to_string();
+    assert!(
+        e.contains("t = 0.5") && e.contains("step size must be positive"),
+        "{e}"
+    );
+    let e = a.get_real(&[1, 2], &mut [0.0]).unwrap_err().to_string();
+    assert!(e.contains("2 value references and 1 values"), "{e}");
+}
+
+#[test]
+fn guid_mismatch_is_reported_with_the_fmu_message() {
+    let path = tiny_fmu("guid", &tiny_xml(), &[], true);
+    let fmu = Fmu::open(&path).unwrap();
+    match fmu.instantiate_with_guid("g", "{not-it}") {
+        Err(CosimError::Instantiate { log, guid, .. }) => {
+            assert_eq!(guid, "{not-it}");
+            assert!(
+                log.contains("wrong GUID {not-it}, expected {tiny-0001}"),
+                "{log}"
+            );
+        }
+        Err(e) => panic!("wrong error {e}"),
+        Ok(_) => panic!("instantiated with a wrong GUID"),
+    }
+}
+
+#[test]
+fn missing_binary_and_missing_symbol_are_named() {
+    let path = tiny_fmu("nobin", &tiny_xml(), &[], false);
+    match Fmu::open(&path) {
+        Err(CosimError::MissingBinary { expected, .. }) => {
+            assert_eq!(expected, "binaries/linux64/tiny.so");
+        }
+        other => panic!("expected MissingBinary, got {other:?}"),
+    }
+    let path = tiny_fmu("nosym", &tiny_xml(), &["OMIT_DO_STEP"], true);
+    match Fmu::open(&path) {
+        Err(CosimError::MissingSymbol { symbol, .. }) => assert_eq!(symbol, "fmi2DoStep"),
+        other => panic!("expected MissingSymbol, got {other:?}"),
+    }
+}
+
+#[test]
+fn malformed_and_rule_breaking_descriptions_are_named() {
+    let file = Path::new("x/modelDescription.xml");
+    let cases: Vec<(String, &str)> = vec![
+        ("<fmiModelDescription fmiVersion=\"2.0\"".into(), "malformed"),
+        (tiny_xml().replace("fmiVersion=\"2.0\"", "fmiVersion=\"3.0\""), "only FMI 2.0"),
+        (
+            tiny_xml().replace(
+                "<CoSimulation modelIdentifier=\"tiny\" canHandleVariableCommunicationStepSize=\"true\"/>",
+                "",
+            ),
+            "not a Co-Simulation FMU",
+        ),
+        (
+            tiny_xml().replace("<Real start=\"0\" unit=\"m\"/></ScalarVariable>\n    <ScalarVariable name=\"y\"", "<Real unit=\"m\"/></ScalarVariable>\n    <ScalarVariable name=\"y\""),
+            "\"u\": an input needs a start value",
+        ),
+        (tiny_xml().replace("causality=\"parameter\"", "causality=\"knob\""), "unknown causality \"knob\""),
+        (tiny_xml().replace("<Real start=\"1\"/>", "<Real start=\"one\"/>"), "\"k\": start \"one\" is not a number"),
+        (tiny_xml().replace("<Unknown index=\"4\" dependencies=\"\"/>", ""), "ModelStructure/Outputs lists 1"),
+        (tiny_xml().replace("name=\"steps\"", "name=\"u\""), "\"u\" is used twice"),
+    ];
+    for (xml, expected) in cases {
+        match ModelDescription::parse(&xml, file) {
+            Err(CosimError::Xml { file: f, reason }) => {
+                assert_eq!(f, file);
+                assert!(reason.contains(expected), "{reason:?} lacks {expected:?}");
+            }
+            other => panic!("expected an XML error with {expected:?}, got {other:?}"),
+        }
+    }
+    // Through Fmu::open the archive path is named.
+    let path = tiny_fmu("badxml", "<oops", &[], false);
+    let e = Fmu::open(&path).unwrap_err().to_string();
+    assert!(e.contains("tiny.fmu") && e.contains("malformed"), "{e}");
+    let e = Fmu::open(Path::new("/nonexistent/x.fmu"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("/nonexistent/x.fmu"), "{e}");
+}
+
+fn packaged(layout: &str, name: &str) -> PathBuf {
+    let dir = std::env::var_os("M1CS_FMU_DIR").map_or_else(
+        || Path::new(env!("CARGO_MANIFEST_DIR")).join("../../target/fmu"),
+        PathBuf::from,
+    );
+    let p = dir.join(layout).join(format!("{name}.fmu"));
+    assert!(
+        p.is_file(),
+        "{} is missing: run `cargo xtask package` first",
+        p.display()
+    );
+    p
+}
+
+/// This project's segments FMU through the importer: array signals by structured name, a
+/// command step followed by the actuator, as in the fmpy tests.
+#[test]
+fn packaged_segments_fmu_imports_and_steps() {
+    let fmu = Fmu::open(packaged("keck", "segments_voicecoil")).unwrap();
+    let md = &fmu.description;
+    let u = md.signal("u_cmd").unwrap();
+    let z = md.signal("z").unwrap();
+    assert_eq!((u.len(), z.len()), (108, 108));
+    let u_vr: Vec<u32> = u.iter().map(|v| v.value_reference).collect();
+    let z_vr: Vec<u32> = z.iter().map(|v| v.value_reference).collect();
+    assert!(md.signal("nosuch").is_none());
+    let mut inst = fmu.instantiate("segments", false).unwrap();
+    inst.setup_experiment(None, 0.0, None).unwrap();
+    inst.enter_initialization_mode().unwrap();
+    inst.exit_initialization_mode().unwrap();
+    let mut cmd = vec![0.0; 108];
+    cmd[105..].fill(1e-6);
+    let mut zs = vec![0.0; 108];
+    for k in 0..300 {
+        inst.set_real(&u_vr, &cmd).unwrap();
+        inst.do_step(k as f64 * 1e-3, 1e-3).unwrap();
+    }
+    inst.get_real(&z_vr, &mut zs).unwrap();
+    assert_eq!(zs[0], 0.0);
+    assert!((zs[107] - 1e-6).abs() < 2e-8, "{}", zs[107]);
+    // A bad value is refused with the FMU's message naming the variable.
+    let kp = md.variable_by_name("servo_kp").unwrap().value_reference;
+    let e = fmu
+        .instantiate("bad", false)
+        .and_then(|mut b| b.set_real(&[kp], &[f64::NAN]))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("servo_kp"), "{e}");
+}
