@@ -14,8 +14,10 @@ pub mod fmu;
 pub mod instance;
 pub mod library;
 pub mod logger;
+pub mod system;
 
 pub use description::ModelDescription;
 pub use error::{CosimError, Result};
 pub use fmu::Fmu;
 pub use instance::Instance;
+pub use system::{Order, Simulation, System, Value};

@@ -1,5 +1,5 @@
-//! The importer on FMUs the tests build themselves (a tiny FMU written in plain C, compiled
-//! with the system C compiler) and on this project's packaged FMUs.
+//! The importer and the master on FMUs the tests build themselves (a tiny FMU written in plain C,
+//! compiled with the system C compiler) and on this project's packaged FMUs.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use std::io::Write;
@@ -262,4 +262,121 @@ fn packaged_segments_fmu_imports_and_steps() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("servo_kp"), "{e}");
+}
+
+// -------------------------------------------------------------------------------------------
+// The master on systems of tiny FMUs: exact sums for Jacobi and Gauss-Seidel, multi-rate, and
+// the connection checks.
+// -------------------------------------------------------------------------------------------
+
+use cosim::system::{Order, System, Value, run};
+
+/// a integrates its constant input u = 2 (y_a = 2 t); b integrates y_a. With n steps of h:
+/// Jacobi feeds b the value of y_a before a's step, y_b = h^2 2 n (n - 1) / 2; Gauss-Seidel
+/// feeds the value after it, y_b = h^2 2 n (n + 1) / 2.
+#[test]
+fn chained_integrators_give_the_exact_sums() {
+    let path = tiny_fmu("chain", &tiny_xml(), &[], true);
+    let (h, n) = (0.01, 50usize);
+    for (order, expected) in [
+        (Order::Jacobi, h * h * 2.0 * (n * (n - 1)) as f64 / 2.0),
+        (Order::GaussSeidel, h * h * 2.0 * (n * (n + 1)) as f64 / 2.0),
+    ] {
+        let sys = System::new(n as f64 * h, h)
+            .component("a", &path)
+            .parameter("a", "u", Value::Real(2.0))
+            .component("b", &path)
+            .connect("a.y", "b.u")
+            .order(order);
+        let r = run(&sys, &["a.y".into(), "b.y".into()], 1, &mut |_, _| {}).unwrap();
+        assert_eq!(r.columns, ["time", "a.y", "b.y"]);
+        assert_eq!(r.rows.len(), n + 1);
+        let last = r.rows.last().unwrap();
+        assert!((last[0] - n as f64 * h).abs() < 1e-12);
+        assert!(
+            (last[1] - 2.0 * n as f64 * h).abs() < 1e-12,
+            "{order:?}: {}",
+            last[1]
+        );
+        assert!(
+            (last[2] - expected).abs() < 1e-12,
+            "{order:?}: {} vs {expected}",
+            last[2]
+        );
+    }
+}
+
+/// b steps every 4 base steps with a step of 4 h, on the value of y_a at its step start.
+#[test]
+fn multirate_components_step_at_their_own_multiple() {
+    let path = tiny_fmu("multirate", &tiny_xml(), &[], true);
+    let (h, n, m) = (0.01, 40usize, 4usize);
+    let sys = System::new(n as f64 * h, h)
+        .component("a", &path)
+        .parameter("a", "u", Value::Real(1.0))
+        .component("b", &path)
+        .every(m)
+        .connect("a.y", "b.u");
+    let r = run(&sys, &["b.y".into(), "b.steps".into()], 4, &mut |_, _| {})
+        .map(Some)
+        .or_else(|e| {
+            // Integer outputs are not recorded: the error names the variable.
+            assert!(e.to_string().contains("b.steps"), "{e}");
+            Ok::<_, cosim::CosimError>(None)
+        })
+        .unwrap();
+    assert!(r.is_none());
+    let r = run(&sys, &["b.y".into()], 4, &mut |_, _| {}).unwrap();
+    assert_eq!(r.rows.len(), n / 4 + 1);
+    // y_b = sum over b's steps j of (m h) * y_a(j m h) = (m h)^2 * sum j.
+    let steps = n / m;
+    let expected = (m as f64 * h).powi(2) * (steps * (steps - 1)) as f64 / 2.0;
+    let got = r.rows.last().unwrap()[1];
+    assert!((got - expected).abs() < 1e-12, "{got} vs {expected}");
+}
+
+#[test]
+fn bad_connections_are_named() {
+    let path = tiny_fmu("badconn", &tiny_xml(), &[], true);
+    let base = || {
+        System::new(0.1, 0.01)
+            .component("a", &path)
+            .component("b", &path)
+    };
+    let cases = [
+        (
+            base().connect("a.nosuch", "b.u"),
+            "no variable named nosuch",
+        ),
+        (base().connect("a.u", "b.u"), "u is not an output"),
+        (base().connect("a.y", "b.y"), "y is not an input"),
+        (base().connect("a.steps", "b.u"), "only Real signals"),
+        (
+            base().connect("a.y", "b.u").connect("b.y", "b.u"),
+            "already connected",
+        ),
+        (base().connect("a.y", "c.u"), "no component named c"),
+        (
+            base().parameter("a", "k", Value::Boolean(true)),
+            "a.k: k is Real, the value is Boolean",
+        ),
+        (
+            base().parameter("a", "kk", Value::Real(1.0)),
+            "no variable named kk",
+        ),
+        (base().every(0), "steps every 0 base steps"),
+    ];
+    for (sys, expected) in cases {
+        match cosim::Simulation::new(&sys, &[]) {
+            Err(e) => assert!(e.to_string().contains(expected), "{e} lacks {expected:?}"),
+            Ok(_) => panic!("accepted a system that should fail with {expected:?}"),
+        }
+    }
+    // An FMU error during the run names the component and the time.
+    let sys = base().parameter("a", "k", Value::Real(-1.0));
+    let e = run(&sys, &[], 1, &mut |_, _| {}).unwrap_err().to_string();
+    assert!(
+        e.contains("a: fmi2SetReal") && e.contains("k must be >= 0"),
+        "{e}"
+    );
 }

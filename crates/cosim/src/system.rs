@@ -1,0 +1,625 @@
+//! A system of FMU components and the connections between them, built in code (or read from
+//! SSP), and the master algorithm that runs it.
+//!
+//! # Scheduling
+//!
+//! The master advances with a fixed base communication step `h`. Component `c` steps every
+//! `every[c]` base steps with step `every[c] * h` (multi-rate: e.g. the controller at 20 Hz,
+//! wind at 100 Hz, segments and structure at 1 kHz with `h` = 1 ms). Two orders:
+//!
+//! - **Jacobi** (default): at a communication point every due component first receives the
+//!   outputs all components had at that point, then all due components step in parallel (on
+//!   the available cores, on rayon's pool). Results do not depend on the order of components, and the
+//!   steps run concurrently; each connection carries a value one step old, which is the
+//!   standard co-simulation delay (fmpy.ssp works the same way).
+//! - **Gauss-Seidel**: due components step one after the other in the order they were added,
+//!   each receiving the outputs its predecessors just produced: less delay along the order,
+//!   no parallelism.
+//!
+//! Values move in bulk: per component and step one `fmi2SetReal` over all its connected inputs
+//! and one `fmi2GetReal` over all its connected outputs, through buffers allocated once.
+
+use std::path::{Path, PathBuf};
+
+use crate::description::{Causality, ScalarVariable, Start, VarType};
+use crate::error::{CosimError, Result};
+use crate::fmu::Fmu;
+use crate::instance::Instance;
+
+/// A parameter value for a component.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Value {
+    /// Real.
+    Real(f64),
+    /// Integer (or enumeration).
+    Integer(i32),
+    /// Boolean.
+    Boolean(bool),
+    /// String.
+    String(String),
+}
+
+/// One component of a system.
+#[derive(Debug, Clone)]
+pub struct Component {
+    /// Unique name.
+    pub name: String,
+    /// Its .fmu file.
+    pub fmu: PathBuf,
+    /// Parameter (or input start) values by variable name.
+    pub parameters: Vec<(String, Value)>,
+    /// Steps every `every` base steps (>= 1).
+    pub every: usize,
+}
+
+/// A connection from an output signal to an input signal (scalars, or whole arrays by their
+/// structured base name: `z` connects `z[1]..z[n]`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Connection {
+    /// Source component.
+    pub from: String,
+    /// Source signal.
+    pub output: String,
+    /// Destination component.
+    pub to: String,
+    /// Destination signal.
+    pub input: String,
+}
+
+/// Stepping order (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Order {
+    /// All due components step in parallel on the values of the last communication point.
+    #[default]
+    Jacobi,
+    /// Due components step in sequence, each on its predecessors' newest outputs.
+    GaussSeidel,
+}
+
+/// A system: components, connections, experiment.
+#[derive(Debug, Clone, Default)]
+pub struct System {
+    /// Components in order.
+    pub components: Vec<Component>,
+    /// Connections.
+    pub connections: Vec<Connection>,
+    /// Start time (s).
+    pub start_time: f64,
+    /// Stop time (s).
+    pub stop_time: f64,
+    /// Base communication step (s).
+    pub step: f64,
+    /// Stepping order.
+    pub order: Order,
+}
+
+impl System {
+    /// An empty system running from 0 to `stop_time` with base step `step`.
+    pub fn new(stop_time: f64, step: f64) -> Self {
+        Self {
+            stop_time,
+            step,
+            ..Self::default()
+        }
+    }
+
+    /// Adds a component stepping every base step.
+    pub fn component(mut self, name: &str, fmu: impl Into<PathBuf>) -> Self {
+        self.components.push(Component {
+            name: name.into(),
+            fmu: fmu.into(),
+            parameters: Vec::new(),
+            every: 1,
+        });
+        self
+    }
+
+    /// Sets how many base steps the last added component's step spans.
+    pub fn every(mut self, n: usize) -> Self {
+        if let Some(c) = self.components.last_mut() {
+            c.every = n;
+        }
+        self
+    }
+
+    /// Sets a parameter of the component called `component`.
+    pub fn parameter(mut self, component: &str, name: &str, value: Value) -> Self {
+        if let Some(c) = self.components.iter_mut().find(|c| c.name == component) {
+            c.parameters.push((name.into(), value));
+        }
+        self
+    }
+
+    /// Connects `from.output` to `to.input` ("comp.signal" each).
+    pub fn connect(mut self, from: &str, to: &str) -> Self {
+        let split = |s: &str| {
+            s.split_once('.')
+                .map(|(a, b)| (a.to_string(), b.to_string()))
+                .unwrap_or_else(|| (s.to_string(), String::new()))
+        };
+        let (f, o) = split(from);
+        let (t, i) = split(to);
+        self.connections.push(Connection {
+            from: f,
+            output: o,
+            to: t,
+            input: i,
+        });
+        self
+    }
+
+    /// Sets the stepping order.
+    pub fn order(mut self, order: Order) -> Self {
+        self.order = order;
+        self
+    }
+}
+
+/// A running component.
+struct Running {
+    name: String,
+    instance: Instance,
+    every: usize,
+    /// Value references of its connected inputs and where each comes from in `outputs`.
+    in_vrs: Vec<u32>,
+    in_src: Vec<usize>,
+    in_buf: Vec<f64>,
+    /// Value references of its connected (or recorded) outputs, and their slots in `outputs`.
+    out_vrs: Vec<u32>,
+    out_slot: usize,
+}
+
+/// A signal to record: component, its signal name, and the slots of its scalars.
+#[derive(Debug, Clone)]
+pub struct Recorded {
+    /// Column names ("comp.z[1]", ...).
+    pub columns: Vec<String>,
+    slots: Vec<usize>,
+}
+
+/// The system instantiated and initialised, ready to step.
+pub struct Simulation {
+    comps: Vec<Running>,
+    /// Latest output values of all components, concatenated.
+    outputs: Vec<f64>,
+    /// Snapshot of `outputs` at the communication point (Jacobi).
+    snapshot: Vec<f64>,
+    order: Order,
+    step: f64,
+    time: f64,
+    start: f64,
+    stop: f64,
+    n_steps: u64,
+    recorded: Recorded,
+    /// FMUs kept open (libraries and files) for the instances' lifetime.
+    _fmus: Vec<Fmu>,
+}
+
+fn var_of<'a>(fmu: &'a Fmu, comp: &str, name: &str) -> Result<&'a ScalarVariable> {
+    fmu.description
+        .variable_by_name(name)
+        .ok_or_else(|| CosimError::UnknownVariable {
+            component: comp.into(),
+            name: name.into(),
+        })
+}
+
+fn signal_of<'a>(fmu: &'a Fmu, comp: &str, name: &str) -> Result<Vec<&'a ScalarVariable>> {
+    fmu.description
+        .signal(name)
+        .ok_or_else(|| CosimError::UnknownVariable {
+            component: comp.into(),
+            name: name.into(),
+        })
+}
+
+fn set_value(inst: &mut Instance, v: &ScalarVariable, value: &Value, what: &str) -> Result<()> {
+    let vr = [v.value_reference];
+    let mismatch = |found: &str| CosimError::Mismatch {
+        what: what.into(),
+        reason: format!("{} is {:?}, the value is {found}", v.name, v.var_type),
+    };
+    match (v.var_type, value) {
+        (VarType::Real, Value::Real(x)) => inst.set_real(&vr, &[*x]),
+        (VarType::Real, Value::Integer(x)) => inst.set_real(&vr, &[f64::from(*x)]),
+        (VarType::Integer | VarType::Enumeration, Value::Integer(x)) => {
+            inst.set_integer(&vr, &[*x])
+        }
+        (VarType::Boolean, Value::Boolean(x)) => inst.set_boolean(&vr, &[*x]),
+        (VarType::String, Value::String(x)) => inst.set_string(&vr, &[x.as_str()]),
+        (_, Value::Real(_)) => Err(mismatch("Real")),
+        (_, Value::Integer(_)) => Err(mismatch("Integer")),
+        (_, Value::Boolean(_)) => Err(mismatch("Boolean")),
+        (_, Value::String(_)) => Err(mismatch("String")),
+    }
+}
+
+impl Simulation {
+    /// Opens every FMU, instantiates and initialises every component, applies parameters and
+    /// checks every connection (names, types, causalities, sizes). `record` lists signals to
+    /// record as "component.signal" (arrays by base name).
+    ///
+    /// # Errors
+    /// Naming the component, variable or connection at fault.
+    pub fn new(system: &System, record: &[String]) -> Result<Self> {
+        if !(system.step > 0.0 && system.step.is_finite()) {
+            return Err(CosimError::Invalid(format!(
+                "communication step {} s must be positive",
+                system.step
+            )));
+        }
+        if system.stop_time.partial_cmp(&system.start_time) != Some(std::cmp::Ordering::Greater) {
+            return Err(CosimError::Invalid(format!(
+                "stop time {} s must be after start time {} s",
+                system.stop_time, system.start_time
+            )));
+        }
+        let mut names = std::collections::HashSet::new();
+        for c in &system.components {
+            if !names.insert(c.name.as_str()) {
+                return Err(CosimError::Invalid(format!(
+                    "component name {} is used twice",
+                    c.name
+                )));
+            }
+            if c.every == 0 {
+                return Err(CosimError::Invalid(format!(
+                    "{}: steps every 0 base steps; use 1 or more",
+                    c.name
+                )));
+            }
+        }
+        let index = |name: &str| -> Result<usize> {
+            system
+                .components
+                .iter()
+                .position(|c| c.name == name)
+                .ok_or_else(|| CosimError::Invalid(format!("no component named {name}")))
+        };
+        // Open each FMU once per distinct file.
+        let mut fmus: Vec<Fmu> = Vec::new();
+        let mut fmu_of = Vec::with_capacity(system.components.len());
+        for c in &system.components {
+            let pos = fmus.iter().position(|f| f.path == c.fmu);
+            let k = match pos {
+                Some(k) => k,
+                None => {
+                    fmus.push(Fmu::open(&c.fmu)?);
+                    fmus.len() - 1
+                }
+            };
+            fmu_of.push(k);
+        }
+        // Output slots: every connected or recorded output signal of each component.
+        let n = system.components.len();
+        let mut out_vars: Vec<Vec<u32>> = vec![Vec::new(); n];
+        let mut slot_of: Vec<std::collections::HashMap<u32, usize>> =
+            vec![std::collections::HashMap::new(); n];
+        let mut add_output = |c: usize, vr: u32, out_vars: &mut Vec<Vec<u32>>| -> usize {
+            let m = &mut slot_of[c];
+            let len = m.len();
+            *m.entry(vr).or_insert_with(|| {
+                out_vars[c].push(vr);
+                len
+            })
+        };
+        let mut in_conn: Vec<Vec<(u32, usize, usize)>> = vec![Vec::new(); n]; // (vr, src comp, local slot)
+        for conn in &system.connections {
+            let what = format!(
+                "{}.{} -> {}.{}",
+                conn.from, conn.output, conn.to, conn.input
+            );
+            let (a, b) = (index(&conn.from)?, index(&conn.to)?);
+            let (fa, fb) = (&fmus[fmu_of[a]], &fmus[fmu_of[b]]);
+            let outs = signal_of(fa, &conn.from, &conn.output)?;
+            let ins = signal_of(fb, &conn.to, &conn.input)?;
+            if outs.len() != ins.len() {
+                return Err(CosimError::Mismatch {
+                    what,
+                    reason: format!("{} values into {}", outs.len(), ins.len()),
+                });
+            }
+            for (o, i) in outs.iter().zip(&ins) {
+                if o.causality != Causality::Output {
+                    return Err(CosimError::Mismatch {
+                        what,
+                        reason: format!("{} is not an output ({:?})", o.name, o.causality),
+                    });
+                }
+                if i.causality != Causality::Input {
+                    return Err(CosimError::Mismatch {
+                        what,
+                        reason: format!("{} is not an input ({:?})", i.name, i.causality),
+                    });
+                }
+                if o.var_type != VarType::Real || i.var_type != VarType::Real {
+                    return Err(CosimError::Mismatch {
+                        what,
+                        reason: format!(
+                            "{} is {:?} and {} is {:?}; only Real signals are connected",
+                            o.name, o.var_type, i.name, i.var_type
+                        ),
+                    });
+                }
+                if in_conn[b].iter().any(|x| x.0 == i.value_reference) {
+                    return Err(CosimError::Mismatch {
+                        what,
+                        reason: format!("{} is already connected", i.name),
+                    });
+                }
+                let slot = add_output(a, o.value_reference, &mut out_vars);
+                in_conn[b].push((i.value_reference, a, slot));
+            }
+        }
+        let mut rec_local: Vec<(String, usize, usize)> = Vec::new(); // (column, comp, local slot)
+        for r in record {
+            let (cname, sig) = r.split_once('.').ok_or_else(|| {
+                CosimError::Invalid(format!("record {r:?}: expected component.signal"))
+            })?;
+            let c = index(cname)?;
+            let vars = signal_of(&fmus[fmu_of[c]], cname, sig)?;
+            for v in vars {
+                if v.var_type != VarType::Real {
+                    return Err(CosimError::Invalid(format!(
+                        "record {cname}.{}: only Real variables are recorded",
+                        v.name
+                    )));
+                }
+                let slot = add_output(c, v.value_reference, &mut out_vars);
+                rec_local.push((format!("{cname}.{}", v.name), c, slot));
+            }
+        }
+        // Global slot offsets.
+        let mut offset = vec![0usize; n + 1];
+        for c in 0..n {
+            offset[c + 1] = offset[c] + out_vars[c].len();
+        }
+        let total = offset[n];
+        // Instantiate, set parameters, initialise.
+        let mut comps = Vec::with_capacity(n);
+        for (c, comp) in system.components.iter().enumerate() {
+            let fmu = &fmus[fmu_of[c]];
+            let mut inst = fmu.instantiate(&comp.name, false)?;
+            inst.setup_experiment(None, system.start_time, Some(system.stop_time))?;
+            for (name, value) in &comp.parameters {
+                let v = var_of(fmu, &comp.name, name)?;
+                set_value(&mut inst, v, value, &format!("{}.{name}", comp.name))?;
+            }
+            inst.enter_initialization_mode()?;
+            let in_vrs: Vec<u32> = in_conn[c].iter().map(|x| x.0).collect();
+            let in_src: Vec<usize> = in_conn[c].iter().map(|x| offset[x.1] + x.2).collect();
+            comps.push(Running {
+                name: comp.name.clone(),
+                instance: inst,
+                every: comp.every,
+                in_buf: vec![0.0; in_vrs.len()],
+                in_vrs,
+                in_src,
+                out_vrs: out_vars[c].clone(),
+                out_slot: offset[c],
+            });
+        }
+        for r in &mut comps {
+            r.instance.exit_initialization_mode()?;
+        }
+        let mut sim = Self {
+            comps,
+            outputs: vec![0.0; total],
+            snapshot: vec![0.0; total],
+            order: system.order,
+            step: system.step,
+            time: system.start_time,
+            start: system.start_time,
+            stop: system.stop_time,
+            n_steps: 0,
+            recorded: Recorded {
+                columns: rec_local.iter().map(|r| r.0.clone()).collect(),
+                slots: rec_local.iter().map(|r| offset[r.1] + r.2).collect(),
+            },
+            _fmus: fmus,
+        };
+        // Initial outputs, then initial inputs so every component starts consistent.
+        for c in 0..sim.comps.len() {
+            sim.read_outputs(c)?;
+        }
+        Ok(sim)
+    }
+
+    fn read_outputs(&mut self, c: usize) -> Result<()> {
+        let r = &mut self.comps[c];
+        let slots = &mut self.outputs[r.out_slot..r.out_slot + r.out_vrs.len()];
+        r.instance.get_real(&r.out_vrs, slots)
+    }
+
+    /// Current simulation time (s).
+    pub fn time(&self) -> f64 {
+        self.time
+    }
+
+    /// Stop time (s).
+    pub fn stop_time(&self) -> f64 {
+        self.stop
+    }
+
+    /// The recorded columns (without time).
+    pub fn recorded_columns(&self) -> &[String] {
+        &self.recorded.columns
+    }
+
+    /// The current values of the recorded columns, into `out`.
+    pub fn recorded_values(&self, out: &mut [f64]) {
+        for (o, &s) in out.iter_mut().zip(&self.recorded.slots) {
+            *o = self.outputs[s];
+        }
+    }
+
+    /// Whether the stop time is reached (within a millionth of a step).
+    pub fn finished(&self) -> bool {
+        self.time >= self.stop - 1e-6 * self.step
+    }
+
+    /// Advances one base step.
+    ///
+    /// # Errors
+    /// The first component error, naming the component and the time.
+    pub fn step(&mut self) -> Result<()> {
+        let k = self.n_steps;
+        let t = self.time;
+        let h = self.step;
+        match self.order {
+            Order::Jacobi => {
+                self.snapshot.copy_from_slice(&self.outputs);
+                let snapshot = &self.snapshot;
+                let outputs = &mut self.outputs;
+                // Split the output buffer per component so each thread writes its own part.
+                let mut parts: Vec<&mut [f64]> = Vec::with_capacity(self.comps.len());
+                let mut rest: &mut [f64] = outputs;
+                for r in &self.comps {
+                    let (a, b) = rest.split_at_mut(r.out_vrs.len());
+                    parts.push(a);
+                    rest = b;
+                }
+                let due: Vec<(&mut Running, &mut [f64])> = self
+                    .comps
+                    .iter_mut()
+                    .zip(parts)
+                    .filter(|(r, _)| k.is_multiple_of(r.every as u64))
+                    .collect();
+                let run = |(r, out): (&mut Running, &mut [f64])| -> Result<()> {
+                    for (b, &s) in r.in_buf.iter_mut().zip(&r.in_src) {
+                        *b = snapshot[s];
+                    }
+                    r.instance.set_real(&r.in_vrs, &r.in_buf)?;
+                    r.instance.do_step(t, h * r.every as f64)?;
+                    r.instance.get_real(&r.out_vrs, out)
+                };
+                if due.len() > 1 {
+                    use rayon::prelude::*;
+                    due.into_par_iter().map(run).collect::<Result<Vec<()>>>()?;
+                } else {
+                    for d in due {
+                        run(d)?;
+                    }
+                }
+            }
+            Order::GaussSeidel => {
+                for c in 0..self.comps.len() {
+                    if !k.is_multiple_of(self.comps[c].every as u64) {
+                        continue;
+                    }
+                    let r = &mut self.comps[c];
+                    for (b, &s) in r.in_buf.iter_mut().zip(&r.in_src) {
+                        *b = self.outputs[s];
+                    }
+                    r.instance.set_real(&r.in_vrs, &r.in_buf)?;
+                    let every = r.every as f64;
+                    r.instance.do_step(t, h * every)?;
+                    self.read_outputs(c)?;
+                }
+            }
+        }
+        self.n_steps += 1;
+        self.time = self.start + self.n_steps as f64 * h;
+        Ok(())
+    }
+
+    /// Terminates every component.
+    ///
+    /// # Errors
+    /// The first component that fails to terminate.
+    pub fn terminate(&mut self) -> Result<()> {
+        for r in &mut self.comps {
+            r.instance.terminate()?;
+        }
+        Ok(())
+    }
+
+    /// Component names in order.
+    pub fn component_names(&self) -> Vec<&str> {
+        self.comps.iter().map(|r| r.name.as_str()).collect()
+    }
+}
+
+/// Results of [`run`]: the time column and one row of recorded values per sample.
+#[derive(Debug, Clone)]
+pub struct Results {
+    /// Column names, "time" first.
+    pub columns: Vec<String>,
+    /// Rows: time then the recorded values.
+    pub rows: Vec<Vec<f64>>,
+}
+
+impl Results {
+    /// Writes CSV (a header row, "time" first; full-precision values).
+    ///
+    /// # Errors
+    /// [`CosimError::Io`] naming the file.
+    pub fn write_csv(&self, path: &Path) -> Result<()> {
+        use std::io::Write;
+        let f = std::fs::File::create(path).map_err(crate::error::io(path))?;
+        let mut w = std::io::BufWriter::new(f);
+        let e = crate::error::io(path);
+        let mut text = self.columns.join(",");
+        text.push('\n');
+        for row in &self.rows {
+            let line: Vec<String> = row.iter().map(|v| format!("{v:e}")).collect();
+            text.push_str(&line.join(","));
+            text.push('\n');
+        }
+        w.write_all(text.as_bytes()).map_err(e)?;
+        Ok(())
+    }
+
+    /// The column called `name`.
+    pub fn column(&self, name: &str) -> Option<Vec<f64>> {
+        let k = self.columns.iter().position(|c| c == name)?;
+        Some(self.rows.iter().map(|r| r[k]).collect())
+    }
+}
+
+/// Runs `system` to its stop time, recording `record` every `decimation` base steps (and at
+/// the start). `progress` is called after every step with (time, stop time).
+///
+/// # Errors
+/// As [`Simulation::new`] and [`Simulation::step`].
+pub fn run(
+    system: &System,
+    record: &[String],
+    decimation: usize,
+    progress: &mut dyn FnMut(f64, f64),
+) -> Result<Results> {
+    let decimation = decimation.max(1);
+    let mut sim = Simulation::new(system, record)?;
+    let mut columns = vec!["time".to_string()];
+    columns.extend(sim.recorded_columns().iter().cloned());
+    let width = columns.len() - 1;
+    let mut rows = Vec::new();
+    let sample = |sim: &Simulation, rows: &mut Vec<Vec<f64>>| {
+        let mut row = vec![0.0; width + 1];
+        row[0] = sim.time();
+        sim.recorded_values(&mut row[1..]);
+        rows.push(row);
+    };
+    sample(&sim, &mut rows);
+    let mut k = 0usize;
+    while !sim.finished() {
+        sim.step()?;
+        k += 1;
+        if k.is_multiple_of(decimation) {
+            sample(&sim, &mut rows);
+        }
+        progress(sim.time(), sim.stop_time());
+    }
+    sim.terminate()?;
+    Ok(Results { columns, rows })
+}
+
+/// Start value of a variable as a [`Value`] (for reports).
+pub fn start_value(v: &ScalarVariable) -> Option<Value> {
+    v.start.as_ref().map(|s| match s {
+        Start::Real(x) => Value::Real(*x),
+        Start::Integer(x) => Value::Integer(*x),
+        Start::Boolean(x) => Value::Boolean(*x),
+        Start::String(x) => Value::String(x.clone()),
+    })
+}
