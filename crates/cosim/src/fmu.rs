@@ -37,7 +37,12 @@ const EXTENSION: &str = if cfg!(target_os = "macos") {
 pub(crate) struct TempDir(PathBuf);
 
 impl TempDir {
-    fn new(stem: &str) -> Result<Self> {
+    /// Its path.
+    pub(crate) fn path(&self) -> &Path {
+        &self.0
+    }
+
+    pub(crate) fn new(stem: &str) -> Result<Self> {
         static COUNT: AtomicU64 = AtomicU64::new(0);
         let n = COUNT.fetch_add(1, Ordering::Relaxed);
         let safe: String = stem

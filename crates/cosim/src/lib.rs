@@ -14,6 +14,7 @@ pub mod fmu;
 pub mod instance;
 pub mod library;
 pub mod logger;
+pub mod ssp;
 pub mod system;
 
 pub use description::ModelDescription;
