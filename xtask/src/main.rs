@@ -26,6 +26,30 @@ const FMUS: &[FmuCrate] = &[
         name: "segments_piezo",
         write: fmu::package::write_fmu::<segments::Piezo>,
     },
+    FmuCrate {
+        name: "structure",
+        write: fmu::package::write_fmu::<structure_model::Structure>,
+    },
+    FmuCrate {
+        name: "wind",
+        write: fmu::package::write_fmu::<wind_model::Wind>,
+    },
+    FmuCrate {
+        name: "pier_vibration",
+        write: fmu::package::write_fmu::<pier_vibration_model::PierVibrationFmu>,
+    },
+    FmuCrate {
+        name: "optics",
+        write: fmu::package::write_fmu::<optics_model::Optics>,
+    },
+    FmuCrate {
+        name: "edge_sensors",
+        write: fmu::package::write_fmu::<edge_sensors_model::EdgeSensorsModel>,
+    },
+    FmuCrate {
+        name: "global_controller",
+        write: fmu::package::write_fmu::<global_controller_model::GlobalControllerModel>,
+    },
 ];
 
 fn root() -> PathBuf {

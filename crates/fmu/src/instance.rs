@@ -139,8 +139,9 @@ impl<M: Model> Instance<M> {
         callbacks: Option<fmi2CallbackFunctions>,
         logging_on: bool,
     ) -> Result<Self, FmuError> {
-        let from_resources = resource_location
-            .and_then(resource_dir)
+        let dir = resource_location.and_then(resource_dir);
+        let from_resources = dir
+            .as_ref()
             .and_then(|d| std::fs::read_to_string(d.join(VARIANT_FILE)).ok())
             .map(|s| s.trim().to_string());
         let candidates = match &from_resources {
@@ -149,9 +150,12 @@ impl<M: Model> Instance<M> {
         };
         let mut expected = Vec::new();
         for variant in candidates {
-            let (table, model) = M::new(&variant)?;
+            let (table, mut model) = M::new(&variant)?;
             let g = crate::xml::guid(&M::INFO, &table);
             if g == guid {
+                if let Some(d) = &dir {
+                    model.set_resource_dir(d);
+                }
                 let values = table.initial_values();
                 return Ok(Self {
                     magic: MAGIC,

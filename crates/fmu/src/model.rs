@@ -42,6 +42,11 @@ pub trait Model: Clone + Send + Serialize + DeserializeOwned + 'static {
         Vec::new()
     }
 
+    /// Tells the model where the unpacked archive's resources/ folder is (decoded from the
+    /// fmuResourceLocation given to fmi2Instantiate), when the importer passed one. Called once,
+    /// right after [`Model::new`], before any parameter is set. The default ignores it.
+    fn set_resource_dir(&mut self, _dir: &std::path::Path) {}
+
     /// Reads parameters, checks their combination, prepares the computation and writes the
     /// initial outputs. Called when outputs are read during initialisation mode and at
     /// fmi2ExitInitializationMode.

@@ -20,8 +20,18 @@ pub fn base_units(unit: &str) -> Option<[i32; 8]> {
         "Pa" => [1, -1, -2, 0, 0, 0, 0, 0],
         "rad" => [0, 0, 0, 0, 0, 0, 0, 1],
         "m.s" => [0, 1, 1, 0, 0, 0, 0, 0],
+        "kg/m3" => [1, -3, 0, 0, 0, 0, 0, 0],
+        "deg" => [0, 0, 0, 0, 0, 0, 0, 1],
         _ => return None,
     })
+}
+
+/// Factor from a unit to its base units (`deg` -> rad: pi / 180; 1 for the others).
+pub fn factor(unit: &str) -> f64 {
+    match unit {
+        "deg" => std::f64::consts::PI / 180.0,
+        _ => 1.0,
+    }
 }
 
 /// Names of the base units in the order of [`base_units`], as FMI attribute names.

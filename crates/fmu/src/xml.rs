@@ -145,6 +145,11 @@ pub fn model_description(info: &ModelInfo, table: &VariableTable, guid: &str) ->
                     .filter(|(_, e)| *e != 0)
                     .map(|(n, e)| (n.to_string(), e.to_string()))
                     .collect();
+                let mut vals = vals;
+                let factor = crate::units::factor(u);
+                if factor != 1.0 {
+                    vals.push(("factor".into(), crate::variables::format_real(factor)));
+                }
                 let attrs: Vec<(&str, &str)> =
                     vals.iter().map(|(a, b)| (a.as_str(), b.as_str())).collect();
                 x.empty("BaseUnit", &attrs);

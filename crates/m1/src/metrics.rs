@@ -1,1 +1,409 @@
-//! Optical metrics of a mirror state (rms surface, focus-mode, PSSN).
+//! Optical metrics of a mirror state: rms surface error with the global piston/tip/tilt removed,
+//! focus-mode amplitude, and the rms without focus-mode ([`MirrorMetrics`]); the PSSN of the same
+//! state comes from [`crate::pssn::Pssn`] fed with [`MirrorMetrics::residual_ptt`].
+//!
+//! # Surface of a segment state
+//!
+//! The input is `z` (m, length `na = 3 N`): the displacement of the mirror normal to the segment
+//! at each actuator, actuator `k` of segment `i` at index `3 i + k`. Segments are rigid, so the
+//! surface error over segment `i` is an affine function of the position `(x, y)` in the
+//! aperture plane (the plane of [`crate::layout`], where every segment is a regular hexagon of
+//! circumradius `a` centred on `c_i`):
+//!
+//! $$s_i(x, y) = p_i + t_{x,i}\,(x - c_{x,i}) + t_{y,i}\,(y - c_{y,i}),$$
+//!
+//! the `[p, tx, ty]` state of [`crate::zernike`] and [`crate::pssn`]. It is the plane through
+//! the three actuator points projected onto the aperture plane with heights `z`:
+//! `[p, tx, ty]_i = M_i^{-1} z_i`, rows of `M_i` = `[1, a_{x,k} - c_{x,i}, a_{y,k} - c_{y,i}]`
+//! ([`aperture_ptt_matrix`]). The segment moves rigidly in its tangent plane and the tangent
+//! plane projects affinely onto the aperture plane, so this is exact for the normal
+//! displacement; the surface error is taken as that normal displacement (the obliquity of the
+//! segment normal, `cos` of the surface slope, at most 3 % at the edge of TMT, is neglected).
+//!
+//! # Metric and global piston/tip/tilt
+//!
+//! The metric is the area integral over the segmented aperture (gaps excluded). A regular
+//! hexagon is centrally symmetric with an isotropic second moment, so for hexagon area
+//! $A = \frac{3\sqrt3}{2}a^2$ and second moment $I = \frac{5\sqrt3}{16}a^4$ about any in-plane
+//! axis through the centre (exact closed forms),
+//!
+//! $$\langle s, s' \rangle = \sum_i A\,p_i p'_i + I\,(t_{x,i} t'_{x,i} + t_{y,i} t'_{y,i}).$$
+//!
+//! The global piston/tip/tilt is the least-squares plane $g(x, y) = P + T_x x + T_y y$ over the
+//! aperture (coordinates about the aperture centroid): $G\beta = b$ with $G$ the Gram matrix of
+//! $\{1, x, y\}$ in this metric and $b_j = \langle s, g_j \rangle$. The residual is $r = s - g$.
+//!
+//! - **`rms`** (m, surface): $\sqrt{\|r\|^2 / (N A)}$, the area-weighted rms over the aperture of
+//!   the surface with the best-fit global piston/tip/tilt removed. The wavefront error is twice
+//!   this (reflection at normal incidence).
+//! - **`focus`** (m): the coefficient `c` of the focus-mode vector `f` (actuator space, unit
+//!   Euclidean norm over the `na` actuators, [`crate::quasistatic::Nominal::focus`]) in the
+//!   least-squares fit of `r` by the residual `F` of `f`: $c = \langle r, F \rangle /
+//!   \|F\|^2$. So `z = c f` gives `c`, and `z = c f` plus any global piston/tip/tilt too. As a
+//!   surface, `c` units of focus-mode have the rms `c * focus_rms_per_unit()`.
+//! - **`rms_without_focus`** (m, surface): $\sqrt{\|r - cF\|^2 / (N A)}$.
+//!
+//! Every residual is accumulated directly (not as a difference of squares), so a pure global
+//! piston/tip/tilt gives 0 to round-off (the plane is refined once on the residual). An evaluation
+//! is three passes over the segments, `O(na)`, without allocation.
+
+use nalgebra::{Matrix3, Vector3};
+
+use crate::M1Error;
+use crate::geometry::Geometry;
+use crate::quasistatic::Nominal;
+
+/// Area of a regular hexagon of circumradius `a`: `3 sqrt(3) / 2 a^2` (m^2).
+pub fn hexagon_area(a: f64) -> f64 {
+    1.5 * 3.0_f64.sqrt() * a * a
+}
+
+/// Second moment of area of a regular hexagon of circumradius `a` about any in-plane axis
+/// through its centre: `5 sqrt(3) / 16 a^4` (m^4).
+pub fn hexagon_second_moment(a: f64) -> f64 {
+    5.0 * 3.0_f64.sqrt() / 16.0 * a.powi(4)
+}
+
+/// Matrix `M_i` of segment `i` (rows: actuators; columns: `p`, `tx`, `ty`): the actuator
+/// heights of the aperture-plane state `[p, tx, ty]` are `z = M_i [p, tx, ty]`, with the actuator
+/// points projected onto the aperture plane. See the [module documentation](self).
+///
+/// # Panics
+/// If `i >= geometry.n_segments()`.
+pub fn aperture_ptt_matrix(geometry: &Geometry, i: usize) -> [[f64; 3]; 3] {
+    let f = &geometry.segments[i];
+    std::array::from_fn(|k| {
+        [
+            1.0,
+            f.actuators[k][0] - f.centre[0],
+            f.actuators[k][1] - f.centre[1],
+        ]
+    })
+}
+
+fn inverse(m: &[[f64; 3]; 3], i: usize) -> Result<Matrix3<f64>, M1Error> {
+    Matrix3::from_fn(|r, c| m[r][c])
+        .try_inverse()
+        .ok_or(M1Error::InvalidParameter {
+            name: "actuator_radius",
+            value: i as f64,
+            reason: "the projected actuator triangle of a segment is degenerate",
+        })
+}
+
+/// The aperture-plane state `[p, tx, ty]` of every segment from the actuator heights `z`
+/// (m, length `3 N`).
+pub fn actuators_to_ptt(geometry: &Geometry, z: &[f64]) -> Result<Vec<[f64; 3]>, M1Error> {
+    check_len(z, geometry.n_actuators())?;
+    (0..geometry.n_segments())
+        .map(|i| {
+            let m = inverse(&aperture_ptt_matrix(geometry, i), i)?;
+            let s = m * Vector3::new(z[3 * i], z[3 * i + 1], z[3 * i + 2]);
+            Ok([s[0], s[1], s[2]])
+        })
+        .collect()
+}
+
+/// The actuator heights `z` (length `3 N`) of an aperture-plane segment state `ptt`.
+pub fn ptt_to_actuators(geometry: &Geometry, ptt: &[[f64; 3]]) -> Result<Vec<f64>, M1Error> {
+    if ptt.len() != geometry.n_segments() {
+        return Err(M1Error::SizeMismatch {
+            what: "segment piston/tip/tilt",
+            expected: geometry.n_segments(),
+            found: ptt.len(),
+        });
+    }
+    let mut z = Vec::with_capacity(geometry.n_actuators());
+    for (i, s) in ptt.iter().enumerate() {
+        for row in aperture_ptt_matrix(geometry, i) {
+            z.push(row[0] * s[0] + row[1] * s[1] + row[2] * s[2]);
+        }
+    }
+    Ok(z)
+}
+
+fn check_len(z: &[f64], na: usize) -> Result<(), M1Error> {
+    if z.len() == na {
+        Ok(())
+    } else {
+        Err(M1Error::SizeMismatch {
+            what: "actuator displacements z",
+            expected: na,
+            found: z.len(),
+        })
+    }
+}
+
+/// The metrics of one mirror state (see the [module documentation](self)).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct SurfaceMetrics {
+    /// Area-weighted rms surface error with the global piston/tip/tilt removed (m).
+    pub rms: f64,
+    /// Focus-mode amplitude: coefficient of the unit-norm focus-mode vector (m).
+    pub focus: f64,
+    /// Rms surface error with global piston/tip/tilt and focus-mode removed (m).
+    pub rms_without_focus: f64,
+    /// The removed global plane `[P, Tx, Ty]`: piston at the aperture centroid (m) and slopes
+    /// `dz/dx`, `dz/dy` (rad).
+    pub global_ptt: [f64; 3],
+}
+
+/// Precomputed projections for [`SurfaceMetrics`] of a geometry (see the
+/// [module documentation](self)).
+#[derive(Debug, Clone)]
+pub struct MirrorMetrics {
+    /// Segment area `A` (m^2).
+    area: f64,
+    /// Segment second moment `I` (m^4).
+    moment: f64,
+    /// Segment centres about the aperture centroid (m).
+    centres: Vec<[f64; 2]>,
+    /// Aperture centroid (m).
+    centroid: [f64; 2],
+    /// `M_i^-1` per segment, row-major.
+    to_ptt: Vec<[f64; 9]>,
+    /// Inverse Gram matrix of the global modes {1, x, y}.
+    gram_inv: Matrix3<f64>,
+    /// Focus-mode residual state per segment and `||F||^2`.
+    focus_ptt: Vec<[f64; 3]>,
+    focus_norm2: f64,
+    /// The focus-mode vector in actuator space (unit norm).
+    focus: Vec<f64>,
+}
+
+/// Sums of the first evaluation pass.
+struct Moments {
+    b: Vector3<f64>,
+    sf: f64,
+}
+
+impl MirrorMetrics {
+    /// Metrics for `geometry` with the focus-mode of its A-matrix
+    /// ([`Nominal::new`], which builds A and its reconstructor: about a second for TMT).
+    pub fn new(geometry: &Geometry) -> Result<MirrorMetrics, M1Error> {
+        let nominal = Nominal::new(geometry.clone())?;
+        MirrorMetrics::with_focus(geometry, &nominal.focus)
+    }
+
+    /// Metrics for `geometry` with a given focus-mode vector `focus` (actuator space, length
+    /// `na`, non-zero outside the global piston/tip/tilt; it is used as given, normalised to
+    /// unit Euclidean norm).
+    pub fn with_focus(geometry: &Geometry, focus: &[f64]) -> Result<MirrorMetrics, M1Error> {
+        let n = geometry.n_segments();
+        check_len(focus, geometry.n_actuators())?;
+        if n == 0 {
+            return Err(M1Error::InvalidParameter {
+                name: "n_segments",
+                value: 0.0,
+                reason: "the mirror has no segment",
+            });
+        }
+        let a = geometry.layout.circumradius;
+        let area = hexagon_area(a);
+        let moment = hexagon_second_moment(a);
+        let centroid = {
+            let (sx, sy) = geometry
+                .segments
+                .iter()
+                .fold((0.0, 0.0), |(x, y), f| (x + f.centre[0], y + f.centre[1]));
+            [sx / n as f64, sy / n as f64]
+        };
+        let centres: Vec<[f64; 2]> = geometry
+            .segments
+            .iter()
+            .map(|f| [f.centre[0] - centroid[0], f.centre[1] - centroid[1]])
+            .collect();
+        let to_ptt = (0..n)
+            .map(|i| {
+                let m = inverse(&aperture_ptt_matrix(geometry, i), i)?;
+                Ok(std::array::from_fn(|k| m[(k / 3, k % 3)]))
+            })
+            .collect::<Result<Vec<[f64; 9]>, M1Error>>()?;
+        // Gram matrix of {1, x, y}: <1,1> = N A, <1,x> = A sum cx, <x,x> = A sum cx^2 + N I, ...
+        let mut gram = Matrix3::zeros();
+        for c in &centres {
+            let g = [1.0, c[0], c[1]];
+            for r in 0..3 {
+                for k in 0..3 {
+                    gram[(r, k)] += area * g[r] * g[k];
+                }
+            }
+        }
+        gram[(1, 1)] += n as f64 * moment;
+        gram[(2, 2)] += n as f64 * moment;
+        let gram_inv = gram.try_inverse().ok_or(M1Error::InvalidParameter {
+            name: "n_segments",
+            value: n as f64,
+            reason: "the global piston/tip/tilt are not independent on this aperture",
+        })?;
+        let norm = focus.iter().map(|x| x * x).sum::<f64>().sqrt();
+        if !(norm > 0.0 && norm.is_finite()) {
+            return Err(M1Error::InvalidParameter {
+                name: "focus",
+                value: norm,
+                reason: "the focus-mode vector must be finite and non-zero",
+            });
+        }
+        let focus: Vec<f64> = focus.iter().map(|x| x / norm).collect();
+        let mut metrics = MirrorMetrics {
+            area,
+            moment,
+            centres,
+            centroid,
+            to_ptt,
+            gram_inv,
+            focus_ptt: vec![[0.0; 3]; n],
+            focus_norm2: 1.0,
+            focus: Vec::new(),
+        };
+        let mut residual = vec![[0.0; 3]; n];
+        metrics.residual_ptt(&focus, &mut residual)?;
+        let focus_norm2 = residual.iter().map(|r| metrics.norm2(r)).sum::<f64>();
+        let total_norm2 = (0..n)
+            .map(|i| metrics.norm2(&metrics.segment_ptt(i, &focus)))
+            .sum::<f64>();
+        // Relative to the whole mode: round-off leaves ~1e-32 of a pure global plane.
+        if focus_norm2.is_nan() || focus_norm2 <= 1e-20 * total_norm2 {
+            return Err(M1Error::InvalidParameter {
+                name: "focus",
+                value: focus_norm2,
+                reason: "the focus-mode vector is a global piston/tip/tilt",
+            });
+        }
+        metrics.focus_ptt = residual;
+        metrics.focus_norm2 = focus_norm2;
+        metrics.focus = focus;
+        Ok(metrics)
+    }
+
+    /// Number of segments `N`.
+    pub fn n_segments(&self) -> usize {
+        self.centres.len()
+    }
+
+    /// Number of actuators `na = 3 N`.
+    pub fn n_actuators(&self) -> usize {
+        3 * self.centres.len()
+    }
+
+    /// Segmented aperture area `N A` (m^2).
+    pub fn total_area(&self) -> f64 {
+        self.n_segments() as f64 * self.area
+    }
+
+    /// Aperture centroid `(x, y)` (m), the origin of the global plane.
+    pub fn centroid(&self) -> [f64; 2] {
+        self.centroid
+    }
+
+    /// The focus-mode vector (actuator space, unit Euclidean norm).
+    pub fn focus_mode(&self) -> &[f64] {
+        &self.focus
+    }
+
+    /// Rms surface (m) of one unit of focus-mode amplitude, global piston/tip/tilt removed.
+    pub fn focus_rms_per_unit(&self) -> f64 {
+        (self.focus_norm2 / self.total_area()).sqrt()
+    }
+
+    /// `||s_i||^2` of one segment state.
+    fn norm2(&self, s: &[f64; 3]) -> f64 {
+        self.area * s[0] * s[0] + self.moment * (s[1] * s[1] + s[2] * s[2])
+    }
+
+    fn segment_ptt(&self, i: usize, z: &[f64]) -> [f64; 3] {
+        let m = &self.to_ptt[i];
+        let (z0, z1, z2) = (z[3 * i], z[3 * i + 1], z[3 * i + 2]);
+        [
+            m[0] * z0 + m[1] * z1 + m[2] * z2,
+            m[3] * z0 + m[4] * z1 + m[5] * z2,
+            m[6] * z0 + m[7] * z1 + m[8] * z2,
+        ]
+    }
+
+    /// First pass: `b = <s, {1, x, y}>` and `<s, F>`.
+    fn moments(&self, z: &[f64]) -> Moments {
+        let mut b = Vector3::zeros();
+        let mut sf = 0.0;
+        for (i, c) in self.centres.iter().enumerate() {
+            let s = self.segment_ptt(i, z);
+            let ap = self.area * s[0];
+            b[0] += ap;
+            b[1] += ap * c[0] + self.moment * s[1];
+            b[2] += ap * c[1] + self.moment * s[2];
+            let f = &self.focus_ptt[i];
+            sf += ap * f[0] + self.moment * (s[1] * f[1] + s[2] * f[2]);
+        }
+        Moments { b, sf }
+    }
+
+    /// The global plane `beta` of `z` and `<s, F>`: the normal equations, then one step of
+    /// iterative refinement on the residual (the plane is usually much larger than the
+    /// residual, whose round-off this brings from about `10 eps` to `eps` of the plane).
+    fn global_plane(&self, z: &[f64]) -> (Vector3<f64>, f64) {
+        let m = self.moments(z);
+        let mut beta = self.gram_inv * m.b;
+        let mut b = Vector3::zeros();
+        for (i, c) in self.centres.iter().enumerate() {
+            let r = self.residual(i, z, &beta);
+            let ap = self.area * r[0];
+            b[0] += ap;
+            b[1] += ap * c[0] + self.moment * r[1];
+            b[2] += ap * c[1] + self.moment * r[2];
+        }
+        beta += self.gram_inv * b;
+        (beta, m.sf)
+    }
+
+    /// Residual of segment `i` after removing the global plane `beta`.
+    fn residual(&self, i: usize, z: &[f64], beta: &Vector3<f64>) -> [f64; 3] {
+        let s = self.segment_ptt(i, z);
+        let c = &self.centres[i];
+        [
+            s[0] - (beta[0] + beta[1] * c[0] + beta[2] * c[1]),
+            s[1] - beta[1],
+            s[2] - beta[2],
+        ]
+    }
+
+    /// The metrics of the actuator displacements `z` (m, length `na`).
+    pub fn evaluate(&self, z: &[f64]) -> Result<SurfaceMetrics, M1Error> {
+        check_len(z, self.n_actuators())?;
+        let (beta, sf) = self.global_plane(z);
+        // F is orthogonal to {1, x, y}, so <r, F> = <s, F>.
+        let c = sf / self.focus_norm2;
+        let (mut rr, mut qq) = (0.0, 0.0);
+        for i in 0..self.n_segments() {
+            let r = self.residual(i, z, &beta);
+            rr += self.norm2(&r);
+            let f = &self.focus_ptt[i];
+            qq += self.norm2(&[r[0] - c * f[0], r[1] - c * f[1], r[2] - c * f[2]]);
+        }
+        let area = self.total_area();
+        Ok(SurfaceMetrics {
+            rms: (rr / area).sqrt(),
+            focus: c,
+            rms_without_focus: (qq / area).sqrt(),
+            global_ptt: [beta[0], beta[1], beta[2]],
+        })
+    }
+
+    /// The segment states `[p, tx, ty]` (about each segment centre, aperture plane) of `z` with
+    /// the global piston/tip/tilt removed, written into `out` (length `N`): the input of
+    /// [`crate::pssn::Pssn::pssn_ptt`]. Returns the removed plane `[P, Tx, Ty]`.
+    pub fn residual_ptt(&self, z: &[f64], out: &mut [[f64; 3]]) -> Result<[f64; 3], M1Error> {
+        check_len(z, self.n_actuators())?;
+        if out.len() != self.n_segments() {
+            return Err(M1Error::SizeMismatch {
+                what: "segment piston/tip/tilt",
+                expected: self.n_segments(),
+                found: out.len(),
+            });
+        }
+        let (beta, _) = self.global_plane(z);
+        for (i, o) in out.iter_mut().enumerate() {
+            *o = self.residual(i, z, &beta);
+        }
+        Ok([beta[0], beta[1], beta[2]])
+    }
+}

@@ -1,1 +1,458 @@
-//! Model wiring of the `structure` FMU: the telescope structure seen by M1 (modal model driven by actuator forces and pier motion).
+//! Model wiring of the `structure` FMU: the telescope structure seen by M1 (modal model driven by
+//! actuator forces and pier motion). The physics is [`m1::structure`]; this crate declares the
+//! variables and moves values between the FMI value store and [`ModalSolver`].
+//!
+//! | variable | causality | size | unit |
+//! |---|---|---|---|
+//! | `f_cell` | input | na | N |
+//! | `pier_z` | input | 1 | m |
+//! | `z_cell` | output (no direct dependency on inputs) | na | m |
+//!
+//! with na = 3 x the number of segments of the packaged layout (actuator k of segment i at
+//! index 3 i + k, 1-based in FMI names: `z_cell[3 i + k + 1]`).
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use fmu::{
+    Dependencies, FmuError, IntVar, Model, ModelInfo, RealVar, StrVar, TableBuilder as T, Values,
+    VariableTable,
+};
+use m1::M1Error;
+use m1::layout::Layout;
+use m1::structure::{CellModel, CellParams, ModalModel, ModalSolver};
+
+/// Handles of every variable.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+struct Vars {
+    layout: StrVar,
+    n_segments: IntVar,
+    f_cell: RealVar,
+    pier_z: RealVar,
+    z_cell: RealVar,
+    modal_file: StrVar,
+    n_modes: IntVar,
+    damping_ratio: RealVar,
+    cell_mass: RealVar,
+    mount_mass_ratio: RealVar,
+    mount_frequency: RealVar,
+    support_frequency: RealVar,
+    cell_frequency: RealVar,
+    torsion_ratio: RealVar,
+    support_radius: RealVar,
+    first_mode_frequency: RealVar,
+    highest_mode_frequency: RealVar,
+    n_modes_retained: IntVar,
+}
+
+/// The `structure` FMU.
+#[derive(Clone, Serialize, Deserialize)]
+pub struct Structure {
+    vars: Vars,
+    layout: String,
+    na: usize,
+    resource_dir: Option<PathBuf>,
+    solver: Option<ModalSolver>,
+}
+
+const DOC: &str = "<h2>Model</h2><p>The telescope structure as seen by M1, as a modal model: \
+<code>q<sub>j</sub>'' + 2&zeta;<sub>j</sub>&omega;<sub>j</sub>q<sub>j</sub>' + \
+&omega;<sub>j</sub><sup>2</sup>q<sub>j</sub> = u<sub>j</sub></code>, \
+<code>u = &Phi;<sub>a</sub><sup>T</sup> f_cell + k<sub>p</sub> &phi;<sub>p</sub> pier_z</code>, \
+<code>z_cell = &Phi;<sub>a</sub> q + R</code>, with mass-normalised mode shapes &Phi;<sub>a</sub> \
+at the actuator attachments (na &times; n) and &phi;<sub>p</sub> at the node of the pier spring \
+k<sub>p</sub>. The <code>n_modes</code> lowest modes are integrated exactly over each \
+communication step (zero-order hold: exact 2&times;2 matrix exponential per mode); the static \
+response of the truncated modes is added back (static correction, residual flexibility) \
+<code>R = G f + g<sub>p</sub> p &minus; &Phi;<sub>a</sub>&Omega;<sup>&minus;2</sup>u</code>, \
+so the static deflection is exact for any <code>n_modes</code>.</p>\
+<p><b>No direct feedthrough.</b> <code>z_cell</code> declares no dependency on the inputs (the \
+segments' <code>f_cell</code> depends directly on <code>z_cell</code>, so this avoids an \
+algebraic loop): the static correction uses the inputs held over the last completed step, i.e. \
+the quasi-static residual lags the inputs by one communication step. The FMU starts at rest, \
+undeformed (<code>z_cell = 0</code>).</p>\
+<p><b>Pier.</b> The mount rests on the pier through the spring k<sub>p</sub>; pier motion is a \
+base excitation through it, the force k<sub>p</sub> pier_z on the mount of a model whose pier \
+spring is grounded. At DC the structure follows the pier rigidly.</p>\
+<h2>Built-in model (<code>modal_file</code> empty)</h2><p>A beam grillage with one node \
+(w, &theta;<sub>x</sub>, &theta;<sub>y</sub>) at every segment centre and an Euler-Bernoulli \
+beam (EI, GJ = <code>torsion_ratio</code> EI) along every shared edge; the three actuator \
+attachments are rigid offsets of the node (z = w + &theta;<sub>x</sub> dy &minus; \
+&theta;<sub>y</sub> dx). Each node carries <code>cell_mass</code> (and the rotary inertia of a \
+pitch-sized square patch). The cell rests on vertical support springs at the ring of nodes near \
+<code>support_radius</code> &times; the largest centre radius, on a mount of mass \
+<code>mount_mass_ratio</code> &times; the cell mass, on the pier spring. The stiffnesses come \
+from target frequencies: the rigid cell and mount on the pier (<code>mount_frequency</code>), \
+the rigid cell on its supports (<code>support_frequency</code>) and the first elastic mode of \
+the grillage pinned at its supports (<code>cell_frequency</code>). The coupled modes (3N+1 \
+degrees of freedom, one dense eigensolve at initialisation: about 1 s for TMT) are damped with \
+<code>damping_ratio</code>; the static correction is the FE model's exact static solve.</p>\
+<h2>Imported model (<code>modal_file</code>)</h2><p>A NumPy <code>.npz</code> file of \
+little-endian float64 arrays (n modes, na actuators): <code>frequencies</code> (n,) Hz, all \
+&gt; 0; <code>phi_cell</code> (na, n) mass-normalised shapes at the attachments, 1/sqrt(kg); \
+<code>phi_pier</code> (n,) shapes at the pier spring's node; <code>k_pier</code> () N/m; \
+optional <code>damping_ratios</code> (n,) (else <code>damping_ratio</code>), \
+<code>flexibility</code> (na, na) m/N static compliance at the attachments (enables the static \
+correction of f_cell; costs O(na<sup>2</sup>) per step) and <code>static_pier</code> (na,) m/m \
+static response to pier_z. A relative path is looked up in the FMU's resources/ folder first, \
+then in the importer's working directory. See examples/write_structure_npz.py.</p>";
+
+fn table(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
+    let na = layout.n_actuators();
+    let d = CellParams::default();
+    let mut b = T::new();
+    let layout_var = b.add_string(
+        T::string("layout")
+            .structural()
+            .start_str(&layout.name)
+            .describe("Mirror layout this FMU was packaged for"),
+    );
+    let n_segments = b.add_integer(
+        T::integer("n_segments")
+            .structural()
+            .start_int(i32::try_from(layout.n_segments()).unwrap_or(i32::MAX))
+            .describe("Number of segments (array sizes are 3 x n_segments)"),
+    );
+    let f_cell = b.add_real(
+        T::real("f_cell")
+            .input()
+            .len(na)
+            .unit("N")
+            .start(0.0)
+            .describe("Force of each actuator on the mirror cell, +z towards the sky"),
+    );
+    let pier_z = b.add_real(
+        T::real("pier_z")
+            .input()
+            .unit("m")
+            .start(0.0)
+            .describe("Vertical pier motion (base excitation through the pier spring)"),
+    );
+    let z_cell = b.add_real(
+        T::real("z_cell")
+            .output()
+            .len(na)
+            .unit("m")
+            .depends(Dependencies::None)
+            .describe(
+                "Cell displacement at each actuator attachment (no direct feedthrough: the \
+                 static correction uses the inputs of the last completed step)",
+            ),
+    );
+    let modal_file = b.add_string(T::string("modal_file").parameter().start_str("").describe(
+        "NumPy .npz modal model exported from an FE model (empty: the built-in \
+                 parametric mirror cell); relative paths are looked up in resources/ first",
+    ));
+    let n_modes = b.add_integer(
+        T::integer("n_modes")
+            .parameter()
+            .start_int(60)
+            .positive()
+            .describe(
+                "Number of lowest modes integrated (all if the model has fewer); the others \
+                 enter through the static correction",
+            ),
+    );
+    let damping_ratio = b.add_real(
+        T::real("damping_ratio")
+            .parameter()
+            .unit("1")
+            .start(0.02)
+            .check(fmu::Check::Range(0.0, 10.0))
+            .describe("Modal damping ratio of every mode (unless the modal file gives its own)"),
+    );
+    let p = |b: &mut T, name: &str, unit: &str, x: f64, desc: &str| {
+        b.add_real(
+            T::real(name)
+                .parameter()
+                .unit(unit)
+                .start(x)
+                .positive()
+                .describe(desc),
+        )
+    };
+    let cell_mass = p(
+        &mut b,
+        "cell_mass",
+        "kg",
+        d.cell_mass,
+        "Built-in model: cell structural mass lumped at each segment node",
+    );
+    let mount_mass_ratio = p(
+        &mut b,
+        "mount_mass_ratio",
+        "1",
+        d.mount_mass_ratio,
+        "Built-in model: mount mass as a multiple of the total cell mass",
+    );
+    let mount_frequency = p(
+        &mut b,
+        "mount_frequency",
+        "Hz",
+        d.mount_frequency,
+        "Built-in model: target bounce frequency of the rigid cell and mount on the pier spring",
+    );
+    let support_frequency = p(
+        &mut b,
+        "support_frequency",
+        "Hz",
+        d.support_frequency,
+        "Built-in model: target bounce frequency of the rigid cell on its supports",
+    );
+    let cell_frequency = p(
+        &mut b,
+        "cell_frequency",
+        "Hz",
+        d.cell_frequency,
+        "Built-in model: target first elastic mode of the grillage pinned at its supports",
+    );
+    let torsion_ratio = p(
+        &mut b,
+        "torsion_ratio",
+        "1",
+        d.torsion_ratio,
+        "Built-in model: torsion to bending stiffness ratio GJ/EI of the grillage beams",
+    );
+    let support_radius = b.add_real(
+        T::real("support_radius")
+            .parameter()
+            .unit("1")
+            .start(d.support_radius)
+            .check(fmu::Check::Range(0.05, 1.0))
+            .describe(
+                "Built-in model: radius of the support ring as a fraction of the largest \
+                 segment-centre radius",
+            ),
+    );
+    let first_mode_frequency = b.add_real(
+        T::real("first_mode_frequency")
+            .calculated_parameter()
+            .unit("Hz")
+            .describe("Lowest natural frequency of the structure model"),
+    );
+    let highest_mode_frequency = b.add_real(
+        T::real("highest_mode_frequency")
+            .calculated_parameter()
+            .unit("Hz")
+            .describe("Highest natural frequency among the integrated modes"),
+    );
+    let n_modes_retained = b.add_integer(
+        T::integer("n_modes_retained")
+            .calculated_parameter()
+            .describe("Number of modes integrated (n_modes, or all the model has)"),
+    );
+    let table = b.build()?;
+    Ok((
+        table,
+        Vars {
+            layout: layout_var,
+            n_segments,
+            f_cell,
+            pier_z,
+            z_cell,
+            modal_file,
+            n_modes,
+            damping_ratio,
+            cell_mass,
+            mount_mass_ratio,
+            mount_frequency,
+            support_frequency,
+            cell_frequency,
+            torsion_ratio,
+            support_radius,
+            first_mode_frequency,
+            highest_mode_frequency,
+            n_modes_retained,
+        },
+    ))
+}
+
+fn model_error(e: M1Error) -> FmuError {
+    match e {
+        M1Error::InvalidParameter {
+            name,
+            value,
+            reason,
+        } => FmuError::BadValue {
+            variable: name.to_string(),
+            value: value.to_string(),
+            reason: reason.to_string(),
+        },
+        other => FmuError::Model(other.to_string()),
+    }
+}
+
+impl Structure {
+    /// Where `modal_file` points: absolute as given; relative, in resources/ if it exists there,
+    /// else relative to the working directory.
+    fn resolve(&self, file: &str) -> PathBuf {
+        let p = Path::new(file);
+        if p.is_relative()
+            && let Some(dir) = &self.resource_dir
+        {
+            let candidate = dir.join(p);
+            if candidate.exists() {
+                return candidate;
+            }
+        }
+        p.to_path_buf()
+    }
+
+    fn modal_model(&self, v: &Values) -> Result<ModalModel, FmuError> {
+        let x = &self.vars;
+        let file = v.string(x.modal_file).trim().to_string();
+        if file.is_empty() {
+            let s = |h: RealVar| v.scalar(h);
+            let params = CellParams {
+                cell_mass: s(x.cell_mass),
+                mount_mass_ratio: s(x.mount_mass_ratio),
+                mount_frequency: s(x.mount_frequency),
+                support_frequency: s(x.support_frequency),
+                cell_frequency: s(x.cell_frequency),
+                torsion_ratio: s(x.torsion_ratio),
+                support_radius: s(x.support_radius),
+            };
+            let layout =
+                Layout::preset(&self.layout).map_err(|e| FmuError::Model(e.to_string()))?;
+            let cell = CellModel::new(&layout, &params).map_err(model_error)?;
+            cell.modes().map_err(model_error)
+        } else {
+            let path = self.resolve(&file);
+            ModalModel::from_npz(&path, self.na).map_err(|e| FmuError::BadValue {
+                variable: "modal_file".into(),
+                value: format!("\"{file}\""),
+                reason: match e {
+                    M1Error::InvalidInput(m) => m,
+                    other => other.to_string(),
+                },
+            })
+        }
+    }
+
+    /// The modal solver, once initialised (for in-process use and tests).
+    pub fn solver(&self) -> Option<&ModalSolver> {
+        self.solver.as_ref()
+    }
+
+    fn write_outputs(&self, v: &mut Values) -> Result<(), FmuError> {
+        let Some(s) = &self.solver else {
+            return Err(FmuError::Model("the structure is not initialised".into()));
+        };
+        v.real_mut(self.vars.z_cell).copy_from_slice(s.output());
+        Ok(())
+    }
+}
+
+impl Model for Structure {
+    const INFO: ModelInfo = ModelInfo {
+        model_identifier: "structure",
+        model_name: "Telescope structure seen by M1",
+        description: "Modal model of the mirror cell, mount and pier (built-in parametric grillage \
+            or imported from an FE model's .npz export), with static correction of the \
+            truncated modes, driven by the actuator forces and the pier motion",
+        documentation: DOC,
+        default_stop_time: 1.0,
+        default_step: 1e-3,
+    };
+
+    fn variants() -> Vec<String> {
+        Layout::PRESETS.iter().map(|s| s.to_string()).collect()
+    }
+
+    fn new(variant: &str) -> Result<(VariableTable, Self), FmuError> {
+        let layout = Layout::preset(variant).map_err(|e| FmuError::Instantiate(e.to_string()))?;
+        let (table, vars) = table(&layout)?;
+        Ok((
+            table,
+            Self {
+                vars,
+                layout: variant.to_string(),
+                na: layout.n_actuators(),
+                resource_dir: None,
+                solver: None,
+            },
+        ))
+    }
+
+    fn set_resource_dir(&mut self, dir: &Path) {
+        self.resource_dir = Some(dir.to_path_buf());
+    }
+
+    fn initialize(&mut self, v: &mut Values, _start_time: f64) -> Result<(), FmuError> {
+        let model = self.modal_model(v)?;
+        let n_modes = usize::try_from(v.integer(self.vars.n_modes)).unwrap_or(0);
+        let solver = ModalSolver::new(model, n_modes, v.scalar(self.vars.damping_ratio))
+            .map_err(model_error)?;
+        let f = solver.frequencies();
+        v.real_mut(self.vars.first_mode_frequency)[0] = f.first().copied().unwrap_or(0.0);
+        v.real_mut(self.vars.highest_mode_frequency)[0] = f.last().copied().unwrap_or(0.0);
+        v.integers[self.vars.n_modes_retained.slot] =
+            i32::try_from(solver.n_modes()).unwrap_or(i32::MAX);
+        self.solver = Some(solver);
+        self.write_outputs(v)
+    }
+
+    fn update_outputs(&mut self, v: &mut Values) -> Result<(), FmuError> {
+        // No direct feedthrough: new inputs change nothing until the next step.
+        self.write_outputs(v)
+    }
+
+    fn do_step(&mut self, _t: f64, h: f64, v: &mut Values) -> Result<(), FmuError> {
+        let vars = self.vars;
+        let Some(s) = &mut self.solver else {
+            return Err(FmuError::Model("the structure is not initialised".into()));
+        };
+        s.step(h, v.real(vars.f_cell), v.scalar(vars.pier_z))
+            .map_err(model_error)?;
+        self.write_outputs(v)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tables_build_for_every_layout() {
+        for variant in Layout::PRESETS {
+            let (t, m) = Structure::new(variant).expect("table");
+            let na = Layout::preset(variant).expect("layout").n_actuators();
+            assert_eq!(m.na, na);
+            for (name, len) in [("f_cell", na), ("z_cell", na), ("pier_z", 1)] {
+                assert_eq!(t.by_name(name).expect(name).len, len);
+            }
+            let z = t.by_name("z_cell").expect("z_cell");
+            assert_eq!(z.dependencies, Dependencies::None);
+        }
+    }
+
+    #[test]
+    fn keck_initialises_and_steps() {
+        let (t, mut m) = Structure::new("keck").expect("keck");
+        let mut v = t.initial_values();
+        m.initialize(&mut v, 0.0).expect("init");
+        let f1 = v.scalar(m.vars.first_mode_frequency);
+        assert!((5.0..20.0).contains(&f1), "{f1}");
+        assert_eq!(v.integers[m.vars.n_modes_retained.slot], 60);
+        v.real_mut(m.vars.f_cell)[0] = 1000.0;
+        m.do_step(0.0, 1e-3, &mut v).expect("step");
+        assert!(v.real(m.vars.z_cell)[0] < 0.0 || v.real(m.vars.z_cell)[0] > 0.0);
+    }
+
+    #[test]
+    fn a_missing_modal_file_names_the_parameter() {
+        let (t, mut m) = Structure::new("keck").expect("keck");
+        let mut v = t.initial_values();
+        v.strings[m.vars.modal_file.slot] =
+            std::ffi::CString::new("/nonexistent/modes.npz").expect("cstring");
+        let e = m
+            .initialize(&mut v, 0.0)
+            .expect_err("missing file")
+            .to_string();
+        assert!(
+            e.contains("modal_file") && e.contains("/nonexistent/modes.npz"),
+            "{e}"
+        );
+    }
+}

@@ -1,0 +1,398 @@
+//! The global loop on a perfect plant (z = u + d, y = A z): every mode group is exactly a
+//! first-order discrete integrator with its own gain, global piston/tip/tilt is never commanded,
+//! focus-mode converges at its own slower rate, the loop reaches the state whose readings are
+//! y_ref, and it samples at its own instants whatever the communication step.
+
+#![allow(clippy::expect_used, clippy::unwrap_used)] // tests panic on failure by design
+
+use m1::controller::{
+    ControlModes, ControllerParams, ControllerState, LoopGains, SampleClock, integrator_gain,
+};
+use m1::geometry::{Geometry, GeometryParams};
+use m1::layout::Layout;
+use m1::reconstructor::sparse_mul;
+
+fn modes(name: &str) -> ControlModes {
+    let layout = Layout::preset(name).expect("layout");
+    let g = Geometry::new(&layout, GeometryParams::for_layout(&layout)).expect("geometry");
+    ControlModes::new(g).expect("modes")
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+fn norm(a: &[f64]) -> f64 {
+    dot(a, a).sqrt()
+}
+
+fn project_out(v: &mut [f64], mode: &[f64]) {
+    let d = dot(v, mode);
+    v.iter_mut().zip(mode).for_each(|(x, m)| *x -= d * m);
+}
+
+/// Readings of the perfect plant: y = A (u + d).
+fn readings(m: &ControlModes, u: &[f64], d: &[f64]) -> Vec<f64> {
+    let z: Vec<f64> = u.iter().zip(d).map(|(a, b)| a + b).collect();
+    let mut y = vec![0.0; m.shape().1];
+    sparse_mul(&m.nominal().a, &z, &mut y);
+    y
+}
+
+/// Global piston/tip/tilt columns as vectors.
+fn null_vectors(m: &ControlModes) -> Vec<Vec<f64>> {
+    let n = m.null_space();
+    (0..n.ncols())
+        .map(|c| (0..n.nrows()).map(|r| n[(r, c)]).collect())
+        .collect()
+}
+
+/// A unit mode of the "rest" group: a fixed pattern with N, focus-mode and radial 2 removed.
+fn rest_mode(m: &ControlModes) -> Vec<f64> {
+    let na = m.shape().0;
+    let mut v: Vec<f64> = (0..na).map(|i| (i as f64 * 0.37).sin() + 0.2).collect();
+    for n in null_vectors(m) {
+        project_out(&mut v, &n);
+    }
+    project_out(&mut v, m.focus());
+    for r in m.radial2() {
+        project_out(&mut v, r);
+    }
+    let n = norm(&v);
+    v.iter().map(|x| x / n).collect()
+}
+
+#[test]
+fn bandwidths_map_to_integrator_gains() {
+    let g = ControllerParams::default().gains().expect("defaults");
+    let expect = |f: f64| 1.0 - (-2.0 * std::f64::consts::PI * f / 20.0).exp();
+    assert!((g.rest - expect(1.0)).abs() < 1e-15);
+    assert!((g.radial2 - expect(0.75)).abs() < 1e-15);
+    assert!((g.focus - expect(0.1)).abs() < 1e-15);
+    assert!((g.rest - 0.269_597).abs() < 1e-6, "{}", g.rest);
+    // Gamma multiplies the focus-mode gain.
+    let p = ControllerParams {
+        focus_gain: 0.25,
+        ..Default::default()
+    };
+    assert!((p.gains().expect("gamma").focus - 0.25 * expect(0.1)).abs() < 1e-15);
+    assert_eq!(integrator_gain(0.0, 20.0), 0.0);
+    for (p, name) in [
+        (
+            ControllerParams {
+                bandwidth: 10.0,
+                ..Default::default()
+            },
+            "bandwidth",
+        ),
+        (
+            ControllerParams {
+                bandwidth_focus: -0.1,
+                ..Default::default()
+            },
+            "bandwidth_focus",
+        ),
+        (
+            ControllerParams {
+                focus_gain: 1.5,
+                ..Default::default()
+            },
+            "focus_gain",
+        ),
+        (
+            ControllerParams {
+                rate: 0.0,
+                ..Default::default()
+            },
+            "rate",
+        ),
+    ] {
+        let e = p.gains().expect_err(name).to_string();
+        assert!(e.contains(name), "{e}");
+    }
+}
+
+#[test]
+fn mode_groups_are_orthonormal_and_focus_mode_is_z4() {
+    for name in ["keck", "tmt"] {
+        let m = modes(name);
+        let n = null_vectors(&m);
+        let f = m.focus();
+        let r = m.radial2();
+        assert!((norm(f) - 1.0).abs() < 1e-12);
+        for (a, ra) in r.iter().enumerate() {
+            assert!((norm(ra) - 1.0).abs() < 1e-12);
+            assert!(dot(ra, f).abs() < 1e-12, "{name}: radial 2 vs focus");
+            for (b, rb) in r.iter().enumerate().skip(a + 1) {
+                assert!(dot(ra, rb).abs() < 1e-12, "{name}: radial2 {a} vs {b}");
+            }
+            for nv in &n {
+                assert!(dot(ra, nv).abs() < 1e-12);
+                assert!(dot(f, nv).abs() < 1e-9);
+            }
+        }
+        let c = m.focus_z4_correlation();
+        assert!(c > 0.99, "{name}: focus-mode vs Z4 correlation {c}");
+    }
+}
+
+#[test]
+fn each_group_decays_by_exactly_one_minus_its_gain_per_sample() {
+    for name in ["keck", "tmt"] {
+        let m = modes(name);
+        let gains = ControllerParams::default().gains().expect("gains");
+        let mut s = m.scratch();
+        let na = m.shape().0;
+        let rest = rest_mode(&m);
+        let cases: [(&str, &[f64], f64); 4] = [
+            ("focus", m.focus(), gains.focus),
+            ("radial2 a", &m.radial2()[0], gains.radial2),
+            ("radial2 b", &m.radial2()[1], gains.radial2),
+            ("rest", &rest, gains.rest),
+        ];
+        let y_ref = vec![0.0; m.shape().1];
+        for (group, mode, g) in cases {
+            let d: Vec<f64> = mode.iter().map(|x| 1e-6 * x).collect();
+            let mut u = vec![0.0; na];
+            for k in 1..=10 {
+                let y = readings(&m, &u, &d);
+                m.sample(&gains, &mut u, &y, &y_ref, &mut s)
+                    .expect("sample");
+                let e: Vec<f64> = u.iter().zip(&d).map(|(a, b)| a + b).collect();
+                let expected = (1.0 - g).powi(k);
+                // The error stays in its mode and shrinks by exactly (1 - g) per sample.
+                let along = dot(&e, mode) / 1e-6;
+                assert!(
+                    (along - expected).abs() < 1e-9,
+                    "{name} {group} sample {k}: {along} vs {expected}"
+                );
+                let off: Vec<f64> = e
+                    .iter()
+                    .zip(mode)
+                    .map(|(a, b)| a - along * 1e-6 * b)
+                    .collect();
+                assert!(
+                    norm(&off) < 1e-9 * 1e-6,
+                    "{name} {group}: leaks {}",
+                    norm(&off)
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn global_piston_tip_tilt_is_never_commanded_and_focus_is_slowest() {
+    let m = modes("tmt");
+    let gains = ControllerParams::default().gains().expect("gains");
+    let mut s = m.scratch();
+    let (na, ns) = m.shape();
+    // A disturbance with every kind of content, global piston/tip/tilt included.
+    let d: Vec<f64> = (0..na)
+        .map(|i| 1e-6 * ((i as f64 * 1.7).sin() + 0.5 + 1e-3 * i as f64))
+        .collect();
+    let y_ref = vec![0.0; ns];
+    let mut u = vec![0.0; na];
+    let null = null_vectors(&m);
+    let mut e_focus = Vec::new();
+    for _ in 0..60 {
+        let y = readings(&m, &u, &d);
+        m.sample(&gains, &mut u, &y, &y_ref, &mut s)
+            .expect("sample");
+        for n in &null {
+            assert!(dot(&u, n).abs() <= 1e-12 * norm(&u), "global PTT commanded");
+        }
+        let e: Vec<f64> = u.iter().zip(&d).map(|(a, b)| a + b).collect();
+        e_focus.push(dot(&e, m.focus()));
+    }
+    // After 60 samples (3 s) the observable error is focus-mode: the others decayed as
+    // (1 - 0.27)^60 ~ 6e-9 and (1 - 0.21)^60 ~ 7e-7, focus-mode as (1 - 0.031)^60 ~ 0.15.
+    let mut e: Vec<f64> = u.iter().zip(&d).map(|(a, b)| a + b).collect();
+    for n in &null {
+        project_out(&mut e, n);
+    }
+    let focus_part = dot(&e, m.focus()).abs();
+    assert!(focus_part > 0.99 * norm(&e), "{focus_part} of {}", norm(&e));
+    // On the curved mirror A does not annihilate the global piston/tip/tilt part of d exactly,
+    // so focus-mode settles to a small offset: its increments shrink by exactly (1 - g_f).
+    let ratio = (e_focus[59] - e_focus[58]) / (e_focus[58] - e_focus[57]);
+    assert!(
+        (ratio - (1.0 - gains.focus)).abs() < 1e-6,
+        "focus ratio {ratio}"
+    );
+}
+
+#[test]
+fn the_loop_reaches_the_readings_y_ref() {
+    let m = modes("keck");
+    let gains = ControllerParams {
+        bandwidth_focus: 1.0,
+        ..Default::default()
+    }
+    .gains()
+    .expect("gains");
+    let mut s = m.scratch();
+    let na = m.shape().0;
+    let mut target: Vec<f64> = (0..na).map(|i| 1e-7 * (i as f64 * 0.9).cos()).collect();
+    for n in null_vectors(&m) {
+        project_out(&mut target, &n);
+    }
+    let zero = vec![0.0; na];
+    let y_ref = readings(&m, &target, &zero);
+    let mut u = vec![0.0; na];
+    for _ in 0..200 {
+        let y = readings(&m, &u, &zero);
+        m.sample(&gains, &mut u, &y, &y_ref, &mut s)
+            .expect("sample");
+    }
+    let err: Vec<f64> = u.iter().zip(&target).map(|(a, b)| a - b).collect();
+    assert!(norm(&err) < 1e-9 * norm(&target), "{}", norm(&err));
+}
+
+/// Runs the loop on the perfect plant with communication step `h` up to `t_end`, returning u at
+/// every communication point within 1e-9 s of a multiple of `every`.
+fn run(m: &ControlModes, gains: &LoopGains, h: f64, t_end: f64, every: f64) -> Vec<Vec<f64>> {
+    let (na, ns) = m.shape();
+    let d: Vec<f64> = (0..na).map(|i| 1e-6 * (i as f64 * 0.61).sin()).collect();
+    let y_ref = vec![0.0; ns];
+    let mut state = ControllerState::new(na, 0.0, 20.0).expect("state");
+    let mut s = m.scratch();
+    let mut out = Vec::new();
+    let mut t = 0.0;
+    while t < t_end - 1e-9 {
+        let y = readings(m, &state.u, &d);
+        m.advance(gains, &mut state, true, t + h, &y, &y_ref, &mut s)
+            .expect("advance");
+        t += h; // accumulated, as masters do
+        let k = (t / every).round();
+        if (t - k * every).abs() < 1e-9 {
+            out.push(state.u.clone());
+        }
+    }
+    out
+}
+
+#[test]
+fn the_loop_samples_at_its_own_instants_whatever_the_step() {
+    let m = modes("keck");
+    let gains = ControllerParams::default().gains().expect("gains");
+    let every = 0.15; // common to 1 ms, 0.3 ms and 50 ms
+    let a = run(&m, &gains, 1e-3, 1.5, every);
+    let b = run(&m, &gains, 0.3e-3, 1.5, every);
+    let c = run(&m, &gains, 50e-3, 1.5, every);
+    assert_eq!(a.len(), 10);
+    assert_eq!(b.len(), 10);
+    assert_eq!(c.len(), 10);
+    for k in 0..10 {
+        assert_eq!(a[k], b[k], "1 ms vs 0.3 ms at {} s", every * (k + 1) as f64);
+        assert_eq!(a[k], c[k], "1 ms vs 50 ms at {} s", every * (k + 1) as f64);
+    }
+    assert!(norm(&a[9]) > 0.0);
+}
+
+#[test]
+fn the_command_changes_only_at_sample_instants() {
+    let m = modes("keck");
+    let gains = ControllerParams::default().gains().expect("gains");
+    let (na, ns) = m.shape();
+    let d: Vec<f64> = (0..na).map(|i| 1e-6 * (i as f64 * 0.61).sin()).collect();
+    let y_ref = vec![0.0; ns];
+    let mut state = ControllerState::new(na, 0.0, 20.0).expect("state");
+    let mut s = m.scratch();
+    let h = 1e-3;
+    let mut changes = Vec::new();
+    for n in 0..300 {
+        let t = n as f64 * h;
+        let before = state.u.clone();
+        let y = readings(&m, &state.u, &d);
+        let taken = m
+            .advance(&gains, &mut state, true, t + h, &y, &y_ref, &mut s)
+            .expect("advance");
+        if state.u != before {
+            changes.push(n + 1);
+            assert_eq!(taken, 1);
+        } else {
+            assert_eq!(taken, 0, "step {n}");
+        }
+    }
+    assert_eq!(changes, vec![50, 100, 150, 200, 250, 300]);
+    // A disabled loop passes its instants and holds u.
+    let held = state.u.clone();
+    let y = readings(&m, &state.u, &d);
+    let taken = m
+        .advance(&gains, &mut state, false, 0.5, &y, &y_ref, &mut s)
+        .expect("advance");
+    assert_eq!(taken, 4);
+    assert_eq!(state.u, held);
+}
+
+#[test]
+fn the_sample_clock_tolerates_accumulated_time() {
+    let mut c = SampleClock::new(0.0, 20.0).expect("clock");
+    let mut t = 0.0;
+    let mut taken = 0;
+    for _ in 0..10_000 {
+        t += 0.1e-3;
+        taken += c.advance_to(t).count();
+    }
+    // 1 s in 10000 accumulated steps of 0.1 ms: exactly 20 instants, the last one at 1 s.
+    assert_eq!(taken, 20);
+    assert_eq!(c.last(), 20);
+    assert!(c.is_at(20, t));
+    assert_eq!(c.latest_at(0.049_999_999_999), 1);
+    assert_eq!(c.latest_at(0.0499), 0);
+    assert!(SampleClock::new(0.0, 0.0).is_err());
+}
+
+/// Prints initialisation and per-sample costs (run with
+/// `cargo test --release -p m1 --test controller -- --ignored --nocapture`).
+#[test]
+#[ignore]
+fn timing_report() {
+    use m1::sensors::{EdgeSensors, SensorErrors};
+    use std::time::Instant;
+    for name in ["keck", "tmt", "elt"] {
+        let layout = Layout::preset(name).expect("layout");
+        let g = Geometry::new(&layout, GeometryParams::for_layout(&layout)).expect("geometry");
+        let t0 = Instant::now();
+        let m = ControlModes::new(g.clone()).expect("modes");
+        let init_ctrl = t0.elapsed();
+        let errors = SensorErrors {
+            noise_rms: 5e-9,
+            gain_rms: 1e-3,
+            position_rms: 1e-4,
+            tilt_rms: 1e-4,
+            ..Default::default()
+        };
+        let t0 = Instant::now();
+        let s = EdgeSensors::new(&g, &errors).expect("sensors");
+        let init_sens = t0.elapsed();
+        let (na, ns) = m.shape();
+        let gains = ControllerParams::default().gains().expect("gains");
+        let mut scratch = m.scratch();
+        let y: Vec<f64> = (0..ns).map(|i| 1e-9 * (i as f64).sin()).collect();
+        let y_ref = vec![0.0; ns];
+        let mut u = vec![0.0; na];
+        let reps = 200;
+        let t0 = Instant::now();
+        for _ in 0..reps {
+            m.sample(&gains, &mut u, &y, &y_ref, &mut scratch)
+                .expect("sample");
+        }
+        let per_sample = t0.elapsed() / reps;
+        let (mut yy, mut gap) = (vec![0.0; ns], vec![0.0; ns]);
+        let z: Vec<f64> = (0..na).map(|i| 1e-7 * (i as f64).cos()).collect();
+        let t0 = Instant::now();
+        for k in 0..reps {
+            s.read_into(&z, &z, k as u64, &mut yy, &mut gap)
+                .expect("read");
+        }
+        let per_read = t0.elapsed() / reps;
+        println!(
+            "{name}: na {na} ns {ns}; controller init {init_ctrl:?}, sample {per_sample:?}; \
+             sensors init (with installation errors) {init_sens:?}, read with noise {per_read:?}; \
+             focus/Z4 correlation {:.5}",
+            m.focus_z4_correlation()
+        );
+    }
+}
