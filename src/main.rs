@@ -52,6 +52,11 @@ enum Cmd {
     Zernike(commands::optics::ZernikeArgs),
     /// PSSN of a seeded random segment piston/tip/tilt state.
     Pssn(commands::optics::PssnArgs),
+    /// Runs the closed-loop scenario (default: TMT, wind, voice coils, open and closed loop) or a
+    /// user's .ssp with the included master; CSV, plots and a summary in --out.
+    Run(commands::cosim::RunCmd),
+    /// Writes a standard closed-loop system (layout x actuator x scenario) as an SSP archive.
+    System(commands::cosim::SystemCmd),
     /// Reports a layout: segments, actuators, edges, sensors and the neighbour histogram.
     #[command(alias = "layout")]
     Geometry {
@@ -389,6 +394,8 @@ fn main() -> ExitCode {
         } => demo(&layout, &actuator, json),
         Cmd::Geometry { layout, json, plot } => layout_report(&layout, json, plot.as_deref()),
         Cmd::Amatrix(a) => commands::quasistatic::amatrix(&a),
+        Cmd::Run(a) => commands::cosim::run_cmd(&a),
+        Cmd::System(a) => commands::cosim::system(&a),
         Cmd::Robustness(a) => commands::quasistatic::robustness(&a),
         Cmd::Noise(a) => commands::quasistatic::noise(&a),
         Cmd::Clocking(a) => commands::quasistatic::clocking(&a),

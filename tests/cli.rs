@@ -160,3 +160,84 @@ fn bad_input_is_named() {
     let (ok, _, err) = m1cs(&["amatrix", "--layout", "keck", "--leff=-1"]);
     assert!(!ok && err.contains("--leff"), "{err}");
 }
+
+fn fmu_dir() -> String {
+    std::env::var("M1CS_FMU_DIR")
+        .unwrap_or_else(|_| concat!(env!("CARGO_MANIFEST_DIR"), "/target/fmu").to_string())
+}
+
+/// The standard Keck wind system through the included master: runs open and closed loop
+/// (rigid cell at 1 ms; modal cell at 0.2 ms), writes CSV, plots and a summary whose figures are
+/// finite and physical; the same system written as .ssp runs from the file.
+#[test]
+fn run_and_system_on_keck() {
+    let dir = std::env::temp_dir().join(format!("m1cs-cli-run-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let out = dir.join("results").to_string_lossy().into_owned();
+    let fmus = fmu_dir();
+    for extra in [
+        vec!["--cell", "rigid", "--step", "1e-3"],
+        vec!["--cell", "modal", "--step", "2e-4"],
+    ] {
+        let mut args = vec![
+            "run",
+            "--layout",
+            "keck",
+            "--duration",
+            "1",
+            "--fmu-dir",
+            &fmus,
+            "--out",
+            &out,
+            "--json",
+        ];
+        args.extend(extra.iter().copied());
+        let v = json(&args);
+        let runs = v["runs"].as_array().unwrap();
+        assert_eq!(runs.len(), 2);
+        for r in runs {
+            let rms = r["rms_surface_m"].as_f64().unwrap();
+            let pssn = r["pssn"].as_f64().unwrap();
+            assert!(rms > 1e-10 && rms < 1e-6, "{extra:?}: rms {rms}");
+            assert!(pssn > 0.1 && pssn <= 1.0, "{extra:?}: pssn {pssn}");
+        }
+        for f in [
+            "open_loop.csv",
+            "closed_loop.csv",
+            "rms_surface.png",
+            "summary.json",
+        ] {
+            assert!(dir.join("results").join(f).is_file(), "{f}");
+        }
+        let csv = std::fs::read_to_string(dir.join("results/closed_loop.csv")).unwrap();
+        assert!(
+            csv.starts_with("time,optics.rms_surface,"),
+            "{}",
+            &csv[..80]
+        );
+    }
+    let ssp = dir.join("keck.ssp").to_string_lossy().into_owned();
+    let (ok, _, err) = m1cs(&[
+        "system",
+        "--layout",
+        "keck",
+        "--cell",
+        "rigid",
+        "--step",
+        "1e-3",
+        "--duration",
+        "0.5",
+        "--fmu-dir",
+        &fmus,
+        "-o",
+        &ssp,
+    ]);
+    assert!(ok, "{err}");
+    let v = json(&["run", "--ssp", &ssp, "--out", &out, "--json"]);
+    assert_eq!(v["runs"].as_array().unwrap().len(), 1);
+    assert!(v["runs"][0]["rms_surface_m"].as_f64().unwrap() > 0.0);
+    // Missing FMUs are named with the fix.
+    let (ok, _, err) = m1cs(&["run", "--layout", "keck", "--fmu-dir", "/nonexistent"]);
+    assert!(!ok && err.contains("cargo xtask package"), "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -1,4 +1,5 @@
 //! The analysis subcommands of `m1cs`, one module per family.
 
+pub mod cosim;
 pub mod optics;
 pub mod quasistatic;
