@@ -76,8 +76,8 @@ pub struct SystemArgs {
     #[arg(long, default_value_t = 5.0)]
     pub duration: f64,
     /// Base communication step (s). The segments and the structure exchange f_cell and z_cell
-    /// once per step with a one-step delay; 0.2 ms keeps that stiff coupling stable with the
-    /// default 60 structure modes (1 ms is not).
+    /// once per step; with Gauss-Seidel order 0.2 ms keeps that stiff coupling stable for Keck
+    /// and TMT (longer steps and the Jacobi order can diverge; see the README).
     #[arg(long, default_value_t = 2e-4)]
     pub step: f64,
 }
@@ -106,8 +106,9 @@ pub struct RunCmd {
     /// Record every N base steps.
     #[arg(long, default_value_t = 10)]
     pub decimation: usize,
-    /// Stepping order of the master.
-    #[arg(long, value_enum, default_value = "jacobi")]
+    /// Stepping order of the master (Gauss-Seidel: the structure steps on the segments' newest
+    /// f_cell, one delay less in the stiff segments-structure loop than Jacobi).
+    #[arg(long, value_enum, default_value = "gauss-seidel")]
     pub order: OrderArg,
     /// Print the summary as one JSON object.
     #[arg(long)]
