@@ -72,6 +72,9 @@ pub struct SystemArgs {
     /// Structure modes retained (the rest enter as a static correction).
     #[arg(long, default_value_t = 60)]
     pub structure_modes: i32,
+    /// Step every component at the base step (no multi-rate), as fmpy.ssp does.
+    #[arg(long)]
+    pub uniform: bool,
     /// Simulated duration (s).
     #[arg(long, default_value_t = 5.0)]
     pub duration: f64,
@@ -113,6 +116,10 @@ pub struct RunCmd {
     /// Print the summary as one JSON object.
     #[arg(long)]
     pub json: bool,
+    /// Start every connection at 0 instead of the FMUs' initial outputs (fmpy.ssp's
+    /// convention; for comparisons with it).
+    #[arg(long)]
+    pub zero_start: bool,
 }
 
 /// Stepping order.
@@ -148,7 +155,13 @@ pub fn standard_system(a: &SystemArgs, closed: bool) -> Result<System, String> {
     if !(a.wind_speed > 0.0 && a.bandwidth > 0.0 && a.focus_bandwidth > 0.0) {
         return Err("--wind-speed, --bandwidth and --focus-bandwidth must be positive".into());
     }
-    let per = |hz: f64| ((1.0 / hz) / a.step).round().max(1.0) as usize;
+    let per = |hz: f64| {
+        if a.uniform {
+            1
+        } else {
+            ((1.0 / hz) / a.step).round().max(1.0) as usize
+        }
+    };
     let segments = match a.actuator {
         Variant::Voicecoil => fmu(a, "segments_voicecoil")?,
         Variant::Piezo | Variant::PiezoDamped => fmu(a, "segments_piezo")?,
@@ -304,6 +317,7 @@ pub fn run_cmd(a: &RunCmd) -> Result<(), String> {
             sys.stop_time = sys.start_time + a.system.duration;
         }
         sys.order = order;
+        sys.zero_start = a.zero_start;
         runs.push(("system".into(), sys));
         // Keep the unpacked archive alive during the run.
         // The optics metrics are recorded when the system has an `optics` component.
@@ -316,6 +330,7 @@ pub fn run_cmd(a: &RunCmd) -> Result<(), String> {
     for (label, closed) in [("open loop", false), ("closed loop", true)] {
         let mut s = standard_system(&a.system, closed)?;
         s.order = order;
+        s.zero_start = a.zero_start;
         runs.push((label.into(), s));
     }
     execute(a, runs, &METRICS)

@@ -7,7 +7,8 @@
 //! `endElement`/`endConnector`), and `ssd:DefaultExperiment` (startTime, stopTime). The base
 //! step and each component's step multiple are not part of SSP 1.0: they are read from (and
 //! written to) an `ssc:Annotation` of type `org.m1cs.master` (`step`, `order`, and `every` per
-//! component); without it the caller supplies the step.
+//! component, as `Rate` children of one `Master` element: the schema allows one element per
+//! annotation); without it the caller supplies the step.
 //!
 //! Write: connections are written per scalar (arrays expanded to `z[1]`..`z[n]`), the form
 //! other SSP tools (fmpy.ssp among them) read; each component lists its connectors.
@@ -436,7 +437,7 @@ pub fn ssd_text(system: &System, name: &str, sources: &[String]) -> Result<Strin
     s.push_str("    </ssd:Connections>\n  </ssd:System>\n");
     s.push_str(&format!(
         "  <ssd:DefaultExperiment startTime=\"{}\" stopTime=\"{}\">\n    <ssd:Annotations>\n      \
-         <ssc:Annotation type=\"{ANNOTATION}\">\n        <Master step=\"{:e}\" order=\"{}\"/>\n",
+         <ssc:Annotation type=\"{ANNOTATION}\">\n        <Master step=\"{:e}\" order=\"{}\">\n",
         system.start_time,
         system.stop_time,
         system.step,
@@ -447,13 +448,13 @@ pub fn ssd_text(system: &System, name: &str, sources: &[String]) -> Result<Strin
     ));
     for c in &system.components {
         s.push_str(&format!(
-            "        <Rate component=\"{}\" every=\"{}\"/>\n",
+            "          <Rate component=\"{}\" every=\"{}\"/>\n",
             escape(&c.name),
             c.every
         ));
     }
     s.push_str(
-        "      </ssc:Annotation>\n    </ssd:Annotations>\n  </ssd:DefaultExperiment>\n\
+        "        </Master>\n      </ssc:Annotation>\n    </ssd:Annotations>\n  </ssd:DefaultExperiment>\n\
          </ssd:SystemStructureDescription>\n",
     );
     Ok(s)

@@ -91,6 +91,9 @@ pub struct System {
     pub step: f64,
     /// Stepping order.
     pub order: Order,
+    /// Start every connection at 0 instead of the components' initial outputs (the convention
+    /// of fmpy.ssp, for comparisons with it).
+    pub zero_start: bool,
 }
 
 impl System {
@@ -418,9 +421,11 @@ impl Simulation {
             },
             _fmus: fmus,
         };
-        // Initial outputs, then initial inputs so every component starts consistent.
-        for c in 0..sim.comps.len() {
-            sim.read_outputs(c)?;
+        // The initial outputs feed the first step (or zeros, fmpy.ssp's convention).
+        if !system.zero_start {
+            for c in 0..sim.comps.len() {
+                sim.read_outputs(c)?;
+            }
         }
         Ok(sim)
     }
