@@ -65,8 +65,8 @@ pub struct SystemArgs {
     #[arg(long, default_value_t = 0.1)]
     pub focus_bandwidth: f64,
     /// Mirror cell: `modal` couples the structure FMU (f_cell -> z_cell), `rigid` leaves it out
-    /// (z_cell = 0). The modal coupling is exchanged with a one-step delay, which is stable for
-    /// Keck at 0.2 ms but needs about 0.05 ms for TMT (see README).
+    /// (z_cell = 0). The explicit modal coupling needs the default 0.2 ms step and Gauss-Seidel
+    /// order to stay stable (see README).
     #[arg(long, value_enum, default_value = "modal")]
     pub cell: Cell,
     /// Structure modes retained (the rest enter as a static correction).
