@@ -257,21 +257,6 @@ fn table(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
     ))
 }
 
-fn model_error(e: M1Error) -> FmuError {
-    match e {
-        M1Error::InvalidParameter {
-            name,
-            value,
-            reason,
-        } => FmuError::BadValue {
-            variable: name.to_string(),
-            value: value.to_string(),
-            reason: reason.to_string(),
-        },
-        other => FmuError::Model(other.to_string()),
-    }
-}
-
 impl EdgeSensorsModel {
     /// Builds the sensors from the parameters in `v`.
     fn build(&self, v: &Values) -> Result<EdgeSensors, FmuError> {
@@ -279,7 +264,7 @@ impl EdgeSensorsModel {
         let layout = Layout::preset(&self.layout).map_err(|e| FmuError::Model(e.to_string()))?;
         let mut params = GeometryParams::for_layout(&layout);
         params.leff = v.scalar(x.leff);
-        let geometry = Geometry::new(&layout, params).map_err(model_error)?;
+        let geometry = Geometry::new(&layout, params).map_err(wiring::model_error)?;
         let errors = SensorErrors {
             gain_rms: v.scalar(x.gain_error_rms),
             noise_rms: v.scalar(x.noise_rms),
@@ -288,7 +273,7 @@ impl EdgeSensorsModel {
             tilt_rms: v.scalar(x.install_tilt_rms),
             seed: u64::from(v.integer(x.seed).unsigned_abs()),
         };
-        EdgeSensors::new(&geometry, &errors).map_err(model_error)
+        EdgeSensors::new(&geometry, &errors).map_err(wiring::model_error)
     }
 
     /// The sensors, rebuilt if this instance came from a deserialised state.
@@ -308,7 +293,7 @@ impl EdgeSensorsModel {
         let s = self.sensors(v)?;
         let x = self.vars;
         s.read_into(v.real(x.z), v.real(x.w), k, &mut self.y, &mut self.gap)
-            .map_err(model_error)?;
+            .map_err(wiring::model_error)?;
         v.real_mut(x.y).copy_from_slice(&self.y);
         v.real_mut(x.gap).copy_from_slice(&self.gap);
         Ok(())
@@ -338,11 +323,11 @@ impl Model for EdgeSensorsModel {
     };
 
     fn variants() -> Vec<String> {
-        Layout::PRESETS.iter().map(|s| s.to_string()).collect()
+        wiring::layout_variants()
     }
 
     fn new(variant: &str) -> Result<(VariableTable, Self), FmuError> {
-        let layout = Layout::preset(variant).map_err(|e| FmuError::Instantiate(e.to_string()))?;
+        let layout = wiring::preset(variant)?;
         let (table, vars) = table(&layout)?;
         Ok((
             table,
@@ -365,7 +350,7 @@ impl Model for EdgeSensorsModel {
                     value: value.to_string(),
                     reason: reason.into(),
                 },
-                other => model_error(other),
+                other => wiring::model_error(other),
             })?;
         let sensors = Arc::new(self.build(v)?);
         let ns = sensors.n_sensors();

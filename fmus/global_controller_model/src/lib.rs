@@ -28,7 +28,6 @@ use fmu::{
     BoolVar, Dependencies, FmuError, IntVar, Model, ModelInfo, RealVar, StrVar, TableBuilder as T,
     Values, VariableTable,
 };
-use m1::M1Error;
 use m1::controller::{
     ControlModes, ControllerParams, ControllerState, DEFAULT_BANDWIDTH, DEFAULT_BANDWIDTH_FOCUS,
     DEFAULT_BANDWIDTH_RADIAL2, DEFAULT_FOCUS_GAIN, DEFAULT_RATE, LoopGains, Scratch,
@@ -253,21 +252,6 @@ fn table(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
     ))
 }
 
-fn model_error(e: M1Error) -> FmuError {
-    match e {
-        M1Error::InvalidParameter {
-            name,
-            value,
-            reason,
-        } => FmuError::BadValue {
-            variable: name.to_string(),
-            value: value.to_string(),
-            reason: reason.to_string(),
-        },
-        other => FmuError::Model(other.to_string()),
-    }
-}
-
 impl GlobalControllerModel {
     fn params(&self, v: &Values) -> ControllerParams {
         let x = &self.vars;
@@ -284,8 +268,8 @@ impl GlobalControllerModel {
         let layout = Layout::preset(&self.layout).map_err(|e| FmuError::Model(e.to_string()))?;
         let mut params = GeometryParams::for_layout(&layout);
         params.leff = v.scalar(self.vars.leff);
-        let geometry = Geometry::new(&layout, params).map_err(model_error)?;
-        ControlModes::new(geometry).map_err(model_error)
+        let geometry = Geometry::new(&layout, params).map_err(wiring::model_error)?;
+        ControlModes::new(geometry).map_err(wiring::model_error)
     }
 
     /// The reconstructor and modes, rebuilt if this instance came from a deserialised state.
@@ -317,11 +301,11 @@ impl Model for GlobalControllerModel {
     };
 
     fn variants() -> Vec<String> {
-        Layout::PRESETS.iter().map(|s| s.to_string()).collect()
+        wiring::layout_variants()
     }
 
     fn new(variant: &str) -> Result<(VariableTable, Self), FmuError> {
-        let layout = Layout::preset(variant).map_err(|e| FmuError::Instantiate(e.to_string()))?;
+        let layout = wiring::preset(variant)?;
         let (table, vars) = table(&layout)?;
         Ok((
             table,
@@ -338,10 +322,11 @@ impl Model for GlobalControllerModel {
 
     fn initialize(&mut self, v: &mut Values, start_time: f64) -> Result<(), FmuError> {
         let params = self.params(v);
-        let gains = params.gains().map_err(model_error)?;
+        let gains = params.gains().map_err(wiring::model_error)?;
         let modes = Arc::new(self.build(v)?);
         let na = modes.shape().0;
-        let state = ControllerState::new(na, start_time, params.rate).map_err(model_error)?;
+        let state =
+            ControllerState::new(na, start_time, params.rate).map_err(wiring::model_error)?;
         v.real_mut(self.vars.loop_gain)[0] = gains.rest;
         v.real_mut(self.vars.loop_gain_radial2)[0] = gains.radial2;
         v.real_mut(self.vars.loop_gain_focus)[0] = gains.focus;
@@ -377,7 +362,7 @@ impl Model for GlobalControllerModel {
                 v.real(x.y_ref),
                 scratch,
             )
-            .map_err(model_error)?;
+            .map_err(wiring::model_error)?;
         v.real_mut(x.u_cmd).copy_from_slice(&state.u);
         Ok(())
     }

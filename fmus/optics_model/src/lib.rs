@@ -164,24 +164,14 @@ about 7 % above the 512-sample value (TMT, random segment errors: 3.35e-2 agains
 use 512 samples where a few per cent matter (dx &le; r0/4), or a longer wavelength, where the \
 grid converges faster.</p>";
 
+/// Physics errors with the FMU's variable names (the PSSN grid is `pssn_samples`, the outer
+/// scale `L0`).
 fn model_error(e: M1Error) -> FmuError {
-    match e {
-        M1Error::InvalidParameter {
-            name,
-            value,
-            reason,
-        } => FmuError::BadValue {
-            variable: match name {
-                "samples" | "pad_factor" => "pssn_samples",
-                "l0" => "L0",
-                other => other,
-            }
-            .to_string(),
-            value: value.to_string(),
-            reason: reason.to_string(),
-        },
-        other => FmuError::Model(other.to_string()),
-    }
+    wiring::model_error_renamed(e, |name| match name {
+        "samples" | "pad_factor" => "pssn_samples",
+        "l0" => "L0",
+        other => other,
+    })
 }
 
 fn table(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
@@ -435,7 +425,7 @@ impl Model for Optics {
     };
 
     fn variants() -> Vec<String> {
-        Layout::PRESETS.iter().map(|s| s.to_string()).collect()
+        wiring::layout_variants()
     }
 
     /// The packaged layout (segment centres in the aperture plane, circumradius) as
@@ -447,7 +437,7 @@ impl Model for Optics {
     }
 
     fn new(variant: &str) -> Result<(VariableTable, Self), FmuError> {
-        let layout = Layout::preset(variant).map_err(|e| FmuError::Instantiate(e.to_string()))?;
+        let layout = wiring::preset(variant)?;
         let (table, vars) = table(&layout)?;
         Ok((
             table,

@@ -14,8 +14,6 @@ use serde::{Deserialize, Serialize};
 use fmu::{
     FmuError, IntVar, Model, ModelInfo, RealVar, StrVar, TableBuilder as T, Values, VariableTable,
 };
-use m1::M1Error;
-use m1::layout::Layout;
 use m1::vibration::{NoiseParams, PierVibration, Tone};
 
 /// Number of tones.
@@ -63,21 +61,6 @@ are evaluated exactly at t. The output at t depends on t only: any sequence of c
 steps gives the same samples.</p>\
 <p><code>pier_z_rms</code> = &radic;(&sum; A<sub>j</sub><sup>2</sup>/2 + \
 noise_rms<sup>2</sup>) is the expected rms of the output (distinct tone frequencies).</p>";
-
-fn model_error(e: M1Error) -> FmuError {
-    match e {
-        M1Error::InvalidParameter {
-            name,
-            value,
-            reason,
-        } => FmuError::BadValue {
-            variable: name.to_string(),
-            value: value.to_string(),
-            reason: reason.to_string(),
-        },
-        other => FmuError::Model(other.to_string()),
-    }
-}
 
 fn table(layout: &str) -> Result<(VariableTable, Vars), FmuError> {
     let noise = NoiseParams::default();
@@ -202,11 +185,11 @@ impl Model for PierVibrationFmu {
     };
 
     fn variants() -> Vec<String> {
-        Layout::PRESETS.iter().map(|s| s.to_string()).collect()
+        wiring::layout_variants()
     }
 
     fn new(variant: &str) -> Result<(VariableTable, Self), FmuError> {
-        let layout = Layout::preset(variant).map_err(|e| FmuError::Instantiate(e.to_string()))?;
+        let layout = wiring::preset(variant)?;
         let (table, vars) = table(&layout.name)?;
         Ok((table, PierVibrationFmu { vars, source: None }))
     }
@@ -228,7 +211,7 @@ impl Model for PierVibrationFmu {
             period: s(x.noise_period),
             seed: u64::from(v.integer(x.noise_seed) as u32),
         };
-        let source = PierVibration::new(&tones, &noise).map_err(model_error)?;
+        let source = PierVibration::new(&tones, &noise).map_err(wiring::model_error)?;
         v.real_mut(x.pier_z_rms)[0] = source.expected_rms();
         v.real_mut(x.pier_z)[0] = source.at(start_time);
         self.source = Some(source);
@@ -257,7 +240,7 @@ mod tests {
 
     #[test]
     fn tables_build_for_every_layout() {
-        for variant in Layout::PRESETS {
+        for variant in m1::layout::Layout::PRESETS {
             let (t, _) = PierVibrationFmu::new(variant).expect("table");
             assert_eq!(t.by_name("pier_z").map(|v| v.len), Some(1));
         }

@@ -20,7 +20,6 @@ use fmu::{
     BoolVar, Dependencies, FmuError, IntVar, Model, ModelInfo, RealVar, StrVar, TableBuilder as T,
     Values, VariableTable,
 };
-use m1::M1Error;
 use m1::layout::Layout;
 use m1::segment::{
     ActuatorParams, Channel, Drive, SegmentArray, SegmentModel, SegmentParams, ServoParams, Shunt,
@@ -513,21 +512,6 @@ fn table<V: Variant>(layout: &Layout) -> Result<(VariableTable, Vars), FmuError>
     ))
 }
 
-fn model_error(e: M1Error) -> FmuError {
-    match e {
-        M1Error::InvalidParameter {
-            name,
-            value,
-            reason,
-        } => FmuError::BadValue {
-            variable: name.to_string(),
-            value: value.to_string(),
-            reason: reason.to_string(),
-        },
-        other => FmuError::Model(other.to_string()),
-    }
-}
-
 impl<V: Variant> Segments<V> {
     fn physics(&self, v: &Values) -> SegmentModel {
         let x = &self.vars;
@@ -560,7 +544,7 @@ impl<V: Variant> Segments<V> {
         };
         array
             .outputs(v.real(self.vars.z_cell), &mut self.z, &mut self.f_cell)
-            .map_err(model_error)?;
+            .map_err(wiring::model_error)?;
         v.real_mut(self.vars.z).copy_from_slice(&self.z);
         v.real_mut(self.vars.f_cell).copy_from_slice(&self.f_cell);
         Ok(())
@@ -576,11 +560,11 @@ impl<V: Variant> Model for Segments<V> {
     const INFO: ModelInfo = V::INFO;
 
     fn variants() -> Vec<String> {
-        Layout::PRESETS.iter().map(|s| s.to_string()).collect()
+        wiring::layout_variants()
     }
 
     fn new(variant: &str) -> Result<(VariableTable, Self), FmuError> {
-        let layout = Layout::preset(variant).map_err(|e| FmuError::Instantiate(e.to_string()))?;
+        let layout = wiring::preset(variant)?;
         let (table, vars) = table::<V>(&layout)?;
         let na = layout.n_actuators();
         Ok((
@@ -598,7 +582,8 @@ impl<V: Variant> Model for Segments<V> {
 
     fn initialize(&mut self, v: &mut Values, _start_time: f64) -> Result<(), FmuError> {
         let model = self.physics(v);
-        let array = SegmentArray::new(self.n_segments, model.clone()).map_err(model_error)?;
+        let array =
+            SegmentArray::new(self.n_segments, model.clone()).map_err(wiring::model_error)?;
         v.real_mut(self.vars.static_stiffness_piston)[0] = model.static_stiffness(Channel::Piston);
         v.real_mut(self.vars.static_stiffness_tilt)[0] = model.static_stiffness(Channel::Tilt);
         self.array = Some(array);
@@ -621,7 +606,7 @@ impl<V: Variant> Model for Segments<V> {
                 v.real(vars.z_cell),
                 v.real(vars.f_wind),
             )
-            .map_err(model_error)?;
+            .map_err(wiring::model_error)?;
         self.write_outputs(v)
     }
 }

@@ -268,21 +268,6 @@ fn table(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
     ))
 }
 
-fn model_error(e: M1Error) -> FmuError {
-    match e {
-        M1Error::InvalidParameter {
-            name,
-            value,
-            reason,
-        } => FmuError::BadValue {
-            variable: name.to_string(),
-            value: value.to_string(),
-            reason: reason.to_string(),
-        },
-        other => FmuError::Model(other.to_string()),
-    }
-}
-
 impl Structure {
     /// Where `modal_file` points: absolute as given; relative, in resources/ if it exists there,
     /// else relative to the working directory.
@@ -315,8 +300,8 @@ impl Structure {
             };
             let layout =
                 Layout::preset(&self.layout).map_err(|e| FmuError::Model(e.to_string()))?;
-            let cell = CellModel::new(&layout, &params).map_err(model_error)?;
-            cell.modes().map_err(model_error)
+            let cell = CellModel::new(&layout, &params).map_err(wiring::model_error)?;
+            cell.modes().map_err(wiring::model_error)
         } else {
             let path = self.resolve(&file);
             ModalModel::from_npz(&path, self.na).map_err(|e| FmuError::BadValue {
@@ -357,11 +342,11 @@ impl Model for Structure {
     };
 
     fn variants() -> Vec<String> {
-        Layout::PRESETS.iter().map(|s| s.to_string()).collect()
+        wiring::layout_variants()
     }
 
     fn new(variant: &str) -> Result<(VariableTable, Self), FmuError> {
-        let layout = Layout::preset(variant).map_err(|e| FmuError::Instantiate(e.to_string()))?;
+        let layout = wiring::preset(variant)?;
         let (table, vars) = table(&layout)?;
         Ok((
             table,
@@ -383,7 +368,7 @@ impl Model for Structure {
         let model = self.modal_model(v)?;
         let n_modes = usize::try_from(v.integer(self.vars.n_modes)).unwrap_or(0);
         let solver = ModalSolver::new(model, n_modes, v.scalar(self.vars.damping_ratio))
-            .map_err(model_error)?;
+            .map_err(wiring::model_error)?;
         let f = solver.frequencies();
         v.real_mut(self.vars.first_mode_frequency)[0] = f.first().copied().unwrap_or(0.0);
         v.real_mut(self.vars.highest_mode_frequency)[0] = f.last().copied().unwrap_or(0.0);
@@ -404,7 +389,7 @@ impl Model for Structure {
             return Err(FmuError::Model("the structure is not initialised".into()));
         };
         s.step(h, v.real(vars.f_cell), v.scalar(vars.pier_z))
-            .map_err(model_error)?;
+            .map_err(wiring::model_error)?;
         self.write_outputs(v)
     }
 }

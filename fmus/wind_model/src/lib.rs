@@ -16,7 +16,6 @@ use serde::{Deserialize, Serialize};
 use fmu::{
     FmuError, IntVar, Model, ModelInfo, RealVar, StrVar, TableBuilder as T, Values, VariableTable,
 };
-use m1::M1Error;
 use m1::geometry::{Geometry, GeometryParams};
 use m1::layout::Layout;
 use m1::wind::{
@@ -102,21 +101,6 @@ at time t is the load at t whatever the communication steps.</p>\
 <p>Initialisation: under a second for TMT at the default 1024<sup>2</sup> screen \
 (release build); memory 48 N<sup>2</sup> bytes during initialisation (48 MiB at N = 1024) and \
 24 N n_segments bytes of tables (11.5 MiB for TMT).</p>";
-
-fn model_error(e: M1Error) -> FmuError {
-    match e {
-        M1Error::InvalidParameter {
-            name,
-            value,
-            reason,
-        } => FmuError::BadValue {
-            variable: name.to_string(),
-            value: value.to_string(),
-            reason: reason.to_string(),
-        },
-        other => FmuError::Model(other.to_string()),
-    }
-}
 
 fn table(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
     let na = layout.n_actuators();
@@ -358,8 +342,8 @@ impl Wind {
             actuator_radius: key.actuator_radius,
             ..GeometryParams::for_layout(&layout)
         };
-        let geometry = Geometry::new(&layout, params).map_err(model_error)?;
-        let loads = Arc::new(WindLoads::new(&geometry, &key.wind).map_err(model_error)?);
+        let geometry = Geometry::new(&layout, params).map_err(wiring::model_error)?;
+        let loads = Arc::new(WindLoads::new(&geometry, &key.wind).map_err(wiring::model_error)?);
         *cache = Some((key, loads.clone()));
         Ok(loads)
     }
@@ -372,7 +356,7 @@ impl Wind {
     ) -> Result<(), FmuError> {
         loads
             .forces(t, v.real_mut(vars.f_wind))
-            .map_err(model_error)
+            .map_err(wiring::model_error)
     }
 
     /// The wind loads, once initialised (for in-process use and tests).
@@ -394,11 +378,11 @@ impl Model for Wind {
     };
 
     fn variants() -> Vec<String> {
-        Layout::PRESETS.iter().map(|s| s.to_string()).collect()
+        wiring::layout_variants()
     }
 
     fn new(variant: &str) -> Result<(VariableTable, Self), FmuError> {
-        let layout = Layout::preset(variant).map_err(|e| FmuError::Instantiate(e.to_string()))?;
+        let layout = wiring::preset(variant)?;
         let (table, vars) = table(&layout)?;
         Ok((
             table,

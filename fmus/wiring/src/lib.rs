@@ -1,0 +1,72 @@
+//! What every FMU's model wiring shares: the layouts an FMU is packaged for, and the mapping
+//! of physics errors ([`M1Error`]) to FMI errors ([`FmuError`]) naming the variable at fault.
+//! The `fmu` runtime knows nothing of mirrors and `m1` nothing of FMI, so this glue lives here.
+
+use fmu::FmuError;
+use m1::M1Error;
+use m1::layout::Layout;
+
+/// The layouts every FMU is packaged for (one .fmu each): [`Layout::PRESETS`].
+pub fn layout_variants() -> Vec<String> {
+    Layout::PRESETS.iter().map(|s| s.to_string()).collect()
+}
+
+/// The preset layout called `variant`, or an instantiation error.
+///
+/// # Errors
+/// [`FmuError::Instantiate`] for an unknown layout.
+pub fn preset(variant: &str) -> Result<Layout, FmuError> {
+    Layout::preset(variant).map_err(|e| FmuError::Instantiate(e.to_string()))
+}
+
+/// An invalid parameter becomes [`FmuError::BadValue`] naming it; any other physics error a
+/// model error.
+pub fn model_error(e: M1Error) -> FmuError {
+    model_error_renamed(e, |name| name)
+}
+
+/// As [`model_error`], with `rename` mapping the physics' parameter names to the FMU's variable
+/// names where they differ.
+pub fn model_error_renamed(e: M1Error, rename: impl Fn(&'static str) -> &'static str) -> FmuError {
+    match e {
+        M1Error::InvalidParameter {
+            name,
+            value,
+            reason,
+        } => FmuError::BadValue {
+            variable: rename(name).to_string(),
+            value: value.to_string(),
+            reason: reason.to_string(),
+        },
+        other => FmuError::Model(other.to_string()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn invalid_parameters_name_the_variable() {
+        let e = M1Error::InvalidParameter {
+            name: "l0",
+            value: -1.0,
+            reason: "must be > 0",
+        };
+        match model_error_renamed(e.clone(), |n| if n == "l0" { "L0" } else { n }) {
+            FmuError::BadValue { variable, .. } => assert_eq!(variable, "L0"),
+            other => panic!("{other:?}"),
+        }
+        match model_error(e) {
+            FmuError::BadValue { variable, .. } => assert_eq!(variable, "l0"),
+            other => panic!("{other:?}"),
+        }
+        assert!(matches!(
+            model_error(M1Error::Numerical("x".into())),
+            FmuError::Model(_)
+        ));
+        assert!(preset("keck").is_ok());
+        assert!(matches!(preset("nosuch"), Err(FmuError::Instantiate(_))));
+        assert_eq!(layout_variants().len(), Layout::PRESETS.len());
+    }
+}
