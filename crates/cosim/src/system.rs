@@ -21,7 +21,7 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::description::{Causality, ScalarVariable, Start, VarType};
+use crate::description::{Causality, ScalarVariable, VarType};
 use crate::error::{CosimError, Result};
 use crate::fmu::Fmu;
 use crate::instance::Instance;
@@ -170,6 +170,27 @@ struct Running {
     /// Value references of its connected (or recorded) outputs, and their slots in `outputs`.
     out_vrs: Vec<u32>,
     out_slot: usize,
+    /// Its latest outputs (published into the shared buffer after its step).
+    out_buf: Vec<f64>,
+}
+
+impl Running {
+    /// Sets its inputs from `outputs` (all components' published outputs), steps from `t` over
+    /// its own multiple of `h`, and reads its outputs into `out_buf`: one fmi2SetReal, one
+    /// fmi2DoStep, one fmi2GetReal, no allocation.
+    fn advance(&mut self, outputs: &[f64], t: f64, h: f64) -> Result<()> {
+        for (b, &s) in self.in_buf.iter_mut().zip(&self.in_src) {
+            *b = outputs[s];
+        }
+        self.instance.set_real(&self.in_vrs, &self.in_buf)?;
+        self.instance.do_step(t, h * self.every as f64)?;
+        self.instance.get_real(&self.out_vrs, &mut self.out_buf)
+    }
+
+    /// Copies its outputs into the shared buffer.
+    fn publish(&self, outputs: &mut [f64]) {
+        outputs[self.out_slot..self.out_slot + self.out_buf.len()].copy_from_slice(&self.out_buf);
+    }
 }
 
 /// A signal to record: component, its signal name, and the slots of its scalars.
@@ -398,6 +419,7 @@ impl Simulation {
                 in_buf: vec![0.0; in_vrs.len()],
                 in_vrs,
                 in_src,
+                out_buf: vec![0.0; out_vars[c].len()],
                 out_vrs: out_vars[c].clone(),
                 out_slot: offset[c],
             });
@@ -432,8 +454,9 @@ impl Simulation {
 
     fn read_outputs(&mut self, c: usize) -> Result<()> {
         let r = &mut self.comps[c];
-        let slots = &mut self.outputs[r.out_slot..r.out_slot + r.out_vrs.len()];
-        r.instance.get_real(&r.out_vrs, slots)
+        r.instance.get_real(&r.out_vrs, &mut r.out_buf)?;
+        r.publish(&mut self.outputs);
+        Ok(())
     }
 
     /// Current simulation time (s).
@@ -471,55 +494,30 @@ impl Simulation {
         let k = self.n_steps;
         let t = self.time;
         let h = self.step;
+        let due = |r: &Running| k.is_multiple_of(r.every as u64);
         match self.order {
             Order::Jacobi => {
                 self.snapshot.copy_from_slice(&self.outputs);
                 let snapshot = &self.snapshot;
-                let outputs = &mut self.outputs;
-                // Split the output buffer per component so each thread writes its own part.
-                let mut parts: Vec<&mut [f64]> = Vec::with_capacity(self.comps.len());
-                let mut rest: &mut [f64] = outputs;
-                for r in &self.comps {
-                    let (a, b) = rest.split_at_mut(r.out_vrs.len());
-                    parts.push(a);
-                    rest = b;
-                }
-                let due: Vec<(&mut Running, &mut [f64])> = self
-                    .comps
-                    .iter_mut()
-                    .zip(parts)
-                    .filter(|(r, _)| k.is_multiple_of(r.every as u64))
-                    .collect();
-                let run = |(r, out): (&mut Running, &mut [f64])| -> Result<()> {
-                    for (b, &s) in r.in_buf.iter_mut().zip(&r.in_src) {
-                        *b = snapshot[s];
-                    }
-                    r.instance.set_real(&r.in_vrs, &r.in_buf)?;
-                    r.instance.do_step(t, h * r.every as f64)?;
-                    r.instance.get_real(&r.out_vrs, out)
-                };
-                if due.len() > 1 {
+                if self.comps.iter().filter(|r| due(r)).count() > 1 {
                     use rayon::prelude::*;
-                    due.into_par_iter().map(run).collect::<Result<Vec<()>>>()?;
+                    self.comps
+                        .par_iter_mut()
+                        .filter(|r| due(r))
+                        .try_for_each(|r| r.advance(snapshot, t, h))?;
                 } else {
-                    for d in due {
-                        run(d)?;
+                    for r in self.comps.iter_mut().filter(|r| due(r)) {
+                        r.advance(snapshot, t, h)?;
                     }
+                }
+                for r in self.comps.iter().filter(|r| due(r)) {
+                    r.publish(&mut self.outputs);
                 }
             }
             Order::GaussSeidel => {
-                for c in 0..self.comps.len() {
-                    if !k.is_multiple_of(self.comps[c].every as u64) {
-                        continue;
-                    }
-                    let r = &mut self.comps[c];
-                    for (b, &s) in r.in_buf.iter_mut().zip(&r.in_src) {
-                        *b = self.outputs[s];
-                    }
-                    r.instance.set_real(&r.in_vrs, &r.in_buf)?;
-                    let every = r.every as f64;
-                    r.instance.do_step(t, h * every)?;
-                    self.read_outputs(c)?;
+                for r in self.comps.iter_mut().filter(|r| due(r)) {
+                    r.advance(&self.outputs, t, h)?;
+                    r.publish(&mut self.outputs);
                 }
             }
         }
@@ -563,16 +561,20 @@ impl Results {
         use std::io::Write;
         let f = std::fs::File::create(path).map_err(crate::error::io(path))?;
         let mut w = std::io::BufWriter::new(f);
-        let e = crate::error::io(path);
-        let mut text = self.columns.join(",");
-        text.push('\n');
-        for row in &self.rows {
-            let line: Vec<String> = row.iter().map(|v| format!("{v:e}")).collect();
-            text.push_str(&line.join(","));
-            text.push('\n');
-        }
-        w.write_all(text.as_bytes()).map_err(e)?;
-        Ok(())
+        let mut write = || -> std::io::Result<()> {
+            writeln!(w, "{}", self.columns.join(","))?;
+            for row in &self.rows {
+                for (k, v) in row.iter().enumerate() {
+                    if k > 0 {
+                        w.write_all(b",")?;
+                    }
+                    write!(w, "{v:e}")?;
+                }
+                w.write_all(b"\n")?;
+            }
+            w.flush()
+        };
+        write().map_err(crate::error::io(path))
     }
 
     /// The column called `name`.
@@ -617,14 +619,4 @@ pub fn run(
     }
     sim.terminate()?;
     Ok(Results { columns, rows })
-}
-
-/// Start value of a variable as a [`Value`] (for reports).
-pub fn start_value(v: &ScalarVariable) -> Option<Value> {
-    v.start.as_ref().map(|s| match s {
-        Start::Real(x) => Value::Real(*x),
-        Start::Integer(x) => Value::Integer(*x),
-        Start::Boolean(x) => Value::Boolean(*x),
-        Start::String(x) => Value::String(x.clone()),
-    })
 }
