@@ -45,34 +45,10 @@ fn load(m: &MirrorArgs) -> Result<(Layout, Geometry), String> {
     Ok((layout, g))
 }
 
-/// Segment piston/tip/tilt (aperture-plane slopes) of an actuator-space pattern: solves
-/// z_k = p + tx (x_k - cx) + ty (y_k - cy) for each segment.
-pub fn actuators_to_ptt(g: &Geometry, z: &[f64]) -> Vec<[f64; 3]> {
-    g.segments
-        .iter()
-        .enumerate()
-        .map(|(i, f)| {
-            let m = nalgebra::Matrix3::from_fn(|k, c| match c {
-                0 => 1.0,
-                1 => f.actuators[k][0] - f.centre[0],
-                _ => f.actuators[k][1] - f.centre[1],
-            });
-            let rhs = nalgebra::Vector3::new(z[3 * i], z[3 * i + 1], z[3 * i + 2]);
-            let s = m.lu().solve(&rhs).unwrap_or_else(nalgebra::Vector3::zeros);
-            [s[0], s[1], s[2]]
-        })
-        .collect()
-}
-
-/// The actuator-space pattern of a segment PTT state (inverse of [`actuators_to_ptt`]).
-pub fn ptt_to_actuators(g: &Geometry, ptt: &[[f64; 3]]) -> Vec<f64> {
-    let mut z = Vec::with_capacity(3 * ptt.len());
-    for (f, s) in g.segments.iter().zip(ptt) {
-        for a in &f.actuators {
-            z.push(s[0] + s[1] * (a[0] - f.centre[0]) + s[2] * (a[1] - f.centre[1]));
-        }
-    }
-    z
+/// Segment piston/tip/tilt of an actuator pattern ([`m1::metrics::actuators_to_ptt`]) with
+/// the error as CLI text.
+fn actuators_to_ptt(g: &Geometry, z: &[f64]) -> Result<Vec<[f64; 3]>, String> {
+    m1::metrics::actuators_to_ptt(g, z).map_err(|e| e.to_string())
 }
 
 fn unit(v: &mut [f64]) {
@@ -84,7 +60,9 @@ fn unit(v: &mut [f64]) {
 
 /// The Zernike (Noll j, n, m) that dominates an actuator pattern, and its share of the fit.
 fn dominant_zernike(g: &Geometry, basis: &ZernikeBasis, z: &[f64]) -> (usize, u32, i32, f64) {
-    let ptt = actuators_to_ptt(g, z);
+    let Ok(ptt) = actuators_to_ptt(g, z) else {
+        return (0, 0, 0, 0.0);
+    };
     match basis.fit(&ptt) {
         Ok(c) => {
             let total: f64 = c.iter().skip(3).map(|x| x * x).sum();
@@ -135,7 +113,7 @@ pub fn amatrix(a: &AmatrixArgs) -> Result<(), String> {
     // Focus-mode against Z4.
     let focus: Vec<f64> = (0..na).map(|i| v[(i, r - 1)]).collect();
     let z4 = basis.mode(4).ok_or("no Z4 in the basis")?;
-    let mut z4a = ptt_to_actuators(&g, &z4);
+    let mut z4a = m1::metrics::ptt_to_actuators(&g, &z4).map_err(|e| e.to_string())?;
     for c in 0..3 {
         let d: f64 = (0..na).map(|i| n[(i, c)] * z4a[i]).sum();
         for (i, x) in z4a.iter_mut().enumerate() {
@@ -212,7 +190,7 @@ pub fn amatrix(a: &AmatrixArgs) -> Result<(), String> {
     }
     if let Some(base) = &a.maps {
         let stem = base.trim_end_matches(".png");
-        let ptt = actuators_to_ptt(&g, &focus);
+        let ptt = actuators_to_ptt(&g, &focus)?;
         plot::mirror_map_ptt(
             format!("{stem}-focus.png"),
             &layout,
@@ -224,7 +202,7 @@ pub fn amatrix(a: &AmatrixArgs) -> Result<(), String> {
         for k in 0..3.min(r.saturating_sub(1)) {
             let col = r - 2 - k;
             let mode: Vec<f64> = (0..na).map(|i| v[(i, col)]).collect();
-            let ptt = actuators_to_ptt(&g, &mode);
+            let ptt = actuators_to_ptt(&g, &mode)?;
             let title = format!(
                 "Mode {} (singular value {:.3e})",
                 col + 1,
@@ -516,7 +494,7 @@ pub fn clocking(a: &ClockingArgs) -> Result<(), String> {
     let nominal = Nominal::new(g).map_err(|e| e.to_string())?;
     let r = quasistatic::clocking(&nominal, seg).map_err(|e| e.to_string())?;
     if let Some(p) = &a.plot {
-        let ptt = actuators_to_ptt(&nominal.geometry, &r.z);
+        let ptt = actuators_to_ptt(&nominal.geometry, &r.z)?;
         let ptt_nm: Vec<[f64; 3]> = ptt
             .iter()
             .map(|s| [s[0] * 1e9, s[1] * 1e9, s[2] * 1e9])

@@ -159,8 +159,6 @@ pub fn read(path: &Path) -> Result<SspSystem> {
     let mut has_step = false;
     let mut everies: Vec<(String, usize)> = Vec::new();
     let mut r = Reader::from_str(&xml);
-    // Parameter bindings are parsed from the raw text of their ParameterValues element.
-    let mut stack: Vec<String> = Vec::new();
     let mut current_component: Option<usize> = None;
     let mut in_annotation = false;
     let mut depth_system = 0usize;
@@ -215,7 +213,7 @@ pub fn read(path: &Path) -> Result<SspSystem> {
                             .min(xml.len());
                         let fragment = &xml[start.min(end)..end];
                         if let Some(c) = current_component {
-                            let p = parse_parameters(fragment, &named_path(path))?;
+                            let p = parse_parameters(fragment, path)?;
                             system.components[c].parameters.extend(p);
                         }
                         continue;
@@ -262,9 +260,6 @@ pub fn read(path: &Path) -> Result<SspSystem> {
                     }
                     _ => {}
                 }
-                if !is_empty {
-                    stack.push(name);
-                }
             }
             Event::End(ref e) => {
                 let name = e.local_name().into_inner().to_string();
@@ -274,7 +269,6 @@ pub fn read(path: &Path) -> Result<SspSystem> {
                     "Annotation" => in_annotation = false,
                     _ => {}
                 }
-                stack.pop();
             }
             _ => {}
         }
@@ -292,10 +286,6 @@ pub fn read(path: &Path) -> Result<SspSystem> {
         has_step,
         _dir: dir,
     })
-}
-
-fn named_path(p: &Path) -> PathBuf {
-    p.to_path_buf()
 }
 
 fn escape(s: &str) -> String {
