@@ -34,9 +34,14 @@ pub enum Scenario {
 /// Mirror-cell model of a standard system.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum Cell {
-    /// The structure FMU, coupled both ways.
-    Modal,
-    /// No structure: the cell does not move.
+    /// The mirror FMU: segments and structure solved together at every servo sample (stable
+    /// and exact at any step that is a multiple of the 0.2 ms servo period).
+    Coupled,
+    /// The segments FMU and the structure FMU exchanging f_cell and z_cell once per step: for
+    /// studies of the coupling delay. Stable only at short steps (voice coil: 0.2 ms in
+    /// Gauss-Seidel order); the piezo diverges at every step tried.
+    Split,
+    /// The segments FMU alone: the cell does not move.
     Rigid,
 }
 
@@ -64,10 +69,10 @@ pub struct SystemArgs {
     /// Global-loop bandwidth on focus-mode (Hz).
     #[arg(long, default_value_t = 0.1)]
     pub focus_bandwidth: f64,
-    /// Mirror cell: `modal` couples the structure FMU (f_cell -> z_cell), `rigid` leaves it out
-    /// (z_cell = 0). The explicit modal coupling needs the default 0.2 ms step and Gauss-Seidel
-    /// order to stay stable (see README).
-    #[arg(long, value_enum, default_value = "modal")]
+    /// Mirror cell: `coupled` (the mirror FMU, segments and structure in one solve), `split`
+    /// (segments and structure FMUs exchanging f_cell and z_cell every step; short steps only)
+    /// or `rigid` (no structure, z_cell = 0).
+    #[arg(long, value_enum, default_value = "coupled")]
     pub cell: Cell,
     /// Structure modes retained (the rest enter as a static correction).
     #[arg(long, default_value_t = 60)]
@@ -78,10 +83,9 @@ pub struct SystemArgs {
     /// Simulated duration (s).
     #[arg(long, default_value_t = 5.0)]
     pub duration: f64,
-    /// Base communication step (s). The segments and the structure exchange f_cell and z_cell
-    /// once per step; with Gauss-Seidel order 0.2 ms keeps that stiff coupling stable for Keck
-    /// and TMT (longer steps and the Jacobi order can diverge; see the README).
-    #[arg(long, default_value_t = 2e-4)]
+    /// Base communication step (s): a multiple of the 0.2 ms servo period for the mirror and
+    /// segments FMUs. With `--cell split` keep it at 2e-4 with Gauss-Seidel order.
+    #[arg(long, default_value_t = 1e-3)]
     pub step: f64,
 }
 
@@ -109,9 +113,10 @@ pub struct RunCmd {
     /// Record every N base steps.
     #[arg(long, default_value_t = 10)]
     pub decimation: usize,
-    /// Stepping order of the master (Gauss-Seidel: the structure steps on the segments' newest
-    /// f_cell, one delay less in the stiff segments-structure loop than Jacobi).
-    #[arg(long, value_enum, default_value = "gauss-seidel")]
+    /// Stepping order of the master: Jacobi steps the components in parallel; Gauss-Seidel
+    /// steps them in turn on their predecessors' newest outputs (one delay less per connection,
+    /// needed by `--cell split`).
+    #[arg(long, value_enum, default_value = "jacobi")]
     pub order: OrderArg,
     /// Print the summary as one JSON object.
     #[arg(long)]
@@ -162,9 +167,11 @@ pub fn standard_system(a: &SystemArgs, closed: bool) -> Result<System, String> {
             ((1.0 / hz) / a.step).round().max(1.0) as usize
         }
     };
-    let segments = match a.actuator {
-        Variant::Voicecoil => fmu(a, "segments_voicecoil")?,
-        Variant::Piezo | Variant::PiezoDamped => fmu(a, "segments_piezo")?,
+    let (mirror, file) = match (a.cell, a.actuator) {
+        (Cell::Coupled, Variant::Voicecoil) => ("mirror", "mirror_voicecoil"),
+        (Cell::Coupled, _) => ("mirror", "mirror_piezo"),
+        (_, Variant::Voicecoil) => ("segments", "segments_voicecoil"),
+        (_, _) => ("segments", "segments_piezo"),
     };
     let mut s = System::new(a.duration, a.step);
     s = match a.scenario {
@@ -175,15 +182,23 @@ pub fn standard_system(a: &SystemArgs, closed: bool) -> Result<System, String> {
         Scenario::Vibration => s.component("pier", fmu(a, "pier_vibration")?),
     };
     if a.cell == Cell::Rigid && a.scenario == Scenario::Vibration {
-        return Err("--scenario vibration acts through the structure: use --cell modal".into());
-    }
-    s = s.component("segments", segments);
-    if a.cell == Cell::Modal {
-        s = s.component("structure", fmu(a, "structure")?).parameter(
-            "structure",
-            "n_modes",
-            Value::Integer(a.structure_modes),
+        return Err(
+            "--scenario vibration acts through the structure: use --cell coupled or split".into(),
         );
+    }
+    s = s.component(mirror, fmu(a, file)?);
+    match a.cell {
+        Cell::Coupled => {
+            s = s.parameter(mirror, "n_modes", Value::Integer(a.structure_modes));
+        }
+        Cell::Split => {
+            s = s.component("structure", fmu(a, "structure")?).parameter(
+                "structure",
+                "n_modes",
+                Value::Integer(a.structure_modes),
+            );
+        }
+        Cell::Rigid => {}
     }
     s = s
         .component("sensors", fmu(a, "edge_sensors")?)
@@ -204,21 +219,26 @@ pub fn standard_system(a: &SystemArgs, closed: bool) -> Result<System, String> {
         .component("optics", fmu(a, "optics")?)
         .every(per(1000.0));
     if a.actuator == Variant::PiezoDamped {
-        s = s.parameter("segments", "shunt_enabled", Value::Boolean(true));
+        s = s.parameter(mirror, "shunt_enabled", Value::Boolean(true));
     }
-    s = match a.scenario {
-        Scenario::Wind => s.connect("wind.f_wind", "segments.f_wind"),
-        Scenario::Vibration => s.connect("pier.pier_z", "structure.pier_z"),
+    let pier_target = if a.cell == Cell::Coupled {
+        "mirror.pier_z"
+    } else {
+        "structure.pier_z"
     };
-    if a.cell == Cell::Modal {
+    s = match a.scenario {
+        Scenario::Wind => s.connect("wind.f_wind", &format!("{mirror}.f_wind")),
+        Scenario::Vibration => s.connect("pier.pier_z", pier_target),
+    };
+    if a.cell == Cell::Split {
         s = s
             .connect("structure.z_cell", "segments.z_cell")
             .connect("segments.f_cell", "structure.f_cell");
     }
-    Ok(s.connect("controller.u_cmd", "segments.u_cmd")
-        .connect("segments.z", "sensors.z")
+    Ok(s.connect("controller.u_cmd", &format!("{mirror}.u_cmd"))
+        .connect(&format!("{mirror}.z"), "sensors.z")
         .connect("sensors.y", "controller.y")
-        .connect("segments.z", "optics.z"))
+        .connect(&format!("{mirror}.z"), "optics.z"))
 }
 
 /// Runs `m1cs system`.

@@ -4,7 +4,9 @@
 //!   `target/fmu/<layout>/<model>.fmu` (default layouts: keck, tmt, elt).
 //! - `venv`: creates `.venv` with the Python packages the tests use (tests/python/requirements.txt).
 //! - `test`: package, venv, `cargo test --release --workspace`, then pytest on tests/python.
-//! - `demo`: package, then run `m1cs demo` (the main job until the closed-loop scenario exists).
+//! - `run [ARGS]`: the main job: package the TMT FMUs, then `m1cs run ARGS` (with no arguments,
+//!   the TMT wind scenario, open and closed loop, into results/).
+//! - `demo`: package, then run `m1cs demo` (the segments' step responses and stiffness).
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
@@ -25,6 +27,14 @@ const FMUS: &[FmuCrate] = &[
     FmuCrate {
         name: "segments_piezo",
         write: fmu::package::write_fmu::<segments::Piezo>,
+    },
+    FmuCrate {
+        name: "mirror_voicecoil",
+        write: fmu::package::write_fmu::<mirror::VoiceCoil>,
+    },
+    FmuCrate {
+        name: "mirror_piezo",
+        write: fmu::package::write_fmu::<mirror::Piezo>,
     },
     FmuCrate {
         name: "structure",
@@ -148,6 +158,13 @@ fn demo(extra: &[String]) -> Result<(), String> {
         .args(extra))
 }
 
+fn run_main(extra: &[String]) -> Result<(), String> {
+    package(&["tmt".into()])?;
+    run(cargo()
+        .args(["run", "--quiet", "--release", "-p", "m1cs", "--", "run"])
+        .args(extra))
+}
+
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let (cmd, rest) = match args.split_first() {
@@ -159,9 +176,10 @@ fn main() -> ExitCode {
         "venv" => venv().map(|p| eprintln!("python: {}", p.display())),
         "test" => test(rest),
         "demo" => demo(rest),
+        "run" => run_main(rest),
         _ => {
             eprintln!(
-                "usage: cargo xtask <package [LAYOUT...] | venv | test [PYTEST ARGS] | demo [ARGS]>"
+                "usage: cargo xtask <package [LAYOUT...] | venv | test [PYTEST ARGS] | run [M1CS RUN ARGS] | demo [ARGS]>"
             );
             return if cmd == "help" {
                 ExitCode::SUCCESS

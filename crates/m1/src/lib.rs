@@ -12,6 +12,7 @@ pub mod interaction;
 pub mod krylov;
 pub mod layout;
 pub mod metrics;
+pub mod mirror;
 pub mod pssn;
 pub mod quasistatic;
 pub mod reconstructor;

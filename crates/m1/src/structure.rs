@@ -1000,6 +1000,16 @@ impl ModalSolver {
         (&self.q, &self.v)
     }
 
+    /// Retained mode shapes at the attachments, `na x n` row-major (1/sqrt(kg)).
+    pub fn shapes(&self) -> &[f64] {
+        &self.phi
+    }
+
+    /// Modal gain of the pier input of each retained mode, `k_p phi_p` (N/(m sqrt(kg))).
+    pub fn pier_gains(&self) -> &[f64] {
+        &self.b_pier
+    }
+
     /// Whether a static correction is applied.
     pub fn has_static_correction(&self) -> bool {
         !matches!(self.flex, Flexibility::None)

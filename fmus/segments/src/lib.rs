@@ -58,6 +58,13 @@ struct Vars {
     f_wind: RealVar,
     z: RealVar,
     f_cell: RealVar,
+    params: ParamVars,
+}
+
+/// Handles of the segment, actuator and servo parameters of a variant (shared with the FMUs
+/// that embed the segments, such as the coupled mirror).
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+pub struct ParamVars {
     segment_mass: RealVar,
     segment_inertia: RealVar,
     actuator_radius: RealVar,
@@ -277,9 +284,9 @@ fn servo_units(piezo: bool) -> [&'static str; 3] {
     }
 }
 
-fn table<V: Variant>(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
-    let n = layout.n_segments();
-    let na = layout.n_actuators();
+/// Declares the segment, actuator and servo parameters of variant `V` (and the calculated
+/// static stiffnesses) in `b`.
+pub fn declare_params<V: Variant>(b: &mut T) -> ParamVars {
     let piezo = V::INFO.model_identifier.contains("piezo");
     let defaults = if piezo {
         SegmentModel::piezo()
@@ -289,6 +296,169 @@ fn table<V: Variant>(layout: &Layout) -> Result<(VariableTable, Vars), FmuError>
     let seg = SegmentParams::default();
     let servo = &defaults.actuator.servo;
     let [ukp, uki, ukd] = servo_units(piezo);
+    let p = |b: &mut T, name: &str, unit: &str, x: f64, positive: bool, desc: &str| {
+        let d = T::real(name).parameter().unit(unit).start(x).describe(desc);
+        b.add_real(if positive {
+            d.positive()
+        } else {
+            d.non_negative()
+        })
+    };
+    let segment_mass = p(
+        b,
+        "segment_mass",
+        "kg",
+        seg.mass,
+        true,
+        "Mass carried by the three actuators of a segment",
+    );
+    let segment_inertia = p(
+        b,
+        "segment_inertia",
+        "kg.m2",
+        seg.inertia,
+        true,
+        "Moment of inertia of a segment about an in-plane diameter",
+    );
+    let actuator_radius = p(
+        b,
+        "actuator_radius",
+        "m",
+        seg.actuator_radius,
+        true,
+        "Radius of the actuator circle",
+    );
+    let support_piston_frequency = p(
+        b,
+        "support_piston_frequency",
+        "Hz",
+        seg.support_piston_frequency,
+        true,
+        "Piston mode of the segment support with the actuator nodes clamped",
+    );
+    let support_tilt_frequency = p(
+        b,
+        "support_tilt_frequency",
+        "Hz",
+        seg.support_tilt_frequency,
+        true,
+        "Tip/tilt mode of the segment support with the actuator nodes clamped",
+    );
+    let support_damping_ratio = p(
+        b,
+        "support_damping_ratio",
+        "1",
+        seg.support_damping_ratio,
+        false,
+        "Damping ratio of the support modes",
+    );
+    let actuator_mass = p(
+        b,
+        "actuator_mass",
+        "kg",
+        defaults.actuator.moving_mass,
+        true,
+        "Moving mass of each actuator's output node",
+    );
+    let servo_rate = p(
+        b,
+        "servo_rate",
+        "Hz",
+        servo.rate,
+        true,
+        "Sample rate of the encoder servo",
+    );
+    let servo_kp = p(
+        b,
+        "servo_kp",
+        ukp,
+        servo.kp,
+        false,
+        "Proportional gain of the encoder servo",
+    );
+    let servo_ki = p(
+        b,
+        "servo_ki",
+        uki,
+        servo.ki,
+        false,
+        "Integral gain of the encoder servo",
+    );
+    let servo_kd = p(
+        b,
+        "servo_kd",
+        ukd,
+        servo.kd,
+        false,
+        "Derivative gain of the encoder servo (on the measurement)",
+    );
+    let derivative_cutoff = p(
+        b,
+        "derivative_cutoff",
+        "Hz",
+        servo.derivative_cutoff,
+        true,
+        "Corner of the derivative's first-order filter",
+    );
+    let integrator_leak = p(
+        b,
+        "integrator_leak",
+        "Hz",
+        servo.integrator_leak,
+        false,
+        "Leak corner of the servo integrator (0: pure integrator)",
+    );
+    let setpoint_weight = b.add_real(
+        T::real("setpoint_weight")
+            .parameter()
+            .unit("1")
+            .start(servo.setpoint_weight)
+            .check(fmu::Check::Range(0.0, 1.0))
+            .describe("Weight of the command in the proportional term (1: plain PID)"),
+    );
+    let drive = V::declare(b);
+    let calc = |b: &mut T, name: &str, desc: &str| {
+        b.add_real(
+            T::real(name)
+                .calculated_parameter()
+                .unit("N/m")
+                .describe(desc),
+        )
+    };
+    let static_stiffness_piston = calc(
+        b,
+        "static_stiffness_piston",
+        "Analytic static stiffness at the mirror per actuator, piston load pattern",
+    );
+    let static_stiffness_tilt = calc(
+        b,
+        "static_stiffness_tilt",
+        "Analytic static stiffness at the mirror per actuator, tilt load pattern",
+    );
+    ParamVars {
+        segment_mass,
+        segment_inertia,
+        actuator_radius,
+        support_piston_frequency,
+        support_tilt_frequency,
+        support_damping_ratio,
+        actuator_mass,
+        servo_rate,
+        servo_kp,
+        servo_ki,
+        servo_kd,
+        derivative_cutoff,
+        integrator_leak,
+        setpoint_weight,
+        static_stiffness_piston,
+        static_stiffness_tilt,
+        drive,
+    }
+}
+
+fn table<V: Variant>(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
+    let n = layout.n_segments();
+    let na = layout.n_actuators();
     let mut b = T::new();
     let layout_var = b.add_string(
         T::string("layout")
@@ -341,145 +511,7 @@ fn table<V: Variant>(layout: &Layout) -> Result<(VariableTable, Vars), FmuError>
             .depends(Dependencies::Elementwise("z_cell".into()))
             .describe("Force of each actuator on the mirror cell"),
     );
-    let p = |b: &mut T, name: &str, unit: &str, x: f64, positive: bool, desc: &str| {
-        let d = T::real(name).parameter().unit(unit).start(x).describe(desc);
-        b.add_real(if positive {
-            d.positive()
-        } else {
-            d.non_negative()
-        })
-    };
-    let segment_mass = p(
-        &mut b,
-        "segment_mass",
-        "kg",
-        seg.mass,
-        true,
-        "Mass carried by the three actuators of a segment",
-    );
-    let segment_inertia = p(
-        &mut b,
-        "segment_inertia",
-        "kg.m2",
-        seg.inertia,
-        true,
-        "Moment of inertia of a segment about an in-plane diameter",
-    );
-    let actuator_radius = p(
-        &mut b,
-        "actuator_radius",
-        "m",
-        seg.actuator_radius,
-        true,
-        "Radius of the actuator circle",
-    );
-    let support_piston_frequency = p(
-        &mut b,
-        "support_piston_frequency",
-        "Hz",
-        seg.support_piston_frequency,
-        true,
-        "Piston mode of the segment support with the actuator nodes clamped",
-    );
-    let support_tilt_frequency = p(
-        &mut b,
-        "support_tilt_frequency",
-        "Hz",
-        seg.support_tilt_frequency,
-        true,
-        "Tip/tilt mode of the segment support with the actuator nodes clamped",
-    );
-    let support_damping_ratio = p(
-        &mut b,
-        "support_damping_ratio",
-        "1",
-        seg.support_damping_ratio,
-        false,
-        "Damping ratio of the support modes",
-    );
-    let actuator_mass = p(
-        &mut b,
-        "actuator_mass",
-        "kg",
-        defaults.actuator.moving_mass,
-        true,
-        "Moving mass of each actuator's output node",
-    );
-    let servo_rate = p(
-        &mut b,
-        "servo_rate",
-        "Hz",
-        servo.rate,
-        true,
-        "Sample rate of the encoder servo",
-    );
-    let servo_kp = p(
-        &mut b,
-        "servo_kp",
-        ukp,
-        servo.kp,
-        false,
-        "Proportional gain of the encoder servo",
-    );
-    let servo_ki = p(
-        &mut b,
-        "servo_ki",
-        uki,
-        servo.ki,
-        false,
-        "Integral gain of the encoder servo",
-    );
-    let servo_kd = p(
-        &mut b,
-        "servo_kd",
-        ukd,
-        servo.kd,
-        false,
-        "Derivative gain of the encoder servo (on the measurement)",
-    );
-    let derivative_cutoff = p(
-        &mut b,
-        "derivative_cutoff",
-        "Hz",
-        servo.derivative_cutoff,
-        true,
-        "Corner of the derivative's first-order filter",
-    );
-    let integrator_leak = p(
-        &mut b,
-        "integrator_leak",
-        "Hz",
-        servo.integrator_leak,
-        false,
-        "Leak corner of the servo integrator (0: pure integrator)",
-    );
-    let setpoint_weight = b.add_real(
-        T::real("setpoint_weight")
-            .parameter()
-            .unit("1")
-            .start(servo.setpoint_weight)
-            .check(fmu::Check::Range(0.0, 1.0))
-            .describe("Weight of the command in the proportional term (1: plain PID)"),
-    );
-    let drive = V::declare(&mut b);
-    let calc = |b: &mut T, name: &str, desc: &str| {
-        b.add_real(
-            T::real(name)
-                .calculated_parameter()
-                .unit("N/m")
-                .describe(desc),
-        )
-    };
-    let static_stiffness_piston = calc(
-        &mut b,
-        "static_stiffness_piston",
-        "Analytic static stiffness at the mirror per actuator, piston load pattern",
-    );
-    let static_stiffness_tilt = calc(
-        &mut b,
-        "static_stiffness_tilt",
-        "Analytic static stiffness at the mirror per actuator, tilt load pattern",
-    );
+    let params = declare_params::<V>(&mut b);
     let table = b.build()?;
     Ok((
         table,
@@ -491,30 +523,15 @@ fn table<V: Variant>(layout: &Layout) -> Result<(VariableTable, Vars), FmuError>
             f_wind,
             z,
             f_cell,
-            segment_mass,
-            segment_inertia,
-            actuator_radius,
-            support_piston_frequency,
-            support_tilt_frequency,
-            support_damping_ratio,
-            actuator_mass,
-            servo_rate,
-            servo_kp,
-            servo_ki,
-            servo_kd,
-            derivative_cutoff,
-            integrator_leak,
-            setpoint_weight,
-            static_stiffness_piston,
-            static_stiffness_tilt,
-            drive,
+            params,
         },
     ))
 }
 
-impl<V: Variant> Segments<V> {
-    fn physics(&self, v: &Values) -> SegmentModel {
-        let x = &self.vars;
+impl ParamVars {
+    /// The physics' segment model from the parameter values.
+    pub fn model<V: Variant>(&self, v: &Values) -> SegmentModel {
+        let x = self;
         let s = |h: RealVar| v.scalar(h);
         let servo = ServoParams {
             rate: s(x.servo_rate),
@@ -536,6 +553,18 @@ impl<V: Variant> Segments<V> {
             },
             actuator: V::actuator(v, &x.drive, servo, s(x.actuator_mass)),
         }
+    }
+
+    /// Writes the calculated parameters (analytic static stiffnesses) of `model`.
+    pub fn write_calculated(&self, v: &mut Values, model: &SegmentModel) {
+        v.real_mut(self.static_stiffness_piston)[0] = model.static_stiffness(Channel::Piston);
+        v.real_mut(self.static_stiffness_tilt)[0] = model.static_stiffness(Channel::Tilt);
+    }
+}
+
+impl<V: Variant> Segments<V> {
+    fn physics(&self, v: &Values) -> SegmentModel {
+        self.vars.params.model::<V>(v)
     }
 
     fn write_outputs(&mut self, v: &mut Values) -> Result<(), FmuError> {
@@ -584,8 +613,7 @@ impl<V: Variant> Model for Segments<V> {
         let model = self.physics(v);
         let array =
             SegmentArray::new(self.n_segments, model.clone()).map_err(wiring::model_error)?;
-        v.real_mut(self.vars.static_stiffness_piston)[0] = model.static_stiffness(Channel::Piston);
-        v.real_mut(self.vars.static_stiffness_tilt)[0] = model.static_stiffness(Channel::Tilt);
+        self.vars.params.write_calculated(v, &model);
         self.array = Some(array);
         self.write_outputs(v)
     }

@@ -31,6 +31,13 @@ struct Vars {
     f_cell: RealVar,
     pier_z: RealVar,
     z_cell: RealVar,
+    cell: CellVars,
+}
+
+/// Handles of the structure-model parameters (shared with the FMUs that embed the structure,
+/// such as the coupled mirror).
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+pub struct CellVars {
     modal_file: StrVar,
     n_modes: IntVar,
     damping_ratio: RealVar,
@@ -98,9 +105,131 @@ correction of f_cell; costs O(na<sup>2</sup>) per step) and <code>static_pier</c
 static response to pier_z. A relative path is looked up in the FMU's resources/ folder first, \
 then in the importer's working directory. See examples/write_structure_npz.py.</p>";
 
+/// Declares the structure-model parameters (and the calculated modal facts) in `b`, with
+/// `default_modes` retained modes by default.
+pub fn declare_cell_params(b: &mut T, default_modes: i32) -> CellVars {
+    let d = CellParams::default();
+    let modal_file = b.add_string(T::string("modal_file").parameter().start_str("").describe(
+        "NumPy .npz modal model exported from an FE model (empty: the built-in \
+                 parametric mirror cell); relative paths are looked up in resources/ first",
+    ));
+    let n_modes = b.add_integer(
+        T::integer("n_modes")
+            .parameter()
+            .start_int(default_modes)
+            .positive()
+            .describe(
+                "Number of lowest modes integrated (all if the model has fewer); the others \
+                 enter through the static correction where the FMU applies one",
+            ),
+    );
+    let damping_ratio = b.add_real(
+        T::real("damping_ratio")
+            .parameter()
+            .unit("1")
+            .start(0.02)
+            .check(fmu::Check::Range(0.0, 10.0))
+            .describe("Modal damping ratio of every mode (unless the modal file gives its own)"),
+    );
+    let p = |b: &mut T, name: &str, unit: &str, x: f64, desc: &str| {
+        b.add_real(
+            T::real(name)
+                .parameter()
+                .unit(unit)
+                .start(x)
+                .positive()
+                .describe(desc),
+        )
+    };
+    let cell_mass = p(
+        b,
+        "cell_mass",
+        "kg",
+        d.cell_mass,
+        "Built-in model: cell structural mass lumped at each segment node",
+    );
+    let mount_mass_ratio = p(
+        b,
+        "mount_mass_ratio",
+        "1",
+        d.mount_mass_ratio,
+        "Built-in model: mount mass as a multiple of the total cell mass",
+    );
+    let mount_frequency = p(
+        b,
+        "mount_frequency",
+        "Hz",
+        d.mount_frequency,
+        "Built-in model: target bounce frequency of the rigid cell and mount on the pier spring",
+    );
+    let support_frequency = p(
+        b,
+        "support_frequency",
+        "Hz",
+        d.support_frequency,
+        "Built-in model: target bounce frequency of the rigid cell on its supports",
+    );
+    let cell_frequency = p(
+        b,
+        "cell_frequency",
+        "Hz",
+        d.cell_frequency,
+        "Built-in model: target first elastic mode of the grillage pinned at its supports",
+    );
+    let torsion_ratio = p(
+        b,
+        "torsion_ratio",
+        "1",
+        d.torsion_ratio,
+        "Built-in model: torsion to bending stiffness ratio GJ/EI of the grillage beams",
+    );
+    let support_radius = b.add_real(
+        T::real("support_radius")
+            .parameter()
+            .unit("1")
+            .start(d.support_radius)
+            .check(fmu::Check::Range(0.05, 1.0))
+            .describe(
+                "Built-in model: radius of the support ring as a fraction of the largest \
+                 segment-centre radius",
+            ),
+    );
+    let first_mode_frequency = b.add_real(
+        T::real("first_mode_frequency")
+            .calculated_parameter()
+            .unit("Hz")
+            .describe("Lowest natural frequency of the structure model"),
+    );
+    let highest_mode_frequency = b.add_real(
+        T::real("highest_mode_frequency")
+            .calculated_parameter()
+            .unit("Hz")
+            .describe("Highest natural frequency among the integrated modes"),
+    );
+    let n_modes_retained = b.add_integer(
+        T::integer("n_modes_retained")
+            .calculated_parameter()
+            .describe("Number of modes integrated (n_modes, or all the model has)"),
+    );
+    CellVars {
+        modal_file,
+        n_modes,
+        damping_ratio,
+        cell_mass,
+        mount_mass_ratio,
+        mount_frequency,
+        support_frequency,
+        cell_frequency,
+        torsion_ratio,
+        support_radius,
+        first_mode_frequency,
+        highest_mode_frequency,
+        n_modes_retained,
+    }
+}
+
 fn table(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
     let na = layout.n_actuators();
-    let d = CellParams::default();
     let mut b = T::new();
     let layout_var = b.add_string(
         T::string("layout")
@@ -140,108 +269,7 @@ fn table(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
                  static correction uses the inputs of the last completed step)",
             ),
     );
-    let modal_file = b.add_string(T::string("modal_file").parameter().start_str("").describe(
-        "NumPy .npz modal model exported from an FE model (empty: the built-in \
-                 parametric mirror cell); relative paths are looked up in resources/ first",
-    ));
-    let n_modes = b.add_integer(
-        T::integer("n_modes")
-            .parameter()
-            .start_int(60)
-            .positive()
-            .describe(
-                "Number of lowest modes integrated (all if the model has fewer); the others \
-                 enter through the static correction",
-            ),
-    );
-    let damping_ratio = b.add_real(
-        T::real("damping_ratio")
-            .parameter()
-            .unit("1")
-            .start(0.02)
-            .check(fmu::Check::Range(0.0, 10.0))
-            .describe("Modal damping ratio of every mode (unless the modal file gives its own)"),
-    );
-    let p = |b: &mut T, name: &str, unit: &str, x: f64, desc: &str| {
-        b.add_real(
-            T::real(name)
-                .parameter()
-                .unit(unit)
-                .start(x)
-                .positive()
-                .describe(desc),
-        )
-    };
-    let cell_mass = p(
-        &mut b,
-        "cell_mass",
-        "kg",
-        d.cell_mass,
-        "Built-in model: cell structural mass lumped at each segment node",
-    );
-    let mount_mass_ratio = p(
-        &mut b,
-        "mount_mass_ratio",
-        "1",
-        d.mount_mass_ratio,
-        "Built-in model: mount mass as a multiple of the total cell mass",
-    );
-    let mount_frequency = p(
-        &mut b,
-        "mount_frequency",
-        "Hz",
-        d.mount_frequency,
-        "Built-in model: target bounce frequency of the rigid cell and mount on the pier spring",
-    );
-    let support_frequency = p(
-        &mut b,
-        "support_frequency",
-        "Hz",
-        d.support_frequency,
-        "Built-in model: target bounce frequency of the rigid cell on its supports",
-    );
-    let cell_frequency = p(
-        &mut b,
-        "cell_frequency",
-        "Hz",
-        d.cell_frequency,
-        "Built-in model: target first elastic mode of the grillage pinned at its supports",
-    );
-    let torsion_ratio = p(
-        &mut b,
-        "torsion_ratio",
-        "1",
-        d.torsion_ratio,
-        "Built-in model: torsion to bending stiffness ratio GJ/EI of the grillage beams",
-    );
-    let support_radius = b.add_real(
-        T::real("support_radius")
-            .parameter()
-            .unit("1")
-            .start(d.support_radius)
-            .check(fmu::Check::Range(0.05, 1.0))
-            .describe(
-                "Built-in model: radius of the support ring as a fraction of the largest \
-                 segment-centre radius",
-            ),
-    );
-    let first_mode_frequency = b.add_real(
-        T::real("first_mode_frequency")
-            .calculated_parameter()
-            .unit("Hz")
-            .describe("Lowest natural frequency of the structure model"),
-    );
-    let highest_mode_frequency = b.add_real(
-        T::real("highest_mode_frequency")
-            .calculated_parameter()
-            .unit("Hz")
-            .describe("Highest natural frequency among the integrated modes"),
-    );
-    let n_modes_retained = b.add_integer(
-        T::integer("n_modes_retained")
-            .calculated_parameter()
-            .describe("Number of modes integrated (n_modes, or all the model has)"),
-    );
+    let cell = declare_cell_params(&mut b, 60);
     let table = b.build()?;
     Ok((
         table,
@@ -251,41 +279,22 @@ fn table(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
             f_cell,
             pier_z,
             z_cell,
-            modal_file,
-            n_modes,
-            damping_ratio,
-            cell_mass,
-            mount_mass_ratio,
-            mount_frequency,
-            support_frequency,
-            cell_frequency,
-            torsion_ratio,
-            support_radius,
-            first_mode_frequency,
-            highest_mode_frequency,
-            n_modes_retained,
+            cell,
         },
     ))
 }
 
-impl Structure {
-    /// Where `modal_file` points: absolute as given; relative, in resources/ if it exists there,
-    /// else relative to the working directory.
-    fn resolve(&self, file: &str) -> PathBuf {
-        let p = Path::new(file);
-        if p.is_relative()
-            && let Some(dir) = &self.resource_dir
-        {
-            let candidate = dir.join(p);
-            if candidate.exists() {
-                return candidate;
-            }
-        }
-        p.to_path_buf()
-    }
-
-    fn modal_model(&self, v: &Values) -> Result<ModalModel, FmuError> {
-        let x = &self.vars;
+impl CellVars {
+    /// The modal model the parameters describe: the built-in cell of `layout` or the modal file
+    /// (a relative path is looked up in `resource_dir` first, then in the working directory).
+    pub fn modal_model(
+        &self,
+        v: &Values,
+        layout: &str,
+        na: usize,
+        resource_dir: Option<&Path>,
+    ) -> Result<ModalModel, FmuError> {
+        let x = self;
         let file = v.string(x.modal_file).trim().to_string();
         if file.is_empty() {
             let s = |h: RealVar| v.scalar(h);
@@ -298,13 +307,12 @@ impl Structure {
                 torsion_ratio: s(x.torsion_ratio),
                 support_radius: s(x.support_radius),
             };
-            let layout =
-                Layout::preset(&self.layout).map_err(|e| FmuError::Model(e.to_string()))?;
+            let layout = Layout::preset(layout).map_err(|e| FmuError::Model(e.to_string()))?;
             let cell = CellModel::new(&layout, &params).map_err(wiring::model_error)?;
             cell.modes().map_err(wiring::model_error)
         } else {
-            let path = self.resolve(&file);
-            ModalModel::from_npz(&path, self.na).map_err(|e| FmuError::BadValue {
+            let path = resolve(resource_dir, &file);
+            ModalModel::from_npz(&path, na).map_err(|e| FmuError::BadValue {
                 variable: "modal_file".into(),
                 value: format!("\"{file}\""),
                 reason: match e {
@@ -313,6 +321,46 @@ impl Structure {
                 },
             })
         }
+    }
+
+    /// Number of modes asked for, and the damping ratio of modes without their own.
+    pub fn modes_and_damping(&self, v: &Values) -> (usize, f64) {
+        (
+            usize::try_from(v.integer(self.n_modes)).unwrap_or(0),
+            v.scalar(self.damping_ratio),
+        )
+    }
+
+    /// Writes the calculated parameters (first and highest retained frequencies, count).
+    pub fn write_calculated(&self, v: &mut Values, solver: &ModalSolver) {
+        let f = solver.frequencies();
+        v.real_mut(self.first_mode_frequency)[0] = f.first().copied().unwrap_or(0.0);
+        v.real_mut(self.highest_mode_frequency)[0] = f.last().copied().unwrap_or(0.0);
+        v.integers[self.n_modes_retained.slot] =
+            i32::try_from(solver.n_modes()).unwrap_or(i32::MAX);
+    }
+}
+
+/// Where `file` points: absolute as given; relative, in `resource_dir` if it exists there, else
+/// relative to the working directory.
+fn resolve(resource_dir: Option<&Path>, file: &str) -> PathBuf {
+    let p = Path::new(file);
+    if p.is_relative()
+        && let Some(dir) = resource_dir
+    {
+        let candidate = dir.join(p);
+        if candidate.exists() {
+            return candidate;
+        }
+    }
+    p.to_path_buf()
+}
+
+impl Structure {
+    fn modal_model(&self, v: &Values) -> Result<ModalModel, FmuError> {
+        self.vars
+            .cell
+            .modal_model(v, &self.layout, self.na, self.resource_dir.as_deref())
     }
 
     /// The modal solver, once initialised (for in-process use and tests).
@@ -366,14 +414,9 @@ impl Model for Structure {
 
     fn initialize(&mut self, v: &mut Values, _start_time: f64) -> Result<(), FmuError> {
         let model = self.modal_model(v)?;
-        let n_modes = usize::try_from(v.integer(self.vars.n_modes)).unwrap_or(0);
-        let solver = ModalSolver::new(model, n_modes, v.scalar(self.vars.damping_ratio))
-            .map_err(wiring::model_error)?;
-        let f = solver.frequencies();
-        v.real_mut(self.vars.first_mode_frequency)[0] = f.first().copied().unwrap_or(0.0);
-        v.real_mut(self.vars.highest_mode_frequency)[0] = f.last().copied().unwrap_or(0.0);
-        v.integers[self.vars.n_modes_retained.slot] =
-            i32::try_from(solver.n_modes()).unwrap_or(i32::MAX);
+        let (n_modes, damping) = self.vars.cell.modes_and_damping(v);
+        let solver = ModalSolver::new(model, n_modes, damping).map_err(wiring::model_error)?;
+        self.vars.cell.write_calculated(v, &solver);
         self.solver = Some(solver);
         self.write_outputs(v)
     }
@@ -417,9 +460,9 @@ mod tests {
         let (t, mut m) = Structure::new("keck").expect("keck");
         let mut v = t.initial_values();
         m.initialize(&mut v, 0.0).expect("init");
-        let f1 = v.scalar(m.vars.first_mode_frequency);
+        let f1 = v.scalar(m.vars.cell.first_mode_frequency);
         assert!((5.0..20.0).contains(&f1), "{f1}");
-        assert_eq!(v.integers[m.vars.n_modes_retained.slot], 60);
+        assert_eq!(v.integers[m.vars.cell.n_modes_retained.slot], 60);
         v.real_mut(m.vars.f_cell)[0] = 1000.0;
         m.do_step(0.0, 1e-3, &mut v).expect("step");
         assert!(v.real(m.vars.z_cell)[0] < 0.0 || v.real(m.vars.z_cell)[0] > 0.0);
@@ -429,7 +472,7 @@ mod tests {
     fn a_missing_modal_file_names_the_parameter() {
         let (t, mut m) = Structure::new("keck").expect("keck");
         let mut v = t.initial_values();
-        v.strings[m.vars.modal_file.slot] =
+        v.strings[m.vars.cell.modal_file.slot] =
             std::ffi::CString::new("/nonexistent/modes.npz").expect("cstring");
         let e = m
             .initialize(&mut v, 0.0)
