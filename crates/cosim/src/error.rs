@@ -105,6 +105,14 @@ pub enum CosimError {
         reason: String,
     },
     /// Invalid input to the master (a step, a time, a value).
+    /// A component produced a NaN or infinite output.
+    #[error("{component}: output {variable} is {value} after the step to t = {time} s")]
+    NonFinite {
+        component: String,
+        variable: String,
+        value: f64,
+        time: f64,
+    },
     #[error("{0}")]
     Invalid(String),
 }

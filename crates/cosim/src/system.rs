@@ -20,6 +20,7 @@
 //! and one `fmi2GetReal` over all its connected outputs, through buffers allocated once.
 
 use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use crate::description::{Causality, ScalarVariable, VarType};
 use crate::error::{CosimError, Result};
@@ -172,6 +173,11 @@ struct Running {
     out_slot: usize,
     /// Its latest outputs (published into the shared buffer after its step).
     out_buf: Vec<f64>,
+    /// Names of its outputs (for the message when one is not finite).
+    out_names: Vec<String>,
+    /// Wall time spent in its set/doStep/get calls (s), and in the last step.
+    busy: f64,
+    last: f64,
 }
 
 impl Running {
@@ -179,17 +185,59 @@ impl Running {
     /// its own multiple of `h`, and reads its outputs into `out_buf`: one fmi2SetReal, one
     /// fmi2DoStep, one fmi2GetReal, no allocation.
     fn advance(&mut self, outputs: &[f64], t: f64, h: f64) -> Result<()> {
+        let t0 = Instant::now();
         for (b, &s) in self.in_buf.iter_mut().zip(&self.in_src) {
             *b = outputs[s];
         }
         self.instance.set_real(&self.in_vrs, &self.in_buf)?;
         self.instance.do_step(t, h * self.every as f64)?;
-        self.instance.get_real(&self.out_vrs, &mut self.out_buf)
+        self.instance.get_real(&self.out_vrs, &mut self.out_buf)?;
+        self.last = t0.elapsed().as_secs_f64();
+        self.busy += self.last;
+        if let Some(k) = self.out_buf.iter().position(|v| !v.is_finite()) {
+            return Err(CosimError::NonFinite {
+                component: self.name.clone(),
+                variable: self.out_names[k].clone(),
+                value: self.out_buf[k],
+                time: t + h * self.every as f64,
+            });
+        }
+        Ok(())
     }
 
     /// Copies its outputs into the shared buffer.
     fn publish(&self, outputs: &mut [f64]) {
         outputs[self.out_slot..self.out_slot + self.out_buf.len()].copy_from_slice(&self.out_buf);
+    }
+}
+
+/// Steps the due components of `comps` in parallel by recursive halving (`rayon::join`: no
+/// allocation, and the calling thread takes one half). Returns the wall time of the FMU calls
+/// on the critical path (the longer of the two halves, recursively).
+fn advance_split(
+    comps: &mut [Running],
+    due: &(dyn Fn(&Running) -> bool + Sync),
+    outputs: &[f64],
+    t: f64,
+    h: f64,
+) -> Result<f64> {
+    match comps {
+        [] => Ok(0.0),
+        [r] => {
+            if due(r) {
+                r.advance(outputs, t, h).map(|()| r.last)
+            } else {
+                Ok(0.0)
+            }
+        }
+        _ => {
+            let (a, b) = comps.split_at_mut(comps.len() / 2);
+            let (x, y) = rayon::join(
+                || advance_split(a, due, outputs, t, h),
+                || advance_split(b, due, outputs, t, h),
+            );
+            Ok(x?.max(y?))
+        }
     }
 }
 
@@ -215,6 +263,9 @@ pub struct Simulation {
     stop: f64,
     n_steps: u64,
     recorded: Recorded,
+    /// Wall time of the FMU calls on the critical path (s): per step, the longest of the
+    /// parallel components (Jacobi) or their sum (Gauss-Seidel).
+    fmu_critical: f64,
     /// FMUs kept open (libraries and files) for the instances' lifetime.
     _fmus: Vec<Fmu>,
 }
@@ -420,6 +471,18 @@ impl Simulation {
                 in_vrs,
                 in_src,
                 out_buf: vec![0.0; out_vars[c].len()],
+                out_names: out_vars[c]
+                    .iter()
+                    .map(|&vr| {
+                        fmu.description
+                            .variables
+                            .iter()
+                            .find(|v| v.value_reference == vr && v.var_type == VarType::Real)
+                            .map_or_else(|| format!("vr {vr}"), |v| v.name.clone())
+                    })
+                    .collect(),
+                busy: 0.0,
+                last: 0.0,
                 out_vrs: out_vars[c].clone(),
                 out_slot: offset[c],
             });
@@ -437,6 +500,7 @@ impl Simulation {
             start: system.start_time,
             stop: system.stop_time,
             n_steps: 0,
+            fmu_critical: 0.0,
             recorded: Recorded {
                 columns: rec_local.iter().map(|r| r.0.clone()).collect(),
                 slots: rec_local.iter().map(|r| offset[r.1] + r.2).collect(),
@@ -499,25 +563,26 @@ impl Simulation {
             Order::Jacobi => {
                 self.snapshot.copy_from_slice(&self.outputs);
                 let snapshot = &self.snapshot;
-                if self.comps.iter().filter(|r| due(r)).count() > 1 {
-                    use rayon::prelude::*;
-                    self.comps
-                        .par_iter_mut()
-                        .filter(|r| due(r))
-                        .try_for_each(|r| r.advance(snapshot, t, h))?;
+                let critical = if self.comps.iter().filter(|r| due(r)).count() > 1 {
+                    advance_split(&mut self.comps, &due, snapshot, t, h)?
                 } else {
+                    let mut sum = 0.0;
                     for r in self.comps.iter_mut().filter(|r| due(r)) {
                         r.advance(snapshot, t, h)?;
+                        sum += r.last;
                     }
-                }
+                    sum
+                };
                 for r in self.comps.iter().filter(|r| due(r)) {
                     r.publish(&mut self.outputs);
                 }
+                self.fmu_critical += critical;
             }
             Order::GaussSeidel => {
                 for r in self.comps.iter_mut().filter(|r| due(r)) {
                     r.advance(&self.outputs, t, h)?;
                     r.publish(&mut self.outputs);
+                    self.fmu_critical += r.last;
                 }
             }
         }
@@ -537,6 +602,19 @@ impl Simulation {
         Ok(())
     }
 
+    /// Wall time spent in each component's calls so far (s), in component order.
+    pub fn component_seconds(&self) -> Vec<(String, f64)> {
+        self.comps
+            .iter()
+            .map(|r| (r.name.clone(), r.busy))
+            .collect()
+    }
+
+    /// Wall time of the FMU calls on the critical path so far (s).
+    pub fn fmu_critical_seconds(&self) -> f64 {
+        self.fmu_critical
+    }
+
     /// Component names in order.
     pub fn component_names(&self) -> Vec<&str> {
         self.comps.iter().map(|r| r.name.as_str()).collect()
@@ -550,6 +628,57 @@ pub struct Results {
     pub columns: Vec<String>,
     /// Rows: time then the recorded values.
     pub rows: Vec<Vec<f64>>,
+    /// Where the time went.
+    pub timing: Timing,
+}
+
+/// Where the wall time of a run went.
+#[derive(Debug, Clone, Default)]
+pub struct Timing {
+    /// The step loop, from the first step to the last (s).
+    pub loop_seconds: f64,
+    /// FMU calls on the critical path (s): the rest of the loop is the master's own work
+    /// (moving values, scheduling, recording).
+    pub fmu_seconds: f64,
+    /// Wall time inside each component's calls (s).
+    pub components: Vec<(String, f64)>,
+}
+
+impl Timing {
+    /// Share of the step loop spent in the master itself (0..1).
+    pub fn master_share(&self) -> f64 {
+        if self.loop_seconds > 0.0 {
+            ((self.loop_seconds - self.fmu_seconds) / self.loop_seconds).max(0.0)
+        } else {
+            0.0
+        }
+    }
+}
+
+/// A run that stopped on an error, with what it had recorded until then.
+#[derive(Debug)]
+pub struct Failure {
+    /// What stopped it.
+    pub error: CosimError,
+    /// The results up to the last completed step (None if it failed before the first).
+    pub partial: Option<Results>,
+}
+
+impl std::fmt::Display for Failure {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.error)
+    }
+}
+
+impl std::error::Error for Failure {}
+
+impl From<CosimError> for Failure {
+    fn from(error: CosimError) -> Self {
+        Self {
+            error,
+            partial: None,
+        }
+    }
 }
 
 impl Results {
@@ -588,15 +717,16 @@ impl Results {
 /// the start). `progress` is called after every step with (time, stop time).
 ///
 /// # Errors
-/// As [`Simulation::new`] and [`Simulation::step`].
+/// As [`Simulation::new`] and [`Simulation::step`]; an error during the steps comes with the
+/// results recorded until then ([`Failure::partial`]).
 pub fn run(
     system: &System,
     record: &[String],
     decimation: usize,
     progress: &mut dyn FnMut(f64, f64),
-) -> Result<Results> {
+) -> std::result::Result<Results, Box<Failure>> {
     let decimation = decimation.max(1);
-    let mut sim = Simulation::new(system, record)?;
+    let mut sim = Simulation::new(system, record).map_err(|e| Box::new(Failure::from(e)))?;
     let mut columns = vec!["time".to_string()];
     columns.extend(sim.recorded_columns().iter().cloned());
     let width = columns.len() - 1;
@@ -609,14 +739,40 @@ pub fn run(
     };
     sample(&sim, &mut rows);
     let mut k = 0usize;
+    let t0 = Instant::now();
+    let mut failed = None;
     while !sim.finished() {
-        sim.step()?;
+        if let Err(e) = sim.step() {
+            failed = Some(e);
+            break;
+        }
         k += 1;
         if k.is_multiple_of(decimation) {
             sample(&sim, &mut rows);
         }
         progress(sim.time(), sim.stop_time());
     }
-    sim.terminate()?;
-    Ok(Results { columns, rows })
+    let timing = Timing {
+        loop_seconds: t0.elapsed().as_secs_f64(),
+        fmu_seconds: sim.fmu_critical_seconds(),
+        components: sim.component_seconds(),
+    };
+    let results = Results {
+        columns,
+        rows,
+        timing,
+    };
+    if let Some(error) = failed {
+        return Err(Box::new(Failure {
+            error,
+            partial: Some(results),
+        }));
+    }
+    if let Err(error) = sim.terminate() {
+        return Err(Box::new(Failure {
+            error,
+            partial: Some(results),
+        }));
+    }
+    Ok(results)
 }

@@ -329,6 +329,61 @@ fn multirate_components_step_at_their_own_multiple() {
     assert!((got - expected).abs() < 1e-12, "{got} vs {expected}");
 }
 
+/// A component that fails mid-run (fmi2Error from doStep) stops the run with its name, the
+/// function and the time, and the rows recorded until then come back; a NaN output is
+/// reported the same way instead of propagating. The timing adds up.
+#[test]
+fn failures_stop_the_run_and_keep_the_results() {
+    let path = tiny_fmu("failing", &tiny_xml(), &[], true);
+    let h = 0.01;
+    let sys = System::new(1.0, h)
+        .component("a", &path)
+        .parameter("a", "u", Value::Real(1.0))
+        .parameter("a", "fail_at", Value::Real(0.25))
+        .component("b", &path)
+        .connect("a.y", "b.u");
+    for order in [Order::Jacobi, Order::GaussSeidel] {
+        let f = run(
+            &sys.clone().order(order),
+            &["a.y".into()],
+            1,
+            &mut |_, _| {},
+        )
+        .unwrap_err();
+        let msg = f.to_string();
+        assert!(
+            msg.contains("a: fmi2DoStep returned fmi2Error at t = 0.25 s"),
+            "{msg}"
+        );
+        assert!(msg.contains("told to fail"), "{msg}");
+        let partial = f.partial.expect("partial results");
+        // Steps from 0 to 0.24 completed: rows at 0, 0.01, ..., 0.25.
+        assert_eq!(partial.rows.len(), 26, "{order:?}");
+        let last = partial.rows.last().unwrap();
+        assert!((last[0] - 0.25).abs() < 1e-12 && (last[1] - 0.25).abs() < 1e-12);
+    }
+    let sys = System::new(1.0, h)
+        .component("a", &path)
+        .parameter("a", "k", Value::Real(f64::NAN));
+    let f = run(&sys, &["a.y".into()], 1, &mut |_, _| {}).unwrap_err();
+    let msg = f.to_string();
+    assert!(
+        msg.contains("a: output y is NaN after the step to t = 0.01"),
+        "{msg}"
+    );
+    assert_eq!(f.partial.expect("partial").rows.len(), 1);
+    // Timing: the loop contains the FMU calls.
+    let sys = System::new(0.5, h).component("a", &path);
+    let r = run(&sys, &[], 1, &mut |_, _| {}).unwrap();
+    let t = &r.timing;
+    assert_eq!(t.components.len(), 1);
+    assert!(
+        t.fmu_seconds > 0.0 && t.fmu_seconds <= t.loop_seconds,
+        "{t:?}"
+    );
+    assert!((0.0..=1.0).contains(&t.master_share()));
+}
+
 #[test]
 fn bad_connections_are_named() {
     let path = tiny_fmu("badconn", &tiny_xml(), &[], true);

@@ -140,11 +140,8 @@ pub struct CoupledMirror {
     a_mode: Vec<[f64; 4]>,
     b0: Vec<[f64; 2]>,
     b1: Vec<[f64; 2]>,
-    /// Retained shapes at the attachments in row blocks (one per worker), each
-    /// `rows x r` column-major, with the first row of each block.
-    phi: Vec<(usize, Vec<f64>)>,
-    /// Partial modal forces of each block but the first.
-    partial: Vec<Vec<f64>>,
+    /// Retained shapes at the attachments, `na x r` column-major (for the SIMD products).
+    phi: Vec<f64>,
     /// `(I - M B1)^-1` and `M`, r x r column-major.
     w_inv: Vec<f64>,
     m: Vec<f64>,
@@ -206,10 +203,7 @@ impl CoupledMirror {
         let [(pp, gp, rp), (pt, gt, rt)] = maps;
         let ramp = [rp, rt];
         let cell_d = dp[1];
-        let e = [
-            (cp * ramp[0])[0] + cell_d,
-            (ct * ramp[1])[0] + cell_d,
-        ];
+        let e = [(cp * ramp[0])[0] + cell_d, (ct * ramp[1])[0] + cell_d];
         let r = structure.n_modes();
         let omega: Vec<f64> = structure
             .frequencies()
@@ -252,12 +246,6 @@ impl CoupledMirror {
             hint: "the coupled tick is singular: check the structure model and the actuator \
                    stiffness",
         })?;
-        // Two row blocks on two workers once the shapes outgrow one core's cache.
-        let blocks = if na * r >= PARALLEL_ENTRIES && rayon::current_num_threads() > 1 {
-            2
-        } else {
-            1
-        };
         let counts = [n_segments, 2 * n_segments];
         Ok(Self {
             n_segments,
@@ -279,8 +267,7 @@ impl CoupledMirror {
             a_mode,
             b0,
             b1,
-            phi: row_blocks(&phi, blocks),
-            partial: vec![vec![0.0; r]; blocks - 1],
+            phi: col_major(&phi),
             w_inv: col_major(&w_inv),
             m: col_major(&m),
             q: vec![0.0; r],
@@ -477,47 +464,25 @@ impl CoupledMirror {
         let bp = self.structure.pier_gains();
         for j in 0..r {
             let (a, b0, b1) = (&self.a_mode[j], &self.b0[j], &self.b1[j]);
-            self.cy[j] = a[0] * self.q[j] + a[1] * self.v[j] + (b0[0] - b1[0]) * self.u[j]
-                - self.q[j];
+            self.cy[j] =
+                a[0] * self.q[j] + a[1] * self.v[j] + (b0[0] - b1[0]) * self.u[j] - self.q[j];
         }
         // 3. (I - M B1) u+ = Phi^T a_f + b_p p + M c0.
+        let phi = MatRef::from_column_major_slice(&self.phi, na, r);
         {
-            let Some((first, rest)) = self.phi.split_first() else {
-                return;
-            };
-            let rhs = MatMut::from_column_major_slice_mut(&mut self.rhs, r, 1);
-            let a_f = &self.a_f;
-            let partial = &mut self.partial;
+            let mut rhs = MatMut::from_column_major_slice_mut(&mut self.rhs, r, 1);
+            let af = MatRef::from_column_major_slice(&self.a_f, na, 1);
+            matmul(
+                rhs.rb_mut(),
+                Accum::Replace,
+                phi.transpose(),
+                af,
+                1.0,
+                Par::Seq,
+            );
             let m = MatRef::from_column_major_slice(&self.m, r, r);
             let c0 = MatRef::from_column_major_slice(&self.cy[..r], r, 1);
-            let head = move || {
-                let mut rhs = rhs;
-                let (lo, blk) = first;
-                let rows = blk.len() / r;
-                let phi = MatRef::from_column_major_slice(blk, rows, r);
-                let af = MatRef::from_column_major_slice(&a_f[*lo..lo + rows], rows, 1);
-                matmul(rhs.rb_mut(), Accum::Replace, phi.transpose(), af, 1.0, Par::Seq);
-                matmul(rhs.rb_mut(), Accum::Add, m, c0, 1.0, Par::Seq);
-            };
-            let tail = || {
-                for ((lo, blk), out) in rest.iter().zip(partial.iter_mut()) {
-                    let rows = blk.len() / r;
-                    let phi = MatRef::from_column_major_slice(blk, rows, r);
-                    let af = MatRef::from_column_major_slice(&a_f[*lo..lo + rows], rows, 1);
-                    let out = MatMut::from_column_major_slice_mut(out, r, 1);
-                    matmul(out, Accum::Replace, phi.transpose(), af, 1.0, Par::Seq);
-                }
-            };
-            if rest.is_empty() {
-                head();
-            } else {
-                rayon::join(head, tail);
-            }
-            for p in &self.partial {
-                for (x, y) in self.rhs.iter_mut().zip(p) {
-                    *x += y;
-                }
-            }
+            matmul(rhs.rb_mut(), Accum::Add, m, c0, 1.0, Par::Seq);
         }
         for (x, b) in self.rhs.iter_mut().zip(bp) {
             *x += b * pier_z;
@@ -540,21 +505,11 @@ impl CoupledMirror {
             self.v[j] = vn;
         }
         self.u.copy_from_slice(&self.u_new);
-        // 4. One product: [Delta, z_cell] = Phi [q+ - q, q+], by row blocks.
+        // 4. One product: [Delta, z_cell] = Phi [q+ - q, q+].
         {
             let cy = MatRef::from_column_major_slice(&self.cy, r, 2);
-            let mut dz = MatMut::from_column_major_slice_mut(&mut self.dz, na, 2);
-            let block = |phi: &(usize, Vec<f64>), out: MatMut<'_, f64>| {
-                let rows = phi.1.len() / r;
-                let phi = MatRef::from_column_major_slice(&phi.1, rows, r);
-                matmul(out, Accum::Replace, phi, cy, 1.0, Par::Seq);
-            };
-            if let [a, b] = self.phi.as_slice() {
-                let (top, bottom) = dz.rb_mut().split_at_row_mut(b.0);
-                rayon::join(|| block(a, top), || block(b, bottom));
-            } else {
-                block(&self.phi[0], dz);
-            }
+            let dz = MatMut::from_column_major_slice_mut(&mut self.dz, na, 2);
+            matmul(dz, Accum::Replace, phi, cy, 1.0, Par::Seq);
         }
         // 5. Forces and channel states at the end of the tick.
         for seg in 0..n {
@@ -564,7 +519,11 @@ impl CoupledMirror {
                 v[(0, 1)] * d[0] + v[(1, 1)] * d[1] + v[(2, 1)] * d[2],
                 v[(0, 2)] * d[0] + v[(1, 2)] * d[1] + v[(2, 2)] * d[2],
             ];
-            let idx = [(0usize, seg, n), (1, 2 * seg, 2 * n), (1, 2 * seg + 1, 2 * n)];
+            let idx = [
+                (0usize, seg, n),
+                (1, 2 * seg, 2 * n),
+                (1, 2 * seg + 1, 2 * n),
+            ];
             let mut fch = [0.0; 3];
             for (m, &(k, c, cnt)) in idx.iter().enumerate() {
                 let g = &self.ramp[k];
@@ -591,23 +550,6 @@ fn col_major(m: &DMatrix<f64>) -> Vec<f64> {
     m.as_slice().to_vec()
 }
 
-/// Entries of the mode-shape matrix above which its products run on two workers (about one
-/// core's L2 cache of f64).
-const PARALLEL_ENTRIES: usize = usize::MAX;
-
-/// `m` split into `blocks` row blocks, each column-major, with its first row.
-fn row_blocks(m: &DMatrix<f64>, blocks: usize) -> Vec<(usize, Vec<f64>)> {
-    let rows = m.nrows();
-    let per = rows.div_ceil(blocks);
-    (0..blocks)
-        .map(|b| {
-            let lo = (b * per).min(rows);
-            let hi = ((b + 1) * per).min(rows);
-            (lo, col_major(&m.rows(lo, hi - lo).into_owned()))
-        })
-        .collect()
-}
-
 #[inline]
 fn axpy(y: &mut [f64], a: f64, x: &[f64]) {
     for (y, x) in y.iter_mut().zip(x) {
@@ -631,7 +573,9 @@ mod tests {
     }
 
     fn wind(na: usize) -> Vec<f64> {
-        (0..na).map(|i| ((i * 7919 % 13) as f64 - 6.0) * 5.0).collect()
+        (0..na)
+            .map(|i| ((i * 7919 % 13) as f64 - 6.0) * 5.0)
+            .collect()
     }
 
     /// At the end of every tick the two sides agree: the force on the cell is the segments'
@@ -639,7 +583,10 @@ mod tests {
     /// projected on the modes (the identities the implicit solve enforces).
     #[test]
     fn every_tick_ends_consistent() {
-        for model in [SegmentModel::voice_coil(), SegmentModel::piezo_damped_default()] {
+        for model in [
+            SegmentModel::voice_coil(),
+            SegmentModel::piezo_damped_default(),
+        ] {
             let (mut m, _) = keck(model, 1000);
             let na = m.n_actuators();
             let n = m.n_segments();
@@ -653,7 +600,11 @@ mod tests {
                 let z = m.cell_displacement().to_vec();
                 let mut f = vec![0.0; na];
                 for seg in 0..n {
-                    let idx = [(0usize, seg, n), (1, 2 * seg, 2 * n), (1, 2 * seg + 1, 2 * n)];
+                    let idx = [
+                        (0usize, seg, n),
+                        (1, 2 * seg, 2 * n),
+                        (1, 2 * seg + 1, 2 * n),
+                    ];
                     let zc = &z[3 * seg..3 * seg + 3];
                     let mut fch = [0.0; 3];
                     for (j, &(kind, c, cnt)) in idx.iter().enumerate() {
@@ -718,7 +669,10 @@ mod tests {
             let f = &fw[3 * seg..3 * seg + 3];
             let c = &zc[3 * seg..3 * seg + 3];
             let mut ch = [0.0; 3];
-            for (j, kind) in [Channel::Piston, Channel::Tilt, Channel::Tilt].iter().enumerate() {
+            for (j, kind) in [Channel::Piston, Channel::Tilt, Channel::Tilt]
+                .iter()
+                .enumerate()
+            {
                 let fj = v[(0, j)] * f[0] + v[(1, j)] * f[1] + v[(2, j)] * f[2];
                 let cj = v[(0, j)] * c[0] + v[(1, j)] * c[1] + v[(2, j)] * c[2];
                 ch[j] = cj + fj / model.support_stiffness(*kind);
@@ -748,7 +702,10 @@ mod tests {
         }
         assert_eq!(a.cell_displacement(), b.cell_displacement());
         assert_eq!(a.cell_force(), b.cell_force());
-        let e = a.advance(3e-4, &u, &fw, 0.0).expect_err("off grid").to_string();
+        let e = a
+            .advance(3e-4, &u, &fw, 0.0)
+            .expect_err("off grid")
+            .to_string();
         assert!(e.contains("communicationStepSize"), "{e}");
     }
 }

@@ -326,6 +326,9 @@ mod tests {
             .do_step(1e-3, 3e-4, &mut v)
             .expect_err("0.3 ms is not a multiple of 0.2 ms")
             .to_string();
-        assert!(e.contains("communicationStepSize") && e.contains("servo"), "{e}");
+        assert!(
+            e.contains("communicationStepSize") && e.contains("servo"),
+            "{e}"
+        );
     }
 }

@@ -428,14 +428,15 @@ impl Model for Wind {
     }
 
     fn do_step(&mut self, t: f64, h: f64, v: &mut Values) -> Result<(), FmuError> {
-        let loads = match &self.loads {
-            Some(l) => l.clone(),
+        let loads = match self.loads.take() {
+            Some(l) => l,
             // After a deserialised FMU state: the tables are rebuilt from the parameters.
             None => self.build(v)?,
         };
-        Self::write_outputs(&loads, &self.vars, t + h, v)?;
+        // The tables go back whatever happens: an error leaves the model as it was.
+        let r = Self::write_outputs(&loads, &self.vars, t + h, v);
         self.loads = Some(loads);
-        Ok(())
+        r
     }
 }
 
