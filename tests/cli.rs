@@ -178,7 +178,14 @@ fn run_and_system_on_keck() {
     for extra in [
         vec!["--cell", "rigid"],
         vec!["--cell", "coupled"],
-        vec!["--cell", "split", "--step", "2e-4", "--order", "gauss-seidel"],
+        vec![
+            "--cell",
+            "split",
+            "--step",
+            "2e-4",
+            "--order",
+            "gauss-seidel",
+        ],
     ] {
         let mut args = vec![
             "run",
