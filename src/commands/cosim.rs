@@ -110,8 +110,8 @@ pub struct RunCmd {
     /// Results folder (CSV, plots, summary JSON).
     #[arg(long, default_value = "results")]
     pub out: PathBuf,
-    /// Record every N base steps.
-    #[arg(long, default_value_t = 10)]
+    /// Record every N base steps (the spectra reach half the recording rate).
+    #[arg(long, default_value_t = 1)]
     pub decimation: usize,
     /// Stepping order of the master. Gauss-Seidel (default) steps the components in turn on
     /// their predecessors' newest outputs: one delay less per connection (needed by `--cell
@@ -365,23 +365,57 @@ pub fn run_cmd(a: &RunCmd) -> Result<(), String> {
         drop(s);
         return outcome;
     }
-    for (label, closed) in [("open loop", false), ("closed loop", true)] {
-        let mut s = standard_system(&a.system, closed)?;
-        s.order = order;
-        s.zero_start = a.zero_start;
-        runs.push((label.into(), s));
+    if a.system.scenario == Scenario::Vibration {
+        // The pier tone through each actuator variant, global loop closed.
+        for (label, variant) in [
+            ("voicecoil", Variant::Voicecoil),
+            ("piezo", Variant::Piezo),
+            ("piezo damped", Variant::PiezoDamped),
+        ] {
+            let mut args = a.system.clone();
+            args.actuator = variant;
+            let mut s = standard_system(&args, true)?;
+            s.order = order;
+            s.zero_start = a.zero_start;
+            runs.push((label.into(), s));
+        }
+    } else {
+        for (label, closed) in [("open loop", false), ("closed loop", true)] {
+            let mut s = standard_system(&a.system, closed)?;
+            s.order = order;
+            s.zero_start = a.zero_start;
+            runs.push((label.into(), s));
+        }
     }
     execute(a, runs, &METRICS)
 }
 
 fn execute(a: &RunCmd, runs: Vec<(String, System)>, metrics: &[&str]) -> Result<(), String> {
     let mut outcomes = Vec::new();
+    let mut maps = Vec::new();
+    let mut spectra = Vec::new();
     for (label, s) in &runs {
         let csv = a.out.join(format!("{}.csv", label.replace(' ', "_")));
-        let o = run_one(label, s, a.decimation, metrics, Some(&csv))?;
+        // The mirror displacement is recorded for the map and the spectrum, not written.
+        let mirror = ["mirror", "segments"]
+            .into_iter()
+            .find(|m| s.components.iter().any(|c| c.name == *m));
+        let mut record: Vec<String> = metrics.iter().map(|m| m.to_string()).collect();
+        if let Some(m) = mirror {
+            record.push(format!("{m}.z"));
+        }
+        let record: Vec<&str> = record.iter().map(String::as_str).collect();
+        let mut o = run_one(label, s, a.decimation, &record, Some(&csv))?;
+        let dt = s.step * a.decimation.max(1) as f64;
+        let z = split_off_z(&mut o.results);
+        if !z.is_empty() {
+            spectra.push((label.clone(), mirror_spectrum(&z, dt)));
+            maps.push((label.clone(), z));
+        }
         o.results.write_csv(&csv).map_err(|e| e.to_string())?;
         outcomes.push(o);
     }
+    draw_z_plots(a, &maps, &spectra)?;
     let duration = runs.first().map_or(0.0, |r| r.1.stop_time - r.1.start_time);
     let mut table = Vec::new();
     for o in &outcomes {
@@ -491,5 +525,115 @@ fn execute(a: &RunCmd, runs: Vec<(String, System)>, metrics: &[&str]) -> Result<
         "CSV, plots and summary.json in {}",
         Path::new(&a.out).display()
     );
+    Ok(())
+}
+
+/// Removes the recorded mirror displacement columns (`<component>.z[k]`) from `r` and returns
+/// them as time series (one per actuator, settled second half of the run).
+fn split_off_z(r: &mut cosim::system::Results) -> Vec<Vec<f64>> {
+    let is_z = |c: &str| c.starts_with("mirror.z[") || c.starts_with("segments.z[");
+    let keep: Vec<usize> = (0..r.columns.len())
+        .filter(|&k| !is_z(&r.columns[k]))
+        .collect();
+    let zc: Vec<usize> = (0..r.columns.len())
+        .filter(|&k| is_z(&r.columns[k]))
+        .collect();
+    let half = r.rows.len() / 2;
+    let z: Vec<Vec<f64>> = zc
+        .iter()
+        .map(|&k| r.rows[half..].iter().map(|row| row[k]).collect())
+        .collect();
+    r.columns = keep.iter().map(|&k| r.columns[k].clone()).collect();
+    for row in &mut r.rows {
+        *row = keep.iter().map(|&k| row[k]).collect();
+    }
+    z
+}
+
+/// Amplitude spectrum of the mirror displacement, power-averaged over the actuators (nm).
+fn mirror_spectrum(z: &[Vec<f64>], dt: f64) -> Vec<(f64, f64)> {
+    let signals: Vec<&[f64]> = z.iter().map(Vec::as_slice).collect();
+    m1::metrics::amplitude_spectrum(&signals, dt)
+        .into_iter()
+        .map(|(f, a)| (f, a * 1e9))
+        .collect()
+}
+
+/// rms over time of the residual surface of each segment (global piston, tip and tilt removed),
+/// in nm, from actuator time series.
+fn segment_rms_map(layout: &m1::layout::Layout, z: &[Vec<f64>]) -> Result<Vec<f64>, String> {
+    use m1::geometry::{Geometry, GeometryParams};
+    use m1::metrics::{MirrorMetrics, hexagon_area, hexagon_second_moment};
+    let g = Geometry::new(layout, GeometryParams::for_layout(layout)).map_err(|e| e.to_string())?;
+    let m = MirrorMetrics::new(&g).map_err(|e| e.to_string())?;
+    let n = layout.n_segments();
+    let a = layout.circumradius;
+    let slope_weight = hexagon_second_moment(a) / hexagon_area(a);
+    let samples = z.first().map_or(0, Vec::len);
+    let mut acc = vec![0.0; n];
+    let mut state = vec![0.0; 3 * n];
+    let mut ptt = vec![[0.0; 3]; n];
+    for k in 0..samples {
+        for (s, col) in state.iter_mut().zip(z) {
+            *s = col[k];
+        }
+        m.residual_ptt(&state, &mut ptt)
+            .map_err(|e| e.to_string())?;
+        for (acc, [p, tx, ty]) in acc.iter_mut().zip(&ptt) {
+            *acc += p * p + (tx * tx + ty * ty) * slope_weight;
+        }
+    }
+    Ok(acc
+        .iter()
+        .map(|s| (s / samples.max(1) as f64).sqrt() * 1e9)
+        .collect())
+}
+
+/// The M1 maps (one per run) and the overlaid amplitude spectra.
+fn draw_z_plots(
+    a: &RunCmd,
+    maps: &[(String, Vec<Vec<f64>>)],
+    spectra: &[(String, Vec<(f64, f64)>)],
+) -> Result<(), String> {
+    let Ok(layout) = m1::layout::Layout::preset(&a.system.layout) else {
+        return Ok(());
+    };
+    for (label, z) in maps {
+        if z.len() != layout.n_actuators() {
+            continue;
+        }
+        let rms = segment_rms_map(&layout, z)?;
+        plot::mirror_map(
+            a.out.join(format!("map_{}.png", label.replace(' ', "_"))),
+            &layout,
+            &rms,
+            &format!(
+                "{}, {label}: rms residual surface per segment (second half)",
+                a.system.layout
+            ),
+            "nm",
+        )
+        .map_err(|e| e.to_string())?;
+    }
+    let series: Vec<(&str, &[(f64, f64)])> = spectra
+        .iter()
+        .filter(|(_, s)| !s.is_empty())
+        .map(|(l, s)| (l.as_str(), s.as_slice()))
+        .collect();
+    if !series.is_empty() {
+        plot::lines(
+            a.out.join("spectrum.png"),
+            &series,
+            &format!(
+                "{}: amplitude spectrum of the mirror displacement (actuator mean)",
+                a.system.layout
+            ),
+            "frequency (Hz)",
+            "amplitude (nm)",
+            true,
+            true,
+        )
+        .map_err(|e| e.to_string())?;
+    }
     Ok(())
 }
