@@ -419,7 +419,7 @@ pub fn amplitude_spectrum(signals: &[&[f64]], dt: f64) -> Vec<(f64, f64)> {
     let Some(n) = signals.iter().map(|s| s.len()).min() else {
         return Vec::new();
     };
-    if n < 4 || !(dt > 0.0) {
+    if n < 4 || dt.is_nan() || dt <= 0.0 {
         return Vec::new();
     }
     let fft = FftPlanner::<f64>::new().plan_fft_forward(n);
