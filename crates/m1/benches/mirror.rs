@@ -1,0 +1,49 @@
+//! The coupled mirror (`m1::mirror::CoupledMirror`): one 1 ms communication step (5 servo
+//! periods, each with its coupled solve) of the TMT and Keck mirrors on the built-in cell, for
+//! several numbers of retained modes and both actuator kinds. Wind forces change every step.
+#![allow(clippy::expect_used, clippy::unwrap_used, clippy::panic)]
+use criterion::{Criterion, criterion_group, criterion_main};
+use m1::layout::Layout;
+use m1::mirror::CoupledMirror;
+use m1::segment::SegmentModel;
+use m1::structure::{CellModel, CellParams};
+use std::hint::black_box;
+
+fn bench(c: &mut Criterion) {
+    let mut g = c.benchmark_group("mirror_1ms");
+    for (name, layout, modes) in [
+        ("keck", Layout::keck(), vec![60usize]),
+        ("tmt", Layout::tmt(), vec![60, 150, 300]),
+    ] {
+        let cell = CellModel::new(&layout, &CellParams::default())
+            .and_then(|c| c.modes())
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        let n = layout.n_segments();
+        let na = 3 * n;
+        for &r in &modes {
+            for (variant, model) in [
+                ("voicecoil", SegmentModel::voice_coil()),
+                ("piezo", SegmentModel::piezo()),
+            ] {
+                let mut m = CoupledMirror::new(n, model, cell.clone(), r, 0.02, 1)
+                    .unwrap_or_else(|e| panic!("{name}: {e}"));
+                let u = vec![0.0; na];
+                let mut f: Vec<f64> = (0..na).map(|i| (i % 7) as f64).collect();
+                let mut k = 0u64;
+                g.bench_function(format!("{name}/{r}_modes/{variant}"), |b| {
+                    b.iter(|| {
+                        k += 1;
+                        f[(k as usize) % na] += 0.1;
+                        m.advance(1e-3, &u, &f, 1e-9 * (k as f64).sin())
+                            .unwrap_or_else(|e| panic!("{e}"));
+                        black_box(m.cell_displacement()[0])
+                    })
+                });
+            }
+        }
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
