@@ -51,7 +51,7 @@ pub struct SystemArgs {
     /// Mirror layout (keck, tmt, elt): FMUs are taken from FMU_DIR/LAYOUT/.
     #[arg(long, default_value = "tmt")]
     pub layout: String,
-    /// Actuator variant of the segments.
+    /// Actuator variant of the segments (`m1cs run --scenario vibration` runs all three).
     #[arg(long, value_enum, default_value = "voicecoil")]
     pub actuator: Variant,
     /// Disturbance.
@@ -519,6 +519,23 @@ fn execute(a: &RunCmd, runs: Vec<(String, System)>, metrics: &[&str]) -> Result<
             g("wall_seconds"),
             g("real_time_factor"),
             100.0 * g("master_share")
+        );
+    }
+    let rms_of = |label: &str| {
+        table
+            .iter()
+            .find(|r| r["run"] == label)
+            .and_then(|r| r["rms_surface_m"].as_f64())
+    };
+    if let (Some(soft), Some(hard), Some(damped)) = (
+        rms_of("voicecoil"),
+        rms_of("piezo"),
+        rms_of("piezo damped"),
+    ) {
+        println!(
+            "rms surface ratios: hard / soft = {:.2}, undamped / damped = {:.2}",
+            hard / soft,
+            hard / damped
         );
     }
     println!(
