@@ -478,24 +478,39 @@ fn execute(a: &RunCmd, runs: Vec<(String, System)>, metrics: &[&str]) -> Result<
         )
         .map_err(|e| e.to_string())?;
     }
-    let summary = json!({
-        "layout": a.system.layout,
-        "actuator": format!("{:?}", a.system.actuator).to_lowercase(),
-        "scenario": format!("{:?}", a.system.scenario).to_lowercase(),
-        "duration_s": duration,
-        "runs": table,
-        "results": a.out.display().to_string(),
-    });
+    let summary = match &a.ssp {
+        // A user's system: what it is comes from its file, not from the standard-system flags.
+        Some(path) => json!({
+            "ssp": path.display().to_string(),
+            "duration_s": duration,
+            "runs": table,
+            "results": a.out.display().to_string(),
+        }),
+        None => json!({
+            "layout": a.system.layout,
+            "actuator": format!("{:?}", a.system.actuator).to_lowercase(),
+            "scenario": format!("{:?}", a.system.scenario).to_lowercase(),
+            "duration_s": duration,
+            "runs": table,
+            "results": a.out.display().to_string(),
+        }),
+    };
     std::fs::write(a.out.join("summary.json"), summary.to_string())
         .map_err(|e| format!("{}: {e}", a.out.display()))?;
     if a.json {
         println!("{summary}");
         return Ok(());
     }
-    println!(
-        "{} {:?} actuators, {:?} scenario, {duration} s simulated (statistics over the second half):",
-        a.system.layout, a.system.actuator, a.system.scenario
-    );
+    match &a.ssp {
+        Some(path) => println!(
+            "{}: {duration} s simulated (statistics over the second half):",
+            path.display()
+        ),
+        None => println!(
+            "{} {:?} actuators, {:?} scenario, {duration} s simulated (statistics over the second half):",
+            a.system.layout, a.system.actuator, a.system.scenario
+        ),
+    }
     println!(
         "{:<12} {:>14} {:>14} {:>18} {:>8} {:>10} {:>10} {:>8}",
         "run",
@@ -527,11 +542,9 @@ fn execute(a: &RunCmd, runs: Vec<(String, System)>, metrics: &[&str]) -> Result<
             .find(|r| r["run"] == label)
             .and_then(|r| r["rms_surface_m"].as_f64())
     };
-    if let (Some(soft), Some(hard), Some(damped)) = (
-        rms_of("voicecoil"),
-        rms_of("piezo"),
-        rms_of("piezo damped"),
-    ) {
+    if let (Some(soft), Some(hard), Some(damped)) =
+        (rms_of("voicecoil"), rms_of("piezo"), rms_of("piezo damped"))
+    {
         println!(
             "rms surface ratios: hard / soft = {:.2}, undamped / damped = {:.2}",
             hard / soft,
@@ -612,13 +625,16 @@ fn draw_z_plots(
     maps: &[(String, Vec<Vec<f64>>)],
     spectra: &[(String, Vec<(f64, f64)>)],
 ) -> Result<(), String> {
-    let Ok(layout) = m1::layout::Layout::preset(&a.system.layout) else {
-        return Ok(());
-    };
     for (label, z) in maps {
-        if z.len() != layout.n_actuators() {
+        // The layout of the recorded mirror: the one asked for, else the preset of that size
+        // (a user's .ssp).
+        let Some(layout) = std::iter::once(a.system.layout.as_str())
+            .chain(m1::layout::Layout::PRESETS.iter().copied())
+            .filter_map(|name| m1::layout::Layout::preset(name).ok())
+            .find(|l| l.n_actuators() == z.len())
+        else {
             continue;
-        }
+        };
         let rms = segment_rms_map(&layout, z)?;
         plot::mirror_map(
             a.out.join(format!("map_{}.png", label.replace(' ', "_"))),
@@ -626,7 +642,7 @@ fn draw_z_plots(
             &rms,
             &format!(
                 "{}, {label}: rms residual surface per segment (second half)",
-                a.system.layout
+                layout.name
             ),
             "nm",
         )
@@ -643,7 +659,11 @@ fn draw_z_plots(
             &series,
             &format!(
                 "{}: amplitude spectrum of the mirror displacement (actuator mean)",
-                a.system.layout
+                if a.ssp.is_some() {
+                    "system"
+                } else {
+                    a.system.layout.as_str()
+                }
             ),
             "frequency (Hz)",
             "amplitude (nm)",
