@@ -385,6 +385,13 @@ fn layout_report(name: &str, json: bool, plot: Option<&str>) -> Result<(), Strin
 }
 
 fn main() -> ExitCode {
+    // Like other Unix tools, end quietly when the reader of our output goes away
+    // (`m1cs run | head`) instead of failing on the broken pipe.
+    #[cfg(unix)]
+    // SAFETY: called first in main, before any other thread exists; SIG_DFL is a valid handler.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = Cli::parse();
     let r = match cli.command {
         Cmd::Demo {

@@ -276,6 +276,25 @@ fn run_and_system_on_keck() {
     let v = json(&["run", "--ssp", &ssp, "--out", &out, "--json"]);
     assert_eq!(v["runs"].as_array().unwrap().len(), 1);
     assert!(v["runs"][0]["rms_surface_m"].as_f64().unwrap() > 0.0);
+    assert!(
+        (v["duration_s"].as_f64().unwrap() - 0.5).abs() < 1e-9,
+        "{v}"
+    );
+    // --stop-time overrides the file's stop time.
+    let v = json(&[
+        "run",
+        "--ssp",
+        &ssp,
+        "--stop-time",
+        "0.2",
+        "--out",
+        &out,
+        "--json",
+    ]);
+    assert!(
+        (v["duration_s"].as_f64().unwrap() - 0.2).abs() < 1e-9,
+        "{v}"
+    );
     // Missing FMUs are named with the fix.
     let (ok, _, err) = m1cs(&["run", "--layout", "keck", "--fmu-dir", "/nonexistent"]);
     assert!(!ok && err.contains("cargo xtask package"), "{err}");

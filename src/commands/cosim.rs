@@ -104,9 +104,14 @@ pub struct SystemCmd {
 pub struct RunCmd {
     #[command(flatten)]
     pub system: SystemArgs,
-    /// Run this .ssp (or .ssd) instead of a standard system.
+    /// Run this .ssp (or .ssd) instead of a standard system. Its DefaultExperiment and master
+    /// annotation set the stop time and the step; `--duration` and `--step` only fill in what
+    /// the file leaves out.
     #[arg(long)]
     pub ssp: Option<PathBuf>,
+    /// With `--ssp`: stop at this time (s) instead of the file's stop time.
+    #[arg(long, requires = "ssp")]
+    pub stop_time: Option<f64>,
     /// Results folder (CSV, plots, summary JSON).
     #[arg(long, default_value = "results")]
     pub out: PathBuf,
@@ -351,7 +356,15 @@ pub fn run_cmd(a: &RunCmd) -> Result<(), String> {
         if !s.has_step {
             sys.step = a.system.step;
         }
-        if sys.stop_time <= sys.start_time {
+        if let Some(t) = a.stop_time {
+            if !(t.is_finite() && t > sys.start_time + sys.step * 0.5) {
+                return Err(format!(
+                    "--stop-time {t} must be after the system's start time {} by a step at least",
+                    sys.start_time
+                ));
+            }
+            sys.stop_time = t;
+        } else if sys.stop_time <= sys.start_time {
             sys.stop_time = sys.start_time + a.system.duration;
         }
         sys.order = order;
