@@ -57,7 +57,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::M1Error;
 use crate::segment::{
-    Channel, Gamma, N_CONT, N_IN, N_STATE, Phi, SegmentModel, modal_basis, state,
+    Channel, Gamma, N_CONT, N_IN, N_STATE, Phi, SegmentArray, SegmentModel, axpy, modal_basis,
+    state,
 };
 use crate::structure::{Flexibility, ModalModel, ModalSolver};
 
@@ -136,15 +137,10 @@ pub struct CoupledMirror {
     /// `E` per kind: end-of-tick force per unit ramp of the cell displacement.
     e: [f64; 2],
     basis: SMatrix<f64, 3, 3>,
-    /// Free part of the channel states (driven by the command and the wind only), by kind,
-    /// structure of arrays: x[kind][s * count + c].
-    x: [Vec<f64>; 2],
-    next: [Vec<f64>; 2],
-    /// Channel inputs by kind, column-major count x 3: (u_cmd, 0, f_wind).
-    w: [Vec<f64>; 2],
-    /// Maps of one communication step of the free part, for `maps_ticks` ticks.
-    maps_ticks: u64,
-    maps: [(Phi, Gamma); 2],
+    /// Free part of the channel states: the segments driven by the command and the wind on a
+    /// cell at rest (`zeros`), stepped a communication step at a time.
+    free: SegmentArray,
+    zeros: Vec<f64>,
     // Structure.
     structure: ModalSolver,
     r: usize,
@@ -269,7 +265,6 @@ impl CoupledMirror {
             col_major(&(&w_inv * &gram[0])),
             col_major(&(&w_inv * &gram[1])),
         ];
-        let counts = [n, 2 * n];
         Ok(Self {
             n_segments,
             ts,
@@ -280,11 +275,8 @@ impl CoupledMirror {
             cell_d,
             e,
             basis: v,
-            x: counts.map(|c| vec![0.0; N_STATE * c]),
-            next: counts.map(|c| vec![0.0; N_STATE * c]),
-            w: counts.map(|c| vec![0.0; N_IN * c]),
-            maps_ticks: 0,
-            maps: [(pp, gp), (pt, gt)],
+            free: SegmentArray::new(n, model.clone())?,
+            zeros: vec![0.0; na],
             model,
             structure,
             r,
@@ -371,46 +363,20 @@ impl CoupledMirror {
                 });
             }
         }
-        self.project(0, u_cmd);
-        self.project(2, f_wind);
+        // The free part over the whole step at once (its inputs, projected on the channels,
+        // are then read back for the modes).
+        self.free.advance(h, u_cmd, &self.zeros, f_wind)?;
         // The inputs on the modes, once per step.
         let (r, n) = (self.r, self.n_segments);
+        let w = self.free.channel_inputs();
         for (k, (lo, count)) in [(0usize, n), (n, 2 * n)].into_iter().enumerate() {
             let phic = MatRef::from_column_major_slice(&self.phic, self.na, r).subrows(lo, count);
-            let w = MatRef::from_column_major_slice(&self.w[k], count, N_IN);
+            let w = MatRef::from_column_major_slice(w[k], count, N_IN);
             let wp = MatMut::from_column_major_slice_mut(&mut self.w_proj[k], r, N_IN);
             matmul(wp, Accum::Replace, phic.transpose(), w, 1.0, Par::Seq);
         }
         for _ in 0..ticks {
             self.tick(pier_z);
-        }
-        // The free part over the whole step at once.
-        if self.maps_ticks != ticks {
-            self.maps =
-                [0, 1].map(|k| crate::segment::propagate(&self.tick[k], &self.tick_in[k], ticks));
-            self.maps_ticks = ticks;
-        }
-        for k in 0..2 {
-            let (p, s) = self.maps[k];
-            let cnt = self.x[k].len() / N_STATE;
-            let (x, w, next) = (&self.x[k], &self.w[k], &mut self.next[k]);
-            for i in 0..N_STATE {
-                let out = &mut next[i * cnt..(i + 1) * cnt];
-                out.fill(0.0);
-                for j in 0..N_STATE {
-                    let a = p[(i, j)];
-                    if a != 0.0 {
-                        axpy(out, a, &x[j * cnt..(j + 1) * cnt]);
-                    }
-                }
-                for l in [0, 2] {
-                    let a = s[(i, l)];
-                    if a != 0.0 {
-                        axpy(out, a, &w[l * cnt..(l + 1) * cnt]);
-                    }
-                }
-            }
-            std::mem::swap(&mut self.x[k], &mut self.next[k]);
         }
         self.write_outputs();
         Ok(())
@@ -433,12 +399,8 @@ impl CoupledMirror {
 
     /// Back to rest.
     pub fn reset(&mut self) {
-        for a in self
-            .x
-            .iter_mut()
-            .chain(self.proj.iter_mut())
-            .chain(self.xi.iter_mut())
-        {
+        self.free.reset();
+        for a in self.proj.iter_mut().chain(self.xi.iter_mut()) {
             a.fill(0.0);
         }
         for a in [
@@ -450,18 +412,6 @@ impl CoupledMirror {
             &mut self.z_mirror,
         ] {
             a.fill(0.0);
-        }
-    }
-
-    /// Actuator-space `a` onto channel input `l` of both kinds.
-    fn project(&mut self, l: usize, a: &[f64]) {
-        let n = self.n_segments;
-        let v = self.basis;
-        let [wp, wt] = &mut self.w;
-        for (seg, a) in a.chunks_exact(3).enumerate() {
-            wp[l * n + seg] = v[(0, 0)] * a[0] + v[(1, 0)] * a[1] + v[(2, 0)] * a[2];
-            wt[l * 2 * n + 2 * seg] = v[(0, 1)] * a[0] + v[(1, 1)] * a[1] + v[(2, 1)] * a[2];
-            wt[l * 2 * n + 2 * seg + 1] = v[(0, 2)] * a[0] + v[(1, 2)] * a[1] + v[(2, 2)] * a[2];
         }
     }
 
@@ -614,7 +564,7 @@ impl CoupledMirror {
             let mut fc = [0.0; 3];
             for m in 0..3 {
                 let (k, c, cnt) = idx[m];
-                let x = &self.x[k];
+                let x = self.free.state()[k];
                 let free_f: f64 = (0..S).map(|s| self.cell_c[k][s] * x[s * cnt + c]).sum();
                 zm[m] = x[mp * cnt + c] + outs[rows[m]];
                 zc[m] = outs[na + rows[m]];
@@ -633,13 +583,6 @@ impl CoupledMirror {
 
 fn col_major(m: &DMatrix<f64>) -> Vec<f64> {
     m.as_slice().to_vec()
-}
-
-#[inline]
-fn axpy(y: &mut [f64], a: f64, x: &[f64]) {
-    for (y, x) in y.iter_mut().zip(x) {
-        *y += a * x;
-    }
 }
 
 #[cfg(test)]
@@ -694,7 +637,7 @@ mod tests {
                     for (j, &(kind, c, cnt, row)) in idx.iter().enumerate() {
                         let zch = v[(0, j)] * zc[0] + v[(1, j)] * zc[1] + v[(2, j)] * zc[2];
                         let x = |s: usize| {
-                            m.x[kind][s * cnt + c]
+                            m.free.state()[kind][s * cnt + c]
                                 + (0..r)
                                     .map(|q| m.phic[q * na + row] * m.xi[kind][s * r + q])
                                     .sum::<f64>()
@@ -727,7 +670,9 @@ mod tests {
                     for s in [state::NODE_POS, state::MIRROR_POS, state::DRIVE] {
                         for j in (0..r).step_by(7) {
                             let direct: f64 = (0..cnt)
-                                .map(|c| m.phic[j * na + lo + c] * m.x[kind][s * cnt + c])
+                                .map(|c| {
+                                    m.phic[j * na + lo + c] * m.free.state()[kind][s * cnt + c]
+                                })
                                 .sum();
                             let carried = m.proj[kind][s * r + j];
                             assert!(

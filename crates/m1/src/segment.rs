@@ -1074,6 +1074,12 @@ impl SegmentArray {
         Ok(())
     }
 
+    /// The inputs held over the last step in the piston/tilt channel basis, by kind: column-major
+    /// `count x 3` (`u_cmd`, `z_cell`, `f_wind`; count = N piston or 2N tilt channels).
+    pub(crate) fn channel_inputs(&self) -> [&[f64]; 2] {
+        [&self.w[0], &self.w[1]]
+    }
+
     /// The full state, by kind (piston, tilt), for checkpoints.
     pub fn state(&self) -> [&[f64]; 2] {
         [&self.x[0], &self.x[1]]
@@ -1081,7 +1087,7 @@ impl SegmentArray {
 }
 
 #[inline]
-fn axpy(out: &mut [f64], a: f64, x: &[f64]) {
+pub(crate) fn axpy(out: &mut [f64], a: f64, x: &[f64]) {
     for (o, xi) in out.iter_mut().zip(x) {
         *o += a * xi;
     }
