@@ -7,11 +7,12 @@
 //! `every[c]` base steps with step `every[c] * h` (multi-rate: e.g. the controller at 20 Hz,
 //! wind at 100 Hz, segments and structure at 1 kHz with `h` = 1 ms). Two orders:
 //!
-//! - **Jacobi** (default): at a communication point every due component first receives the
-//!   outputs all components had at that point, then all due components step in parallel (on
-//!   the available cores, on rayon's pool). Results do not depend on the order of components, and the
-//!   steps run concurrently; each connection carries a value one step old, which is the
-//!   standard co-simulation delay (fmpy.ssp works the same way).
+//! - **Jacobi** (the library's default): at a communication point every due component first
+//!   receives the outputs all components had at that point, then all due components step, in
+//!   parallel on rayon's pool when at least two of them take over [`PARALLEL_MIN_SECONDS`] per
+//!   step (a running mean), in turn otherwise (same results). Results do not depend on the order
+//!   of components; each connection carries a value one step old, which is the standard
+//!   co-simulation delay (fmpy.ssp works the same way).
 //! - **Gauss-Seidel**: due components step one after the other in the order they were added,
 //!   each receiving the outputs its predecessors just produced: less delay along the order,
 //!   no parallelism.
@@ -220,7 +221,7 @@ impl Running {
 /// Mean time per step (s) above which a component counts as heavy enough to run on its own
 /// thread in Jacobi order (measured: waking a rayon worker every step costs 50-150 us on the
 /// 2-core machine).
-const PARALLEL_MIN_SECONDS: f64 = 2e-4;
+pub const PARALLEL_MIN_SECONDS: f64 = 2e-4;
 
 /// Steps the due components of `comps` in parallel by recursive halving (`rayon::join`: no
 /// allocation, and the calling thread takes one half). Returns the wall time of the FMU calls
