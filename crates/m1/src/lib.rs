@@ -9,6 +9,7 @@ pub mod controller;
 pub mod error;
 pub mod geometry;
 pub mod interaction;
+pub mod kernels;
 pub mod krylov;
 pub mod layout;
 pub mod metrics;

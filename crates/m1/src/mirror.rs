@@ -38,6 +38,15 @@
 //! communication step (projecting the held inputs, reconstructing the outputs). The two
 //! formulations agree to 2e-13 (checked when this one replaced the per-actuator one).
 //!
+//! **Memory-bound products.** At TMT size with 300 modes the shapes are 3.5 MB and the two
+//! coupling matrices 1.4 MB: a step streams about 14 MB, and arithmetic is cheap beside it. The
+//! shapes and the coupling matrices are stored row-major and multiplied by the streaming
+//! kernels of [`crate::kernels`] (each matrix read once, every right-hand side applied while a
+//! chunk is in registers), and the whole coupled part of a step runs inside one
+//! [`pulp::Arch::dispatch`], so that it is compiled for the processor's vector instructions.
+//! The general matrix products used before (which pack their operand first) took 1.44 times as
+//! long per step at r = 300 (BENCHMARKS.md).
+//!
 //! **No static correction.** The structure is its `n_modes` lowest modes. The static correction
 //! of the truncated modes (an instantaneous, dense compliance) cannot lag a tick: against the
 //! stiff actuators that lag diverges (measured: Keck voice coil with 30 modes, TMT piezo with 60);
@@ -49,16 +58,13 @@
 //! with the exact per-component discretisations: both sides see the same piecewise-linear cell
 //! displacement and actuator force.
 
-use faer::linalg::matmul::matmul;
-use faer::reborrow::ReborrowMut;
-use faer::{Accum, MatMut, MatRef, Par};
 use nalgebra::{DMatrix, SMatrix, SVector};
 use serde::{Deserialize, Serialize};
 
 use crate::M1Error;
+use crate::kernels::{axpy, rows_axpy, rows_dot};
 use crate::segment::{
-    Channel, Gamma, N_CONT, N_IN, N_STATE, Phi, SegmentArray, SegmentModel, axpy, modal_basis,
-    state,
+    Channel, Gamma, N_CONT, N_IN, N_STATE, Phi, SegmentArray, SegmentModel, modal_basis, state,
 };
 use crate::structure::{Flexibility, ModalModel, ModalSolver};
 
@@ -150,10 +156,10 @@ pub struct CoupledMirror {
     b0: Vec<[f64; 2]>,
     b1: Vec<[f64; 2]>,
     /// Mode shapes in the channel basis (rows: piston channels, then tilt channels 2 s + m),
-    /// `na x r` column-major.
+    /// `na x r` row-major.
     phic: Vec<f64>,
-    /// `(I - M B1)^-1 G_k` per kind, r x r column-major.
-    wg: [Vec<f64>; 2],
+    /// `[W G_p, W G_t]` with `W = (I - M B1)^-1`: r x 2r row-major.
+    wg: Vec<f64>,
     /// Projected free states `Phi_k^T X_k` and cell-driven states `xi_k` (state-major:
     /// `[s * r + j]`), by kind.
     proj: [Vec<f64>; 2],
@@ -170,7 +176,9 @@ pub struct CoupledMirror {
     z_mirror: Vec<f64>,
     // Scratch.
     scratch: [Vec<f64>; 2],
-    rhs: [Vec<f64>; 3],
+    /// Right-hand side of the coupled solve: `h` (r), then `[psi_p; psi_t]` (2r).
+    rhs: Vec<f64>,
+    psi: Vec<f64>,
     u_new: Vec<f64>,
     out: Vec<f64>,
     cols: Vec<f64>,
@@ -261,10 +269,9 @@ impl CoupledMirror {
             hint: "the coupled tick is singular: check the structure model and the actuator \
                    stiffness",
         })?;
-        let wg = [
-            col_major(&(&w_inv * &gram[0])),
-            col_major(&(&w_inv * &gram[1])),
-        ];
+        let mut wg = DMatrix::<f64>::zeros(r, 2 * r);
+        wg.columns_mut(0, r).copy_from(&(&w_inv * &gram[0]));
+        wg.columns_mut(r, r).copy_from(&(&w_inv * &gram[1]));
         Ok(Self {
             n_segments,
             ts,
@@ -284,8 +291,8 @@ impl CoupledMirror {
             a_mode,
             b0,
             b1,
-            phic: col_major(&phic),
-            wg,
+            phic: row_major(&phic),
+            wg: row_major(&wg),
             proj: [vec![0.0; r * N_STATE], vec![0.0; r * N_STATE]],
             xi: [vec![0.0; r * N_STATE], vec![0.0; r * N_STATE]],
             w_proj: [vec![0.0; r * N_IN], vec![0.0; r * N_IN]],
@@ -296,10 +303,11 @@ impl CoupledMirror {
             z_cell: vec![0.0; na],
             z_mirror: vec![0.0; na],
             scratch: [vec![0.0; r * N_STATE], vec![0.0; r * N_STATE]],
-            rhs: [vec![0.0; r], vec![0.0; r], vec![0.0; r]],
+            rhs: vec![0.0; r],
+            psi: vec![0.0; 2 * r],
             u_new: vec![0.0; r],
             out: vec![0.0; 3 * na],
-            cols: vec![0.0; 3 * r],
+            cols: vec![0.0; 6 * r],
         })
     }
 
@@ -366,18 +374,28 @@ impl CoupledMirror {
         // The free part over the whole step at once (its inputs, projected on the channels,
         // are then read back for the modes).
         self.free.advance(h, u_cmd, &self.zeros, f_wind)?;
-        // The inputs on the modes, once per step.
-        let (r, n) = (self.r, self.n_segments);
-        let w = self.free.channel_inputs();
-        for (k, (lo, count)) in [(0usize, n), (n, 2 * n)].into_iter().enumerate() {
-            let phic = MatRef::from_column_major_slice(&self.phic, self.na, r).subrows(lo, count);
-            let w = MatRef::from_column_major_slice(w[k], count, N_IN);
-            let wp = MatMut::from_column_major_slice_mut(&mut self.w_proj[k], r, N_IN);
-            matmul(wp, Accum::Replace, phic.transpose(), w, 1.0, Par::Seq);
+        // The held inputs on the modes.
+        {
+            let r = self.r;
+            let [p, t] = &mut self.w_proj;
+            let (pu, pf) = input_columns(p, r);
+            let (tu, tf) = input_columns(t, r);
+            pulp::Arch::new().dispatch(Project {
+                phic: &self.phic,
+                r,
+                n: self.n_segments,
+                modes: 0..r,
+                w: self.free.channel_inputs(),
+                out: [pu, pf, tu, tf],
+            });
         }
-        for _ in 0..ticks {
-            self.tick(pier_z);
-        }
+        // The ticks, vectorised for this processor (everything in them is inlined into a
+        // function compiled for its instruction set).
+        pulp::Arch::new().dispatch(Ticks {
+            mirror: self,
+            ticks,
+            pier_z,
+        });
         self.write_outputs();
         Ok(())
     }
@@ -418,10 +436,11 @@ impl CoupledMirror {
     /// One coupled tick, entirely on the modes: the segments' response to the cell motion is
     /// carried per mode (identical segments: the channel dynamics commute with the mode shapes).
     /// Modal arrays are state-major (`[s * r + j]`), so every update is a run of axpys.
-    fn tick(&mut self, pier_z: f64) {
+    #[inline(always)]
+    fn tick<S: pulp::Simd>(&mut self, simd: S, pier_z: f64) {
         let r = self.r;
         const S: usize = N_STATE;
-        self.rhs[0].fill(0.0);
+        self.rhs.fill(0.0);
         for k in 0..2 {
             let (p, g, ramp, c) = (
                 &self.tick[k],
@@ -452,7 +471,7 @@ impl CoupledMirror {
             // h += P+ c^T.
             for i in 0..S {
                 if c[i] != 0.0 {
-                    axpy(&mut self.rhs[0], c[i], &self.proj[k][i * r..(i + 1) * r]);
+                    axpy(&mut self.rhs, c[i], &self.proj[k][i * r..(i + 1) * r]);
                 }
             }
             // Cell-driven part without this tick's ramp: Y_i = sum_s p_is xi_s + (g_i1 - ramp_i) q.
@@ -471,8 +490,8 @@ impl CoupledMirror {
                     axpy(out, a, &self.q);
                 }
             }
-            // psi~_k = Y c^T, into rhs[1 + k].
-            let psi = &mut self.rhs[1 + k];
+            // psi~_k = Y c^T.
+            let psi = &mut self.psi[k * r..(k + 1) * r];
             psi.fill(0.0);
             for i in 0..S {
                 if c[i] != 0.0 {
@@ -481,32 +500,33 @@ impl CoupledMirror {
             }
         }
         // a = free q+ (held and ramp parts of the old modal force): q+ = a + b1_q u+.
-        axpy(&mut self.rhs[0], pier_z, self.structure.pier_gains());
+        axpy(&mut self.rhs, pier_z, self.structure.pier_gains());
         for j in 0..r {
             let (a, b0, b1) = (&self.a_mode[j], &self.b0[j], &self.b1[j]);
             let abar = a[0] * self.q[j] + a[1] * self.v[j] + (b0[0] - b1[0]) * self.u[j];
-            self.rhs[1][j] += self.e[0] * abar;
-            self.rhs[2][j] += self.e[1] * abar;
+            self.psi[j] += self.e[0] * abar;
+            self.psi[r + j] += self.e[1] * abar;
             self.cols[j] = abar;
         }
         // u+ = W (h + b_p p) + W G_p (psi_p + e_p a) + W G_t (psi_t + e_t a), with
         // W = (I - M B1)^-1 = I + W M B1 and W M = e_p W G_p + e_t W G_t, so that
         // u+ = h' + W G_p (psi_p + e_p a + e_p B1 h') + W G_t (psi_t + e_t a + e_t B1 h'):
-        // two r x r products (they fit a core's cache together up to r of about 350).
+        // one r x 2r product (it fits a core's cache up to r of about 350).
         for j in 0..r {
-            let bh = self.b1[j][0] * self.rhs[0][j];
-            self.rhs[1][j] += self.e[0] * bh;
-            self.rhs[2][j] += self.e[1] * bh;
+            let bh = self.b1[j][0] * self.rhs[j];
+            self.psi[j] += self.e[0] * bh;
+            self.psi[r + j] += self.e[1] * bh;
         }
-        self.u_new.copy_from_slice(&self.rhs[0]);
-        {
-            let mut un = MatMut::from_column_major_slice_mut(&mut self.u_new, r, 1);
-            for k in 0..2 {
-                let wg = MatRef::from_column_major_slice(&self.wg[k], r, r);
-                let x = MatRef::from_column_major_slice(&self.rhs[1 + k], r, 1);
-                matmul(un.rb_mut(), Accum::Add, wg, x, 1.0, Par::Seq);
-            }
-        }
+        self.u_new.copy_from_slice(&self.rhs);
+        rows_dot::<S, 1>(
+            simd,
+            &self.wg,
+            2 * r,
+            r,
+            2 * r,
+            [&self.psi],
+            [&mut self.u_new],
+        );
         // Modes at the end of the tick.
         for j in 0..r {
             let (a, b0, b1) = (&self.a_mode[j], &self.b0[j], &self.b1[j]);
@@ -534,21 +554,31 @@ impl CoupledMirror {
         const S: usize = N_STATE;
         let mp = state::MIRROR_POS;
         let mut outs = std::mem::take(&mut self.out);
-        for (k, (lo, count)) in [(0usize, n), (n, 2 * n)].into_iter().enumerate() {
+        for k in 0..2 {
             let c = &self.cell_c[k];
-            self.cols[..r].copy_from_slice(&self.xi[k][mp * r..(mp + 1) * r]);
-            self.cols[r..2 * r].copy_from_slice(&self.q);
-            let force = &mut self.cols[2 * r..];
+            let cols = &mut self.cols[3 * r * k..3 * r * (k + 1)];
+            cols[..r].copy_from_slice(&self.xi[k][mp * r..(mp + 1) * r]);
+            cols[r..2 * r].copy_from_slice(&self.q);
+            let force = &mut cols[2 * r..];
             force.fill(0.0);
             for s in 0..S {
                 if c[s] != 0.0 {
                     axpy(force, c[s], &self.xi[k][s * r..(s + 1) * r]);
                 }
             }
-            let phic = MatRef::from_column_major_slice(&self.phic, na, r).subrows(lo, count);
-            let cols = MatRef::from_column_major_slice(&self.cols, r, 3);
-            let out = MatMut::from_column_major_slice_mut(&mut outs, na, 3).subrows_mut(lo, count);
-            matmul(out, Accum::Replace, phic, cols, 1.0, Par::Seq);
+        }
+        {
+            // Phi_c [cols_k] over all channel rows.
+            let (o0, rest) = outs.split_at_mut(na);
+            let (o1, o2) = rest.split_at_mut(na);
+            pulp::Arch::new().dispatch(Reconstruct {
+                phic: &self.phic,
+                r,
+                n,
+                rows: 0..na,
+                cols: &self.cols,
+                out: [o0, o1, o2],
+            });
         }
         // Channel values (rows: piston channels, then tilt) to actuators, segment by segment.
         let v = self.basis;
@@ -581,8 +611,111 @@ impl CoupledMirror {
     }
 }
 
-fn col_major(m: &DMatrix<f64>) -> Vec<f64> {
-    m.as_slice().to_vec()
+/// The ticks of a communication step, as a SIMD operation for [`pulp::Arch::dispatch`].
+struct Ticks<'a> {
+    mirror: &'a mut CoupledMirror,
+    ticks: u64,
+    pier_z: f64,
+}
+
+impl pulp::WithSimd for Ticks<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
+        for _ in 0..self.ticks {
+            self.mirror.tick(simd, self.pier_z);
+        }
+    }
+}
+
+/// The two input columns the ticks use (command, wind) of an `r x N_IN` column-major block.
+fn input_columns(w: &mut [f64], r: usize) -> (&mut [f64], &mut [f64]) {
+    let (u, rest) = w.split_at_mut(r);
+    (u, &mut rest[r..2 * r])
+}
+
+/// `Phi_k^T w_k` (command and wind columns) for the modes `modes`, both kinds: `out` is
+/// (piston command, piston wind, tilt command, tilt wind), each `modes.len()` long.
+struct Project<'a> {
+    phic: &'a [f64],
+    r: usize,
+    n: usize,
+    modes: std::ops::Range<usize>,
+    w: [&'a [f64]; 2],
+    out: [&'a mut [f64]; 4],
+}
+
+impl pulp::WithSimd for Project<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
+        let (r, n, c0) = (self.r, self.n, self.modes.start);
+        let k = self.modes.len();
+        let [pu, pf, tu, tf] = self.out;
+        for (kind, (lo, count), yu, yf) in [(0usize, (0usize, n), pu, pf), (1, (n, 2 * n), tu, tf)]
+        {
+            let x = self.w[kind];
+            rows_axpy::<S, 2>(
+                simd,
+                &self.phic[lo * r + c0..],
+                r,
+                count,
+                k,
+                [&x[..count], &x[2 * count..3 * count]],
+                [yu, yf],
+            );
+        }
+    }
+}
+
+/// Rows `rows` of `Phi_c [cols_k]` (channel rows: piston `0..n`, tilt `n..3n`; `cols` holds
+/// the three `r`-columns of each kind in turn): `out` is the three output columns over `rows`.
+struct Reconstruct<'a> {
+    phic: &'a [f64],
+    r: usize,
+    n: usize,
+    rows: std::ops::Range<usize>,
+    cols: &'a [f64],
+    out: [&'a mut [f64]; 3],
+}
+
+impl pulp::WithSimd for Reconstruct<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
+        let (r, n) = (self.r, self.n);
+        let [o0, o1, o2] = self.out;
+        for (kind, kinds) in [(0usize, 0..n), (1, n..3 * n)] {
+            let lo = self.rows.start.max(kinds.start);
+            let hi = self.rows.end.min(kinds.end);
+            if lo >= hi {
+                continue;
+            }
+            let cols = &self.cols[3 * r * kind..3 * r * (kind + 1)];
+            let (c0, rest) = cols.split_at(r);
+            let (c1, c2) = rest.split_at(r);
+            let at = lo - self.rows.start..hi - self.rows.start;
+            for o in [&mut *o0, &mut *o1, &mut *o2] {
+                o[at.clone()].fill(0.0);
+            }
+            rows_dot::<S, 3>(
+                simd,
+                &self.phic[lo * r..],
+                r,
+                hi - lo,
+                r,
+                [c0, c1, c2],
+                [&mut o0[at.clone()], &mut o1[at.clone()], &mut o2[at]],
+            );
+        }
+    }
+}
+
+fn row_major(m: &DMatrix<f64>) -> Vec<f64> {
+    m.transpose().as_slice().to_vec()
 }
 
 #[cfg(test)]
@@ -639,7 +772,7 @@ mod tests {
                         let x = |s: usize| {
                             m.free.state()[kind][s * cnt + c]
                                 + (0..r)
-                                    .map(|q| m.phic[q * na + row] * m.xi[kind][s * r + q])
+                                    .map(|q| m.phic[row * r + q] * m.xi[kind][s * r + q])
                                     .sum::<f64>()
                         };
                         fch[j] = (0..N_STATE).map(|s| m.cell_c[kind][s] * x(s)).sum::<f64>()
@@ -671,7 +804,7 @@ mod tests {
                         for j in (0..r).step_by(7) {
                             let direct: f64 = (0..cnt)
                                 .map(|c| {
-                                    m.phic[j * na + lo + c] * m.free.state()[kind][s * cnt + c]
+                                    m.phic[(lo + c) * r + j] * m.free.state()[kind][s * cnt + c]
                                 })
                                 .sum();
                             let carried = m.proj[kind][s * r + j];

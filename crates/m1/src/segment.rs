@@ -62,6 +62,7 @@ use serde::{Deserialize, Serialize};
 use std::f64::consts::{PI, TAU};
 
 use crate::M1Error;
+use crate::kernels::axpy;
 
 /// Continuous states per channel: node position and velocity, mirror position and velocity,
 /// shunt coordinate and its rate.
@@ -1083,13 +1084,6 @@ impl SegmentArray {
     /// The full state, by kind (piston, tilt), for checkpoints.
     pub fn state(&self) -> [&[f64]; 2] {
         [&self.x[0], &self.x[1]]
-    }
-}
-
-#[inline]
-pub(crate) fn axpy(out: &mut [f64], a: f64, x: &[f64]) {
-    for (o, xi) in out.iter_mut().zip(x) {
-        *o += a * xi;
     }
 }
 
