@@ -5,7 +5,8 @@
 //!
 //! The master advances with a fixed base communication step `h`. Component `c` steps every
 //! `every[c]` base steps with step `every[c] * h` (multi-rate: e.g. the controller at 20 Hz,
-//! wind at 100 Hz, segments and structure at 1 kHz with `h` = 1 ms). Two orders:
+//! wind at 100 Hz, segments and structure at 1 kHz with `h` = 1 ms); a slower component's last
+//! step is cut to end at the stop time. Two orders:
 //!
 //! - **Jacobi** (the library's default): at a communication point every due component first
 //!   receives the outputs all components had at that point, then all due components step, in
@@ -194,15 +195,16 @@ struct Running {
 
 impl Running {
     /// Sets its inputs from `outputs` (all components' published outputs), steps from `t` over
-    /// its own multiple of `h`, and reads its outputs into `out_buf`: one fmi2SetReal, one
-    /// fmi2DoStep, one fmi2GetReal, no allocation.
-    fn advance(&mut self, outputs: &[f64], t: f64, h: f64) -> Result<()> {
+    /// its own multiple of `h` (cut to the `left` base steps before the stop time), and reads
+    /// its outputs into `out_buf`: one fmi2SetReal, one fmi2DoStep, one fmi2GetReal, no
+    /// allocation.
+    fn advance(&mut self, outputs: &[f64], t: f64, h: f64, left: usize) -> Result<()> {
         let t0 = Instant::now();
         for (b, &s) in self.in_buf.iter_mut().zip(&self.in_src) {
             *b = outputs[s];
         }
         self.instance.set_real(&self.in_vrs, &self.in_buf)?;
-        self.instance.do_step(t, h * self.every as f64)?;
+        self.instance.do_step(t, h * self.every.min(left) as f64)?;
         self.instance.get_real(&self.out_vrs, &mut self.out_buf)?;
         self.last = t0.elapsed().as_secs_f64();
         self.busy += self.last;
@@ -242,12 +244,13 @@ fn advance_split(
     outputs: &[f64],
     t: f64,
     h: f64,
+    left: usize,
 ) -> Result<f64> {
     match comps {
         [] => Ok(0.0),
         [r] => {
             if due(r) {
-                r.advance(outputs, t, h).map(|()| r.last)
+                r.advance(outputs, t, h, left).map(|()| r.last)
             } else {
                 Ok(0.0)
             }
@@ -255,8 +258,8 @@ fn advance_split(
         _ => {
             let (a, b) = comps.split_at_mut(comps.len() / 2);
             let (x, y) = rayon::join(
-                || advance_split(a, due, outputs, t, h),
-                || advance_split(b, due, outputs, t, h),
+                || advance_split(a, due, outputs, t, h, left),
+                || advance_split(b, due, outputs, t, h, left),
             );
             Ok(x?.max(y?))
         }
@@ -596,6 +599,10 @@ impl Simulation {
         let k = self.n_steps;
         let t = self.time;
         let h = self.step;
+        // Base steps left before the stop time, this one included: a slower component's last
+        // step ends at the stop time, not past it (FMUs refuse to step past the stopTime
+        // given to fmi2SetupExperiment).
+        let left = ((self.stop - t) / h - 1e-6).ceil().max(1.0) as usize;
         let due = |r: &Running| k.is_multiple_of(r.every as u64);
         match self.order {
             Order::Jacobi => {
@@ -610,11 +617,11 @@ impl Simulation {
                     .filter(|r| due(r) && r.mean >= PARALLEL_MIN_SECONDS)
                     .count();
                 let critical = if heavy > 1 {
-                    advance_split(&mut self.comps, &due, snapshot, t, h)?
+                    advance_split(&mut self.comps, &due, snapshot, t, h, left)?
                 } else {
                     let mut sum = 0.0;
                     for r in self.comps.iter_mut().filter(|r| due(r)) {
-                        r.advance(snapshot, t, h)?;
+                        r.advance(snapshot, t, h, left)?;
                         sum += r.last;
                     }
                     sum
@@ -626,7 +633,7 @@ impl Simulation {
             }
             Order::GaussSeidel => {
                 for r in self.comps.iter_mut().filter(|r| due(r)) {
-                    r.advance(&self.outputs, t, h)?;
+                    r.advance(&self.outputs, t, h, left)?;
                     r.publish(&mut self.outputs);
                     self.fmu_critical += r.last;
                 }

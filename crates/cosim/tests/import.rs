@@ -327,6 +327,36 @@ fn multirate_components_step_at_their_own_multiple() {
     let expected = (m as f64 * h).powi(2) * (steps * (steps - 1)) as f64 / 2.0;
     let got = r.rows.last().unwrap()[1];
     assert!((got - expected).abs() < 1e-12, "{got} vs {expected}");
+    // A stop time that is not a multiple of b's step: b's last step (from 40 h) is cut to the
+    // 2 h left, never past the stop time. b integrates y_a as it was at its step start
+    // (Jacobi) or just after a's step (Gauss-Seidel, a comes first).
+    let n = 42usize;
+    let sys = System::new(n as f64 * h, h)
+        .component("a", &path)
+        .parameter("a", "u", Value::Real(1.0))
+        .component("b", &path)
+        .every(m)
+        .connect("a.y", "b.u");
+    for order in [Order::Jacobi, Order::GaussSeidel] {
+        let r = run(
+            &sys.clone().order(order),
+            &["b.y".into()],
+            1,
+            &mut |_, _| {},
+        )
+        .unwrap();
+        let lag = usize::from(order == Order::GaussSeidel);
+        let full: f64 = (0..10)
+            .map(|j| (m as f64 * h) * (j * m + lag) as f64 * h)
+            .sum();
+        let expected = full + 2.0 * h * (10 * m + lag) as f64 * h;
+        let got = r.rows.last().unwrap()[1];
+        assert!(
+            (got - expected).abs() < 1e-12,
+            "{order:?}: {got} vs {expected}"
+        );
+        assert!((r.rows.last().unwrap()[0] - n as f64 * h).abs() < 1e-12);
+    }
 }
 
 /// A component that fails mid-run (fmi2Error from doStep) stops the run with its name, the
