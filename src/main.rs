@@ -55,6 +55,9 @@ enum Cmd {
     /// Runs the closed-loop scenario (default: TMT, wind, voice coils, open and closed loop) or a
     /// user's .ssp with the included master; CSV, plots and a summary in --out.
     Run(commands::cosim::RunCmd),
+    /// Segments and structure as two co-simulation components against the coupled solver: the
+    /// largest communication step each actuator variant tolerates, and why one mirror FMU.
+    Coupling(commands::dynamics::CouplingArgs),
     /// Writes a standard closed-loop system (layout x actuator x scenario) as an SSP archive.
     System(commands::cosim::SystemCmd),
     /// Reports a layout: segments, actuators, edges, sensors and the neighbour histogram.
@@ -92,7 +95,7 @@ impl Actuator {
     }
 }
 
-fn load_layout(name: &str) -> Result<Layout, String> {
+pub(crate) fn load_layout(name: &str) -> Result<Layout, String> {
     let path = std::path::Path::new(name);
     if path.extension().is_some_and(|e| e == "json") {
         Layout::from_json_file(path).map_err(|e| e.to_string())
@@ -403,6 +406,7 @@ fn main() -> ExitCode {
         Cmd::Amatrix(a) => commands::quasistatic::amatrix(&a),
         Cmd::Run(a) => commands::cosim::run_cmd(&a),
         Cmd::System(a) => commands::cosim::system(&a),
+        Cmd::Coupling(a) => commands::dynamics::coupling(&a),
         Cmd::Robustness(a) => commands::quasistatic::robustness(&a),
         Cmd::Noise(a) => commands::quasistatic::noise(&a),
         Cmd::Clocking(a) => commands::quasistatic::clocking(&a),

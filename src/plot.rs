@@ -614,8 +614,8 @@ pub fn spectrum(
     render_xy(path, &plot)
 }
 
-/// Plots each `(label, points)` of `series` as a line, in its own colour, with a legend of the
-/// non-empty labels (an empty label keeps a series out of the legend, e.g. for many Monte-Carlo
+/// Plots each `(label, points)` of `series` as a line (with markers when it has 12 points or
+/// fewer), in its own colour, with a legend of the non-empty labels (an empty label keeps a series out of the legend, e.g. for many Monte-Carlo
 /// runs); logarithmic axes on request ([`PLOT_SIZE`] pixels). Errors when no point is
 /// plottable.
 pub fn lines(
@@ -627,12 +627,33 @@ pub fn lines(
     log_x: bool,
     log_y: bool,
 ) -> Result<(), PlotError> {
+    let coloured: Vec<ColouredSeries> = series
+        .iter()
+        .enumerate()
+        .map(|(k, (label, points))| (*label, k, *points))
+        .collect();
+    lines_in_colours(path, &coloured, title, x_label, y_label, log_x, log_y)
+}
+
+/// A series for [`lines_in_colours`]: label, colour index in the palette, points.
+pub type ColouredSeries<'a> = (&'a str, usize, &'a [(f64, f64)]);
+
+/// As [`lines`], with the colour of each series given (an index into the palette): pieces of
+/// one curve (e.g. broken where a case diverged) keep one colour, only the first labelled.
+pub fn lines_in_colours(
+    path: impl AsRef<Path>,
+    series: &[ColouredSeries],
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    log_x: bool,
+    log_y: bool,
+) -> Result<(), PlotError> {
     let path = path.as_ref();
     let usable = |v: f64, log: bool| v.is_finite() && (!log || v > 0.0);
     let curves: Vec<Curve> = series
         .iter()
-        .enumerate()
-        .map(|(k, (label, points))| Curve {
+        .map(|(label, k, points)| Curve {
             label: label.to_string(),
             points: points
                 .iter()
@@ -640,7 +661,8 @@ pub fn lines(
                 .filter(|p| usable(p.0, log_x) && usable(p.1, log_y))
                 .collect(),
             colour: SERIES_COLOURS[k % SERIES_COLOURS.len()],
-            markers: false,
+            // Few points (a handful of cases, or a single one) are shown as markers too.
+            markers: points.len() <= 12,
         })
         .collect();
     if curves.iter().all(|c| c.points.is_empty()) {

@@ -300,3 +300,47 @@ fn run_and_system_on_keck() {
     assert!(!ok && err.contains("cargo xtask package"), "{err}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `m1cs coupling`: the split voice coil is bounded at the servo period and diverges at two
+/// periods; no split configuration is accurate to 1 %; a step that is not a multiple of the
+/// servo period is an error naming it; the plot is written.
+#[test]
+fn coupling_needs_the_servo_period() {
+    let dir = std::env::temp_dir().join(format!("m1cs_coupling_{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let png = dir.join("coupling.png");
+    let v = json(&[
+        "coupling",
+        "--steps",
+        "0.0002,0.0004",
+        "--duration",
+        "1",
+        "--json",
+        "--plot",
+        png.to_str().unwrap(),
+    ]);
+    let runs = v["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 3 * 2 * 2);
+    let find = |variant: &str, order: &str, step: f64| {
+        runs.iter()
+            .find(|r| r["variant"] == variant && r["order"] == order && r["step_s"] == step)
+            .unwrap_or_else(|| panic!("{variant} {order} {step}"))
+    };
+    for order in ["gauss-seidel", "jacobi"] {
+        assert_eq!(find("voicecoil", order, 0.0002)["stable"], true);
+        assert_eq!(find("voicecoil", order, 0.0004)["stable"], false);
+        assert_eq!(find("piezo", order, 0.0002)["stable"], false);
+    }
+    assert!(
+        v["largest_accurate_step_s"]
+            .as_object()
+            .unwrap()
+            .values()
+            .all(|s| s.is_null()),
+        "{v}"
+    );
+    assert!(std::fs::metadata(&png).unwrap().len() > 1000);
+    let (ok, _, err) = m1cs(&["coupling", "--steps", "0.0003"]);
+    assert!(!ok && err.contains("communicationStepSize"), "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -1,5 +1,6 @@
 //! The analysis subcommands of `m1cs`, one module per family.
 
 pub mod cosim;
+pub mod dynamics;
 pub mod optics;
 pub mod quasistatic;

@@ -6,6 +6,7 @@
 
 pub mod blockchol;
 pub mod controller;
+pub mod coupling;
 pub mod error;
 pub mod geometry;
 pub mod interaction;
