@@ -315,7 +315,7 @@ fn run_one(
         Err(f) => {
             // Keep what was recorded up to the failure.
             let kept = match (&f.partial, partial_csv) {
-                (Some(p), Some(path)) if p.rows.len() > 1 => match p.write_csv(path) {
+                (Some(p), Some(path)) if p.n_rows() > 1 => match p.write_csv(path) {
                     Ok(()) => format!(" (results up to the failure in {})", path.display()),
                     Err(e) => format!(" (could not keep the results: {e})"),
                 },
@@ -590,15 +590,12 @@ fn split_off_z(r: &mut cosim::system::Results) -> Vec<Vec<f64>> {
     let zc: Vec<usize> = (0..r.columns.len())
         .filter(|&k| is_z(&r.columns[k]))
         .collect();
-    let half = r.rows.len() / 2;
+    let half = r.n_rows() / 2;
     let z: Vec<Vec<f64>> = zc
         .iter()
-        .map(|&k| r.rows[half..].iter().map(|row| row[k]).collect())
+        .map(|&k| r.rows().skip(half).map(|row| row[k]).collect())
         .collect();
-    r.columns = keep.iter().map(|&k| r.columns[k].clone()).collect();
-    for row in &mut r.rows {
-        *row = keep.iter().map(|&k| row[k]).collect();
-    }
+    r.keep_columns(&keep);
     z
 }
 

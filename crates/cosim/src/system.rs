@@ -684,13 +684,14 @@ impl Simulation {
     }
 }
 
-/// Results of [`run`]: the time column and one row of recorded values per sample.
+/// Results of [`run`]: the time column and one row of recorded values per sample, stored
+/// flat (row-major), so that recording during the run never allocates.
 #[derive(Debug, Clone)]
 pub struct Results {
     /// Column names, "time" first.
     pub columns: Vec<String>,
-    /// Rows: time then the recorded values.
-    pub rows: Vec<Vec<f64>>,
+    /// Row-major values: row `k` is `values[k * w..(k + 1) * w]` with `w = columns.len()`.
+    values: Vec<f64>,
     /// Where the time went.
     pub timing: Timing,
 }
@@ -757,7 +758,7 @@ impl Results {
         let mut w = std::io::BufWriter::new(f);
         let mut write = || -> std::io::Result<()> {
             writeln!(w, "{}", self.columns.join(","))?;
-            for row in &self.rows {
+            for row in self.rows() {
                 for (k, v) in row.iter().enumerate() {
                     if k > 0 {
                         w.write_all(b",")?;
@@ -774,7 +775,45 @@ impl Results {
     /// The column called `name`.
     pub fn column(&self, name: &str) -> Option<Vec<f64>> {
         let k = self.columns.iter().position(|c| c == name)?;
-        Some(self.rows.iter().map(|r| r[k]).collect())
+        Some(self.rows().map(|r| r[k]).collect())
+    }
+
+    /// Number of rows (samples).
+    pub fn n_rows(&self) -> usize {
+        self.values.len() / self.columns.len().max(1)
+    }
+
+    /// The rows in order: time then the recorded values.
+    pub fn rows(&self) -> std::slice::ChunksExact<'_, f64> {
+        self.values.chunks_exact(self.columns.len().max(1))
+    }
+
+    /// Row `k`, if there is one.
+    pub fn row(&self, k: usize) -> Option<&[f64]> {
+        let w = self.columns.len();
+        self.values.get(k * w..(k + 1) * w)
+    }
+
+    /// The last row, if any.
+    pub fn last_row(&self) -> Option<&[f64]> {
+        self.n_rows().checked_sub(1).and_then(|k| self.row(k))
+    }
+
+    /// All values, row-major.
+    pub fn values(&self) -> &[f64] {
+        &self.values
+    }
+
+    /// Keeps only the columns `keep` (indices, in the order given).
+    pub fn keep_columns(&mut self, keep: &[usize]) {
+        let w = self.columns.len();
+        let n = self.n_rows();
+        let mut values = Vec::with_capacity(n * keep.len());
+        for row in self.values.chunks_exact(w.max(1)) {
+            values.extend(keep.iter().map(|&k| row[k]));
+        }
+        self.columns = keep.iter().map(|&k| self.columns[k].clone()).collect();
+        self.values = values;
     }
 }
 
@@ -794,15 +833,19 @@ pub fn run(
     let mut sim = Simulation::new(system, record).map_err(|e| Box::new(Failure::from(e)))?;
     let mut columns = vec!["time".to_string()];
     columns.extend(sim.recorded_columns().iter().cloned());
-    let width = columns.len() - 1;
-    let mut rows = Vec::new();
-    let sample = |sim: &Simulation, rows: &mut Vec<Vec<f64>>| {
-        let mut row = vec![0.0; width + 1];
-        row[0] = sim.time();
-        sim.recorded_values(&mut row[1..]);
-        rows.push(row);
+    let width = columns.len();
+    // Room for every sample up front: the loop below never allocates.
+    let steps = ((system.stop_time - system.start_time) / system.step - 1e-6)
+        .ceil()
+        .max(0.0) as usize;
+    let mut values = Vec::with_capacity((steps / decimation + 1) * width);
+    let sample = |sim: &Simulation, values: &mut Vec<f64>| {
+        let at = values.len();
+        values.resize(at + width, 0.0);
+        values[at] = sim.time();
+        sim.recorded_values(&mut values[at + 1..]);
     };
-    sample(&sim, &mut rows);
+    sample(&sim, &mut values);
     let mut k = 0usize;
     let t0 = Instant::now();
     let mut failed = None;
@@ -813,7 +856,7 @@ pub fn run(
         }
         k += 1;
         if k.is_multiple_of(decimation) {
-            sample(&sim, &mut rows);
+            sample(&sim, &mut values);
         }
         progress(sim.time(), sim.stop_time());
     }
@@ -825,7 +868,7 @@ pub fn run(
     };
     let results = Results {
         columns,
-        rows,
+        values,
         timing,
     };
     if let Some(error) = failed {

@@ -290,8 +290,8 @@ fn chained_integrators_give_the_exact_sums() {
             .order(order);
         let r = run(&sys, &["a.y".into(), "b.y".into()], 1, &mut |_, _| {}).unwrap();
         assert_eq!(r.columns, ["time", "a.y", "b.y"]);
-        assert_eq!(r.rows.len(), n + 1);
-        let last = r.rows.last().unwrap();
+        assert_eq!(r.n_rows(), n + 1);
+        let last = r.last_row().unwrap();
         assert!((last[0] - n as f64 * h).abs() < 1e-12);
         assert!(
             (last[1] - 2.0 * n as f64 * h).abs() < 1e-12,
@@ -321,11 +321,11 @@ fn multirate_components_step_at_their_own_multiple() {
     let e = run(&sys, &["b.y".into(), "b.steps".into()], 4, &mut |_, _| {}).unwrap_err();
     assert!(e.to_string().contains("b.steps"), "{e}");
     let r = run(&sys, &["b.y".into()], 4, &mut |_, _| {}).unwrap();
-    assert_eq!(r.rows.len(), n / 4 + 1);
+    assert_eq!(r.n_rows(), n / 4 + 1);
     // y_b = sum over b's steps j of (m h) * y_a(j m h) = (m h)^2 * sum j.
     let steps = n / m;
     let expected = (m as f64 * h).powi(2) * (steps * (steps - 1)) as f64 / 2.0;
-    let got = r.rows.last().unwrap()[1];
+    let got = r.last_row().unwrap()[1];
     assert!((got - expected).abs() < 1e-12, "{got} vs {expected}");
     // A stop time that is not a multiple of b's step: b's last step (from 40 h) is cut to the
     // 2 h left, never past the stop time. b integrates y_a as it was at its step start
@@ -350,12 +350,12 @@ fn multirate_components_step_at_their_own_multiple() {
             .map(|j| (m as f64 * h) * (j * m + lag) as f64 * h)
             .sum();
         let expected = full + 2.0 * h * (10 * m + lag) as f64 * h;
-        let got = r.rows.last().unwrap()[1];
+        let got = r.last_row().unwrap()[1];
         assert!(
             (got - expected).abs() < 1e-12,
             "{order:?}: {got} vs {expected}"
         );
-        assert!((r.rows.last().unwrap()[0] - n as f64 * h).abs() < 1e-12);
+        assert!((r.last_row().unwrap()[0] - n as f64 * h).abs() < 1e-12);
     }
 }
 
@@ -388,8 +388,8 @@ fn failures_stop_the_run_and_keep_the_results() {
         assert!(msg.contains("told to fail"), "{msg}");
         let partial = f.partial.expect("partial results");
         // Steps from 0 to 0.24 completed: rows at 0, 0.01, ..., 0.25.
-        assert_eq!(partial.rows.len(), 26, "{order:?}");
-        let last = partial.rows.last().unwrap();
+        assert_eq!(partial.n_rows(), 26, "{order:?}");
+        let last = partial.last_row().unwrap();
         assert!((last[0] - 0.25).abs() < 1e-12 && (last[1] - 0.25).abs() < 1e-12);
     }
     let sys = System::new(1.0, h)
@@ -401,7 +401,7 @@ fn failures_stop_the_run_and_keep_the_results() {
         msg.contains("a: output y is NaN after the step to t = 0.01"),
         "{msg}"
     );
-    assert_eq!(f.partial.expect("partial").rows.len(), 1);
+    assert_eq!(f.partial.expect("partial").n_rows(), 1);
     // Timing: the loop contains the FMU calls.
     let sys = System::new(0.5, h).component("a", &path);
     let r = run(&sys, &[], 1, &mut |_, _| {}).unwrap();
@@ -498,7 +498,7 @@ fn ssp_round_trip_runs_the_same() {
     let rec = ["b.y".to_string()];
     let r1 = run(&sys, &rec, 1, &mut |_, _| {}).unwrap();
     let r2 = run(s2, &rec, 1, &mut |_, _| {}).unwrap();
-    assert_eq!(r1.rows, r2.rows);
+    assert_eq!(r1.values(), r2.values());
     // The .ssd alone, with its FMU at the relative source path.
     let ssd_dir = dir.join("ssd");
     std::fs::create_dir_all(ssd_dir.join("resources")).unwrap();
@@ -512,11 +512,78 @@ fn ssp_round_trip_runs_the_same() {
     std::fs::write(ssd_dir.join("chain.ssd"), &text).unwrap();
     let back = ssp::read(&ssd_dir.join("chain.ssd")).unwrap();
     let r3 = run(&back.system, &rec, 1, &mut |_, _| {}).unwrap();
-    assert_eq!(r1.rows, r3.rows);
+    assert_eq!(r1.values(), r3.values());
     // A missing FMU is named.
     std::fs::remove_file(ssd_dir.join("resources/tiny.fmu")).unwrap();
     let e = ssp::read(&ssd_dir.join("chain.ssd"))
         .unwrap_err()
         .to_string();
     assert!(e.contains("resources/tiny.fmu not found"), "{e}");
+}
+
+/// Counts the allocations of each thread of this test binary (the master's; the C test FMU
+/// uses malloc), per thread so that tests running alongside do not count.
+struct Counting;
+
+thread_local! {
+    static ALLOCATIONS: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+}
+
+fn count() {
+    ALLOCATIONS.with(|c| c.set(c.get() + 1));
+}
+
+// SAFETY: forwards to the system allocator unchanged, only counting the calls.
+unsafe impl std::alloc::GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: std::alloc::Layout) -> *mut u8 {
+        count();
+        // SAFETY: same contract as the caller's.
+        unsafe { std::alloc::System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: std::alloc::Layout) {
+        // SAFETY: same contract as the caller's.
+        unsafe { std::alloc::System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: std::alloc::Layout, size: usize) -> *mut u8 {
+        count();
+        // SAFETY: same contract as the caller's.
+        unsafe { std::alloc::System.realloc(ptr, layout, size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+/// The step loop allocates nothing, recording included (every step, both orders, multi-rate):
+/// the count of this thread's allocations is the same after the second step and after the
+/// last (the components are too light for Jacobi's threads, so the loop runs on this one).
+#[test]
+fn the_step_loop_does_not_allocate() {
+    let path = tiny_fmu("no_alloc", &tiny_xml(), &[], true);
+    let sys = System::new(0.5, 0.001)
+        .component("a", &path)
+        .parameter("a", "u", Value::Real(1.0))
+        .component("b", &path)
+        .every(4)
+        .connect("a.y", "b.u")
+        .component("c", &path)
+        .connect("b.y", "c.u");
+    for order in [Order::Jacobi, Order::GaussSeidel] {
+        let mut seen: Vec<usize> = Vec::with_capacity(1000);
+        let mut progress = |_: f64, _: f64| {
+            if seen.len() < seen.capacity() {
+                seen.push(ALLOCATIONS.with(std::cell::Cell::get));
+            }
+        };
+        let r = run(
+            &sys.clone().order(order),
+            &["a.y".into(), "b.y".into(), "c.y".into()],
+            1,
+            &mut progress,
+        )
+        .unwrap();
+        assert_eq!(r.n_rows(), 501);
+        assert_eq!(seen.len(), 500);
+        assert_eq!(seen[1], seen[499], "{order:?}: the loop allocated");
+    }
 }
