@@ -407,6 +407,19 @@ fn execute(a: &RunCmd, runs: Vec<(String, System)>, metrics: &[&str]) -> Result<
     let mut outcomes = Vec::new();
     let mut maps = Vec::new();
     let mut spectra = Vec::new();
+    // Every FMU opened once for all the runs: they share its unpacked files and loaded library
+    // (and so its caches, e.g. the structure's modes), instead of unpacking it per run.
+    let mut paths: Vec<&std::path::Path> = runs
+        .iter()
+        .flat_map(|(_, s)| s.components.iter().map(|c| c.fmu.as_path()))
+        .collect();
+    paths.sort();
+    paths.dedup();
+    let _open: Vec<cosim::Fmu> = paths
+        .into_iter()
+        .map(cosim::Fmu::open)
+        .collect::<Result<_, _>>()
+        .map_err(|e| e.to_string())?;
     for (label, s) in &runs {
         let csv = a.out.join(format!("{}.csv", label.replace(' ', "_")));
         // The mirror displacement is recorded for the map and the spectrum, not written.

@@ -116,6 +116,31 @@ pub(crate) struct Shared {
     pub(crate) _dir: TempDir,
 }
 
+/// Identity of an archive on disk: canonical path, size and modification time.
+type ArchiveKey = (PathBuf, u64, Option<std::time::SystemTime>);
+
+fn archive_key(path: &Path) -> Option<ArchiveKey> {
+    let meta = std::fs::metadata(path).ok()?;
+    Some((
+        std::fs::canonicalize(path).ok()?,
+        meta.len(),
+        meta.modified().ok(),
+    ))
+}
+
+/// An FMU open somewhere in the process (weakly: it closes when its last user drops it).
+struct OpenFmu {
+    key: ArchiveKey,
+    description: ModelDescription,
+    root: PathBuf,
+    shared: std::sync::Weak<Shared>,
+}
+
+/// The FMUs open in this process, so that opening an unchanged archive again while it is open
+/// shares its unpacked files and loaded library (e.g. the runs of one `m1cs run`): the library's
+/// own caches survive from one run to the next, and nothing is unpacked twice.
+static OPEN: std::sync::Mutex<Vec<OpenFmu>> = std::sync::Mutex::new(Vec::new());
+
 /// An imported FMI 2.0 Co-Simulation FMU.
 pub struct Fmu {
     /// The .fmu file.
@@ -138,7 +163,9 @@ impl std::fmt::Debug for Fmu {
 
 impl Fmu {
     /// Unpacks `path` (a .fmu archive) into a temporary directory, parses its model
-    /// description and loads its binary for this platform.
+    /// description and loads its binary for this platform. If the same unchanged archive is
+    /// already open in this process, the new handle shares its unpacked files and library
+    /// instead.
     ///
     /// # Errors
     /// Naming the file: unreadable or invalid archive, missing modelDescription.xml, malformed
@@ -152,6 +179,42 @@ impl Fmu {
                 source: std::io::Error::new(std::io::ErrorKind::NotFound, "no such FMU file"),
             });
         }
+        // The same unchanged archive, still open elsewhere in this process: share it.
+        let key = archive_key(path);
+        if let Some(key) = &key {
+            let mut open = OPEN
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            open.retain(|e| e.shared.strong_count() > 0);
+            let alive = open.iter().find(|e| e.key == *key).and_then(|e| {
+                let shared = e.shared.upgrade()?;
+                Some((e.description.clone(), e.root.clone(), shared))
+            });
+            if let Some((description, root, shared)) = alive {
+                return Ok(Self {
+                    path: path.to_path_buf(),
+                    description,
+                    root,
+                    shared,
+                });
+            }
+        }
+        let fmu = Self::unpack(path)?;
+        if let Some(key) = key {
+            let mut open = OPEN
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            open.push(OpenFmu {
+                key,
+                description: fmu.description.clone(),
+                root: fmu.root.clone(),
+                shared: Arc::downgrade(&fmu.shared),
+            });
+        }
+        Ok(fmu)
+    }
+
+    fn unpack(path: &Path) -> Result<Self> {
         let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("fmu");
         let dir = TempDir::new(stem)?;
         unzip(path, &dir.0)?;

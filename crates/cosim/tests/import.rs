@@ -587,3 +587,23 @@ fn the_step_loop_does_not_allocate() {
         assert_eq!(seen[1], seen[499], "{order:?}: the loop allocated");
     }
 }
+
+/// Opening an unchanged archive that is still open shares its unpacked files and library; once
+/// every handle is gone it is unpacked afresh; a changed archive is never shared.
+#[test]
+fn an_open_fmu_is_shared_until_closed() {
+    let path = tiny_fmu("shared", &tiny_xml(), &[], true);
+    let a = Fmu::open(&path).unwrap();
+    let b = Fmu::open(&path).unwrap();
+    assert_eq!(a.unpacked_dir(), b.unpacked_dir());
+    let dir = a.unpacked_dir().to_path_buf();
+    drop((a, b));
+    assert!(!dir.exists(), "unpacked files removed with the last handle");
+    let c = Fmu::open(&path).unwrap();
+    assert_ne!(c.unpacked_dir(), dir.as_path());
+    // The same path rewritten (a longer model description: other size and time) is new.
+    let other = tiny_fmu("shared", &format!("{}<!-- v2 -->", tiny_xml()), &[], true);
+    assert_eq!(other, path);
+    let d = Fmu::open(&path).unwrap();
+    assert_ne!(d.unpacked_dir(), c.unpacked_dir());
+}
