@@ -3,7 +3,8 @@
 //! - `package [LAYOUT...]`: release-builds every FMU crate and writes
 //!   `target/fmu/<layout>/<model>.fmu` (default layouts: keck, tmt, elt).
 //! - `venv`: creates `.venv` with the Python packages the tests use (tests/python/requirements.txt).
-//! - `test`: package, venv, `cargo test --release --workspace`, then pytest on tests/python.
+//! - `test`: package, venv, `cargo test --release --workspace`, `cargo doc` (warnings are
+//!   errors), then pytest on tests/python.
 //! - `run [ARGS]`: the main job: package the TMT FMUs, then `m1cs run ARGS` (with no arguments,
 //!   the TMT wind scenario, open and closed loop, into results/).
 //! - `demo`: package, then run `m1cs demo` (the segments' step responses and stiffness).
@@ -143,6 +144,10 @@ fn test(extra: &[String]) -> Result<(), String> {
     package(&[])?;
     let python = venv()?;
     run(cargo().args(["test", "--release", "--workspace"]))?;
+    // The API documentation builds without a warning (broken or private intra-doc links).
+    run(cargo()
+        .args(["doc", "--release", "--no-deps", "--workspace"])
+        .env("RUSTDOCFLAGS", "-D warnings"))?;
     let mut pytest = Command::new(python);
     pytest
         .args(["-m", "pytest", "-q", "tests/python"])

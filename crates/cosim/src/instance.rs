@@ -1,5 +1,5 @@
 //! One instance of an imported FMU: the safe layer over the C calls. Each call is one unsafe
-//! line; its status becomes a `Result` in one place ([`Instance::check`]), with the messages the
+//! line; its status becomes a `Result` in one place (`Instance::check`), with the messages the
 //! FMU logged for it. The instance is freed in `Drop`; it holds the library (and the unpacked
 //! files) alive.
 

@@ -2,7 +2,7 @@
 //!
 //! Every one of the 34 FMI 2.0 Co-Simulation functions must be exported (as fmpy demands); the
 //! ones the master calls are kept as function pointers. Their status results are read as
-//! `c_int` and converted with [`fmi2Status::from_raw`], so a foreign FMU returning an
+//! `c_int` and converted with [`fmi2Status::from_raw`](fmi_sys::fmi2::enums::fmi2Status::from_raw), so a foreign FMU returning an
 //! out-of-range status cannot produce an invalid Rust enum.
 
 use std::ffi::{CStr, CString, c_int, c_void};

@@ -269,7 +269,7 @@ fn advance_split(
 /// A signal to record: component, its signal name, and the slots of its scalars.
 #[derive(Debug, Clone)]
 pub struct Recorded {
-    /// Column names ("comp.z[1]", ...).
+    /// Column names (`"comp.z[1]"`, ...).
     pub columns: Vec<String>,
     slots: Vec<usize>,
 }

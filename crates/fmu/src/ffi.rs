@@ -1,7 +1,7 @@
 //! The C boundary: one short shim per FMI 2.0 function, generic over the model.
 //!
 //! Each shim checks its pointers, runs the safe body under `catch_unwind`, maps the `Result` to
-//! a status in one place ([`finish`]) and sends the message through the importer's logger. The
+//! a status in one place (`finish`) and sends the message through the importer's logger. The
 //! [`crate::export_fmi2!`] macro instantiates all 34 for a model with unmangled names.
 //!
 //! Arguments that are C enums (`fmi2Type`, `fmi2StatusKind`) are received as `c_int` and
