@@ -214,8 +214,10 @@ mod tests {
     }
 
     /// Measured on Keck with 30 modes (the same with all 109): the split voice-coil system stays
-    /// bounded at the servo period, 1.4-1.7 % off the coupled solver, and diverges at two servo
-    /// periods in either order; the split piezo system diverges even at the servo period.
+    /// bounded at the servo period, where Gauss-Seidel holds each actuator force over the
+    /// servo period exactly as the coupled solver does (0.1 % apart) and Jacobi's lagged cell
+    /// displacement shows (2.1 %); it diverges at two servo periods in either order. The split
+    /// piezo system diverges even at the servo period.
     #[test]
     fn the_split_exchange_needs_the_servo_period_or_diverges() {
         let cell = keck_cell();
@@ -235,11 +237,12 @@ mod tests {
         for order in [Exchange::GaussSeidel, Exchange::Jacobi] {
             let fine = run(&vc, 2e-4, order);
             assert!(fine.stable && fine.reached > 0.999, "{fine:?}");
-            // Close, but the one-step delay still shows.
-            assert!(
-                fine.relative_error > 1e-3 && fine.relative_error < 0.02,
-                "{fine:?}"
-            );
+            let e = fine.relative_error;
+            match order {
+                Exchange::GaussSeidel => assert!(e < 5e-3, "{fine:?}"),
+                // Close, but the lagged cell displacement shows.
+                Exchange::Jacobi => assert!(e > 5e-3 && e < 0.03, "{fine:?}"),
+            }
             let coarse = run(&vc, 4e-4, order);
             assert!(!coarse.stable && coarse.reached < 0.9, "{coarse:?}");
             let piezo = run(&SegmentModel::piezo(), 2e-4, order);

@@ -15,6 +15,7 @@ pub mod krylov;
 pub mod layout;
 pub mod metrics;
 pub mod mirror;
+pub mod monolithic;
 pub mod pssn;
 pub mod quasistatic;
 pub mod reconstructor;
