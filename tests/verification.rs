@@ -1,0 +1,151 @@
+//! The co-simulation against the monolithic model (issue 6, item 2), on Keck: the packaged
+//! mirror FMUs stepped through the importer with 1 ms communication steps, against
+//! `m1::monolithic::StateSpaceMirror` (the exact discretisation of the same coupled plant) with
+//! the same held inputs. Needs the packaged FMUs (`cargo xtask package`).
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use std::f64::consts::TAU;
+use std::path::PathBuf;
+
+use cosim::{Fmu, Instance};
+use m1::layout::Layout;
+use m1::monolithic::StateSpaceMirror;
+use m1::segment::SegmentModel;
+use m1::structure::{CellModel, CellParams};
+
+const MODES: i32 = 30;
+const STEP: f64 = 1e-3;
+
+fn fmu_path(name: &str) -> PathBuf {
+    let dir = std::env::var("M1CS_FMU_DIR")
+        .unwrap_or_else(|_| concat!(env!("CARGO_MANIFEST_DIR"), "/target/fmu").to_string());
+    let p = PathBuf::from(dir).join("keck").join(format!("{name}.fmu"));
+    assert!(
+        p.is_file(),
+        "{} is missing: run `cargo xtask package` first",
+        p.display()
+    );
+    p
+}
+
+struct Fmi {
+    inst: Instance,
+    u: Vec<u32>,
+    pier: u32,
+    z: Vec<u32>,
+}
+
+fn mirror_fmu(fmu: &Fmu) -> Fmi {
+    let md = &fmu.description;
+    let vr = |name: &str| -> Vec<u32> {
+        md.signal(name)
+            .unwrap_or_else(|| panic!("no {name}"))
+            .iter()
+            .map(|v| v.value_reference)
+            .collect()
+    };
+    let modes = md.variable_by_name("n_modes").expect("n_modes");
+    let mut inst = fmu.instantiate("mirror", false).unwrap();
+    inst.set_integer(&[modes.value_reference], &[MODES])
+        .unwrap();
+    inst.setup_experiment(None, 0.0, None).unwrap();
+    inst.enter_initialization_mode().unwrap();
+    inst.exit_initialization_mode().unwrap();
+    Fmi {
+        inst,
+        u: vr("u_cmd"),
+        pier: vr("pier_z")[0],
+        z: vr("z"),
+    }
+}
+
+/// Relative rms difference of the mirror displacement over `steps` steps of both models fed
+/// the same held command and pier displacement.
+fn compare(
+    variant: &str,
+    model: SegmentModel,
+    steps: usize,
+    input: impl Fn(f64) -> (Vec<f64>, f64),
+) -> f64 {
+    let fmu = Fmu::open(fmu_path(variant)).unwrap();
+    let mut co = mirror_fmu(&fmu);
+    let layout = Layout::keck();
+    let cell = CellModel::new(&layout, &CellParams::default())
+        .unwrap()
+        .modes()
+        .unwrap();
+    let n = layout.n_segments();
+    let mut mono = StateSpaceMirror::new(n, model, cell, MODES as usize, 0.02).unwrap();
+    let na = 3 * n;
+    let zero = vec![0.0; na];
+    let (mut za, mut zb) = (vec![0.0; na], vec![0.0; na]);
+    let (mut e2, mut r2) = (0.0, 0.0);
+    for k in 0..steps {
+        let t = k as f64 * STEP;
+        let (u, p) = input(t);
+        co.inst.set_real(&co.u, &u).unwrap();
+        co.inst.set_real(&[co.pier], &[p]).unwrap();
+        co.inst.do_step(t, STEP).unwrap();
+        co.inst.get_real(&co.z, &mut za).unwrap();
+        mono.advance(STEP, &u, &zero, p).unwrap();
+        mono.mirror(&mut zb);
+        for (a, b) in za.iter().zip(&zb) {
+            e2 += (a - b).powi(2);
+            r2 += b * b;
+        }
+    }
+    (e2 / r2).sqrt()
+}
+
+/// A step of up to 100 nm in a commanded pattern (a tilt of the whole mirror about x: every
+/// actuator commanded in proportion to its y), and pier tones at 5 and 30 Hz,
+/// from rest over 2 s. The voice-coil mirror FMU matches the exact model to 1e-4; the piezo's,
+/// whose stack rings at 1.4 kHz within a servo period, to 2 %.
+#[test]
+fn mirror_fmus_follow_the_monolithic_model() {
+    let layout = Layout::keck();
+    let geo =
+        m1::geometry::Geometry::new(&layout, m1::geometry::GeometryParams::for_layout(&layout))
+            .expect("geometry");
+    let y: Vec<f64> = geo
+        .segments
+        .iter()
+        .flat_map(|s| s.actuators.map(|a| a[1]))
+        .collect();
+    let ymax = y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let pattern: Vec<f64> = y.iter().map(|v| 1e-7 * v / ymax).collect();
+    let na = pattern.len();
+    for (variant, model, tol) in [
+        (
+            "mirror_voicecoil",
+            SegmentModel::voice_coil(),
+            [1e-4, 1e-4, 1e-4],
+        ),
+        ("mirror_piezo", SegmentModel::piezo(), [0.02, 0.02, 0.02]),
+    ] {
+        let step = compare(variant, model.clone(), 2000, |t| {
+            (
+                if t >= 0.1 {
+                    pattern.clone()
+                } else {
+                    vec![0.0; na]
+                },
+                0.0,
+            )
+        });
+        let tone = |f: f64| {
+            compare(variant, model.clone(), 2000, move |t| {
+                (vec![0.0; na], 1e-6 * (TAU * f * t).sin())
+            })
+        };
+        let (t5, t30) = (tone(5.0), tone(30.0));
+        eprintln!("{variant}: step {step:.2e}, 5 Hz {t5:.2e}, 30 Hz {t30:.2e}");
+        for (what, e, tol) in [
+            ("step", step, tol[0]),
+            ("5 Hz", t5, tol[1]),
+            ("30 Hz", t30, tol[2]),
+        ] {
+            assert!(e < tol, "{variant} {what}: relative rms difference {e}");
+        }
+    }
+}
