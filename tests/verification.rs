@@ -99,8 +99,9 @@ fn compare(
 
 /// A step of up to 100 nm in a commanded pattern (a tilt of the whole mirror about x: every
 /// actuator commanded in proportion to its y), and pier tones at 5 and 30 Hz,
-/// from rest over 2 s. The voice-coil mirror FMU matches the exact model to 1e-4; the piezo's,
-/// whose stack rings at 1.4 kHz within a servo period, to 2 %.
+/// from rest over 2 s. The voice-coil mirror FMU matches the exact model within 2e-5; the
+/// piezo's (two coupled sub-steps per servo period by default: its stack rings at 1.4 kHz)
+/// within 0.4 %.
 #[test]
 fn mirror_fmus_follow_the_monolithic_model() {
     let layout = Layout::keck();
@@ -121,7 +122,7 @@ fn mirror_fmus_follow_the_monolithic_model() {
             SegmentModel::voice_coil(),
             [1e-4, 1e-4, 1e-4],
         ),
-        ("mirror_piezo", SegmentModel::piezo(), [0.02, 0.02, 0.02]),
+        ("mirror_piezo", SegmentModel::piezo(), [1e-3, 5e-3, 5e-3]),
     ] {
         let step = compare(variant, model.clone(), 2000, |t| {
             (

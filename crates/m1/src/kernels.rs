@@ -452,8 +452,7 @@ pub fn rows_dot3_f32<S: Simd>(
         let (q, qt) = S::as_simd_f32s(row(if two { i + 1 } else { i }));
         let (p, q) = (&p[..n], &q[..n]);
         let zero = simd.splat_f32s(0.0);
-        let (mut p0, mut p1, mut p2, mut q0, mut q1, mut q2) =
-            (zero, zero, zero, zero, zero, zero);
+        let (mut p0, mut p1, mut p2, mut q0, mut q1, mut q2) = (zero, zero, zero, zero, zero, zero);
         for c in 0..n {
             let (pv, qv) = (p[c], q[c]);
             let (v0, v1, v2) = (x0[c], x1[c], x2[c]);

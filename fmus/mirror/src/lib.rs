@@ -36,6 +36,10 @@ use structure_model::{CellVars, declare_cell_params};
 pub trait MirrorVariant: Variant {
     /// Static facts of the FMU.
     const MIRROR_INFO: ModelInfo;
+    /// Default coupled sub-steps per servo period: the stiff piezo stack needs two to stay
+    /// within 1 % of the exact coupling at a 30 Hz pier tone (Keck: 1.5 % with one, 0.36 % with
+    /// two); the voice coil is within 2e-5 with one.
+    const COUPLING_SUBSTEPS: i32;
 }
 
 const DOC: &str = "<h2>Model</h2><p>Every segment on its three actuators (as in the segments \
@@ -44,7 +48,11 @@ mounted on the telescope structure (as in the structure FMU: modal model of the 
 cell or of an imported FE model, pier base excitation). The two are solved <b>together at every servo sample</b>: per servo period the \
 segment channels and the retained modes are advanced exactly (matrix exponentials) with the cell \
 displacement and the modal forces varying linearly over the period, and the end values are made \
-consistent by one r&times;r linear solve (r retained modes; the matrix is inverted once).</p>\
+consistent by one r&times;r linear solve (r retained modes; the matrix is inverted once). The \
+servo's drive and the pier input are held over the period; <code>coupling_substeps</code> \
+solves the coupling that many times per period (default 1 for the voice coil, 2 for the stiff \
+piezo; measured on Keck against the exact discretisation at a 30 Hz pier tone: voice coil \
+2e-5, piezo 0.4 %).</p>\
 <p><b>Retained modes only.</b> Unlike the structure FMU, no static correction is added for the \
 truncated modes: that instantaneous, dense compliance cannot lag a servo period against the \
 stiff actuators (it diverges) and solving it implicitly would cost O(na<sup>2</sup>) per period. \
@@ -69,6 +77,7 @@ impl MirrorVariant for VoiceCoilVariant {
         default_stop_time: 1.0,
         default_step: 1e-3,
     };
+    const COUPLING_SUBSTEPS: i32 = 1;
 }
 
 impl MirrorVariant for PiezoVariant {
@@ -82,6 +91,7 @@ impl MirrorVariant for PiezoVariant {
         default_stop_time: 1.0,
         default_step: 1e-3,
     };
+    const COUPLING_SUBSTEPS: i32 = 2;
 }
 
 /// Handles of every variable.
@@ -95,6 +105,7 @@ struct Vars {
     z: RealVar,
     z_cell: RealVar,
     f_cell: RealVar,
+    substeps: IntVar,
     segments: ParamVars,
     cell: CellVars,
 }
@@ -184,6 +195,17 @@ fn table<V: MirrorVariant>(layout: &Layout) -> Result<(VariableTable, Vars), Fmu
             .depends(Dependencies::None)
             .describe("Force of each actuator on the mirror cell"),
     );
+    let substeps = b.add_integer(
+        T::integer("coupling_substeps")
+            .parameter()
+            .start_int(V::COUPLING_SUBSTEPS)
+            .positive()
+            .describe(
+                "Coupled solves per servo period: 1 solves segments and structure together at \
+                 every servo sample; more also between samples (second order: each doubling \
+                 divides the coupling error by 4, for about twice the cost of a period)",
+            ),
+    );
     let segments = segments::declare_params::<V>(&mut b);
     let cell = declare_cell_params(&mut b, DEFAULT_MODES);
     let table = b.build()?;
@@ -198,6 +220,7 @@ fn table<V: MirrorVariant>(layout: &Layout) -> Result<(VariableTable, Vars), Fmu
             z,
             z_cell,
             f_cell,
+            substeps,
             segments,
             cell,
         },
@@ -260,8 +283,16 @@ impl<V: MirrorVariant> Model for Mirror<V> {
             self.resource_dir.as_deref(),
         )?;
         let (n_modes, damping) = self.vars.cell.modes_and_damping(v);
-        let mirror = CoupledMirror::new(self.n_segments, model.clone(), cell, n_modes, damping, 1)
-            .map_err(wiring::model_error)?;
+        let substeps = u32::try_from(v.integer(self.vars.substeps)).unwrap_or(0);
+        let mirror = CoupledMirror::new(
+            self.n_segments,
+            model.clone(),
+            cell,
+            n_modes,
+            damping,
+            substeps,
+        )
+        .map_err(wiring::model_error)?;
         self.vars.segments.write_calculated(v, &model);
         self.vars.cell.write_calculated(v, mirror.structure());
         self.mirror = Some(mirror);
