@@ -1161,6 +1161,88 @@ impl StateSpaceMirror {
     }
 }
 
+/// A wind run of the monolithic mirror with (or without) the global loop, scheduled as the
+/// co-simulation master runs the standard system in Gauss-Seidel order with a base step `step`:
+/// the wind is evaluated every `wind_period` at the end of its step and held, the mirror
+/// advances, the edge sensors (ideal, $y = A z$) read it at the end of each step, and the
+/// controller samples them every controller period right after the mirror's first step of it,
+/// its new command held from the next step. Returns the mirror's metrics at the end of every
+/// step.
+///
+/// # Errors
+/// [`M1Error::InvalidParameter`] for steps that are not whole multiples, and the errors of
+/// the parts.
+#[allow(clippy::too_many_arguments)]
+pub fn wind_run(
+    mirror: &mut StateSpaceMirror,
+    metrics: &crate::metrics::MirrorMetrics,
+    wind: &crate::wind::WindLoads,
+    wind_period: f64,
+    control: Option<(&crate::controller::ControlModes, &crate::controller::ControllerParams)>,
+    step: f64,
+    duration: f64,
+) -> Result<Vec<(f64, crate::metrics::SurfaceMetrics)>, M1Error> {
+    let every = |period: f64, name: &'static str| -> Result<usize, M1Error> {
+        let k = (period / step).round();
+        if period.is_finite() && k >= 1.0 && (period - k * step).abs() <= 1e-9 * period {
+            Ok(k as usize)
+        } else {
+            Err(M1Error::InvalidParameter {
+                name,
+                value: period,
+                reason: "must be a whole multiple of the step",
+            })
+        }
+    };
+    let wind_every = every(wind_period, "wind_period")?;
+    let na = 3 * mirror.n_segments;
+    let steps = (duration / step).round() as usize;
+    let mut u = vec![0.0; na];
+    let mut fw = vec![0.0; na];
+    let mut z = vec![0.0; na];
+    let mut out = Vec::with_capacity(steps);
+    let ctrl = match control {
+        Some((modes, params)) => {
+            let gains = params.gains()?;
+            let (_, ns) = modes.shape();
+            Some((
+                modes,
+                gains,
+                every(1.0 / params.rate, "controller period")?,
+                modes.scratch(),
+                vec![0.0; ns],
+                vec![0.0; ns],
+            ))
+        }
+        None => None,
+    };
+    let mut ctrl = ctrl;
+    for k in 0..steps {
+        let t = k as f64 * step;
+        if k % wind_every == 0 {
+            wind.forces(t + wind_every as f64 * step, &mut fw)?;
+        }
+        mirror.advance(step, &u, &fw, 0.0)?;
+        mirror.mirror(&mut z);
+        if let Some((modes, gains, ctrl_every, scratch, y, y_ref)) = ctrl.as_mut()
+            && k % *ctrl_every == 0
+        {
+            let a = &modes.nominal().a;
+            let sym = a.symbolic();
+            let (cp, ri, v) = (sym.col_ptr(), sym.row_idx(), a.val());
+            y.fill(0.0);
+            for (j, &zj) in z.iter().enumerate() {
+                for q in cp[j]..cp[j + 1] {
+                    y[ri[q]] += v[q] * zj;
+                }
+            }
+            modes.sample(gains, &mut u, y, y_ref, scratch)?;
+        }
+        out.push((t + step, metrics.evaluate(&z)?));
+    }
+    Ok(out)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
