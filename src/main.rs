@@ -58,6 +58,9 @@ enum Cmd {
     /// Segments and structure as two co-simulation components against the coupled solver: the
     /// largest communication step each actuator variant tolerates, and why one mirror FMU.
     Coupling(commands::dynamics::CouplingArgs),
+    /// M1 rms surface under wind versus wind speed and global-loop bandwidth, open and closed
+    /// loop, with the focus-mode share and M1 maps (the master on the standard wind system).
+    Wind(commands::wind::WindArgs),
     /// Writes a standard closed-loop system (layout x actuator x scenario) as an SSP archive.
     System(commands::cosim::SystemCmd),
     /// Reports a layout: segments, actuators, edges, sensors and the neighbour histogram.
@@ -407,6 +410,7 @@ fn main() -> ExitCode {
         Cmd::Run(a) => commands::cosim::run_cmd(&a),
         Cmd::System(a) => commands::cosim::system(&a),
         Cmd::Coupling(a) => commands::dynamics::coupling(&a),
+        Cmd::Wind(a) => commands::wind::wind(&a),
         Cmd::Robustness(a) => commands::quasistatic::robustness(&a),
         Cmd::Noise(a) => commands::quasistatic::noise(&a),
         Cmd::Clocking(a) => commands::quasistatic::clocking(&a),

@@ -344,3 +344,45 @@ fn coupling_needs_the_servo_period() {
     assert!(!ok && err.contains("communicationStepSize"), "{err}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `m1cs wind` on Keck: the open-loop response grows as the dynamic pressure (U^2), the loop
+/// reduces it, and the table's shares are fractions; bad speeds are named.
+#[test]
+fn wind_sweep_on_keck() {
+    let dir = fmu_dir();
+    let v = json(&[
+        "wind",
+        "--layout",
+        "keck",
+        "--fmu-dir",
+        &dir,
+        "--structure-modes",
+        "30",
+        "--speeds",
+        "2,4",
+        "--bandwidths",
+        "0.5",
+        "--duration",
+        "2",
+        "--json",
+    ]);
+    let runs = v["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 2);
+    let open: Vec<f64> = runs
+        .iter()
+        .map(|r| r["open_loop_rms_surface_nm"].as_f64().unwrap())
+        .collect();
+    let ratio = open[1] / open[0];
+    assert!((2.5..6.5).contains(&ratio), "open loop 4 m/s / 2 m/s = {ratio}");
+    for r in runs {
+        let closed = r["closed_loop_rms_surface_nm"].as_f64().unwrap();
+        let open = r["open_loop_rms_surface_nm"].as_f64().unwrap();
+        assert!(closed > 0.0 && closed < open, "{r}");
+        let share = r["focus_share_of_residual_variance"].as_f64().unwrap();
+        assert!((0.0..=1.0).contains(&share), "{r}");
+        assert_eq!(r["growing"], false, "{r}");
+    }
+    let (ok, _, err) = m1cs(&["wind", "--layout", "keck", "--speeds=-1", "--fmu-dir", &dir]);
+    assert!(!ok && err.contains("--speeds"), "{err}");
+}
+

@@ -275,13 +275,13 @@ const METRICS: [&str; 4] = [
     "optics.pssn",
 ];
 
-struct Outcome {
-    label: String,
-    results: cosim::system::Results,
-    seconds: f64,
+pub(crate) struct Outcome {
+    pub(crate) label: String,
+    pub(crate) results: cosim::system::Results,
+    pub(crate) seconds: f64,
 }
 
-fn run_one(
+pub(crate) fn run_one(
     label: &str,
     system: &System,
     decimation: usize,
@@ -332,7 +332,7 @@ fn run_one(
 }
 
 /// Mean square over the second half of a recorded column (settled part), as an rms.
-fn settled_rms(v: &[f64]) -> f64 {
+pub(crate) fn settled_rms(v: &[f64]) -> f64 {
     let half = &v[v.len() / 2..];
     (half.iter().map(|x| x * x).sum::<f64>() / half.len().max(1) as f64).sqrt()
 }
@@ -595,7 +595,7 @@ fn execute(a: &RunCmd, runs: Vec<(String, System)>, metrics: &[&str]) -> Result<
 
 /// Removes the recorded mirror displacement columns (`<component>.z[k]`) from `r` and returns
 /// them as time series (one per actuator, settled second half of the run).
-fn split_off_z(r: &mut cosim::system::Results) -> Vec<Vec<f64>> {
+pub(crate) fn split_off_z(r: &mut cosim::system::Results) -> Vec<Vec<f64>> {
     let is_z = |c: &str| c.starts_with("mirror.z[") || c.starts_with("segments.z[");
     let keep: Vec<usize> = (0..r.columns.len())
         .filter(|&k| !is_z(&r.columns[k]))
@@ -623,7 +623,7 @@ fn mirror_spectrum(z: &[Vec<f64>], dt: f64) -> Vec<(f64, f64)> {
 
 /// rms over time of the residual surface of each segment (global piston, tip and tilt removed),
 /// in nm, from actuator time series.
-fn segment_rms_map(layout: &m1::layout::Layout, z: &[Vec<f64>]) -> Result<Vec<f64>, String> {
+pub(crate) fn segment_rms_map(layout: &m1::layout::Layout, z: &[Vec<f64>]) -> Result<Vec<f64>, String> {
     use m1::geometry::{Geometry, GeometryParams};
     use m1::metrics::{MirrorMetrics, hexagon_area, hexagon_second_moment};
     let g = Geometry::new(layout, GeometryParams::for_layout(layout)).map_err(|e| e.to_string())?;

@@ -4,3 +4,4 @@ pub mod cosim;
 pub mod dynamics;
 pub mod optics;
 pub mod quasistatic;
+pub mod wind;
