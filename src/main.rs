@@ -61,6 +61,9 @@ enum Cmd {
     /// M1 rms surface under wind versus wind speed and global-loop bandwidth, open and closed
     /// loop, with the focus-mode share and M1 maps (the master on the standard wind system).
     Wind(commands::wind::WindArgs),
+    /// M1 rms surface and PSSN versus pier frequency for the three actuator variants, from the
+    /// monolithic frequency model; the hard/soft and undamped/damped ratios at 29.6 Hz.
+    Vibration(commands::dynamics::VibrationArgs),
     /// Writes a standard closed-loop system (layout x actuator x scenario) as an SSP archive.
     System(commands::cosim::SystemCmd),
     /// Reports a layout: segments, actuators, edges, sensors and the neighbour histogram.
@@ -411,6 +414,7 @@ fn main() -> ExitCode {
         Cmd::System(a) => commands::cosim::system(&a),
         Cmd::Coupling(a) => commands::dynamics::coupling(&a),
         Cmd::Wind(a) => commands::wind::wind(&a),
+        Cmd::Vibration(a) => commands::dynamics::vibration(&a),
         Cmd::Robustness(a) => commands::quasistatic::robustness(&a),
         Cmd::Noise(a) => commands::quasistatic::noise(&a),
         Cmd::Clocking(a) => commands::quasistatic::clocking(&a),

@@ -386,3 +386,29 @@ fn wind_sweep_on_keck() {
     assert!(!ok && err.contains("--speeds"), "{err}");
 }
 
+/// `m1cs vibration` on Keck: three variants with finite, positive curves, the soft actuator's
+/// main resonance among the cell modes, the hard actuator responding more at 29.6 Hz, the PSSN
+/// a fraction below 1; bad ranges are named.
+#[test]
+fn vibration_curves_on_keck() {
+    let v = json(&[
+        "vibration", "--layout", "keck", "--modes", "30", "--step", "1", "--json",
+    ]);
+    let variants = v["variants"].as_array().unwrap();
+    assert_eq!(variants.len(), 3);
+    for c in variants {
+        let curve = c["rms_surface_nm_per_nm"].as_array().unwrap();
+        assert!(curve.len() >= 60, "{}", curve.len());
+        assert!(curve.iter().all(|x| x.as_f64().unwrap() > 0.0), "{c}");
+        let p = c["pssn_at_29_6_hz"].as_f64().unwrap();
+        assert!(p > 0.9 && p < 1.0, "{c}");
+    }
+    let soft = &variants[0];
+    assert_eq!(soft["actuator"], "voicecoil");
+    let fpeak = soft["peak_frequency_hz"].as_f64().unwrap();
+    assert!((2.0..20.0).contains(&fpeak), "{fpeak}");
+    assert!(v["ratio_hard_over_soft_at_29_6_hz"].as_f64().unwrap() > 1.0, "{v}");
+    let (ok, _, err) = m1cs(&["vibration", "--layout", "keck", "--fmin", "5", "--fmax", "2"]);
+    assert!(!ok && err.contains("--fmin"), "{err}");
+}
+
