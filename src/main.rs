@@ -64,6 +64,9 @@ enum Cmd {
     /// M1 rms surface and PSSN versus pier frequency for the three actuator variants, from the
     /// monolithic frequency model; the hard/soft and undamped/damped ratios at 29.6 Hz.
     Vibration(commands::dynamics::VibrationArgs),
+    /// Runs every analysis with its defaults into DIR: one Markdown page (index.md) with the
+    /// figures and the key numbers of each.
+    Report(commands::report::ReportArgs),
     /// Writes a standard closed-loop system (layout x actuator x scenario) as an SSP archive.
     System(commands::cosim::SystemCmd),
     /// Reports a layout: segments, actuators, edges, sensors and the neighbour histogram.
@@ -415,6 +418,7 @@ fn main() -> ExitCode {
         Cmd::Coupling(a) => commands::dynamics::coupling(&a),
         Cmd::Wind(a) => commands::wind::wind(&a),
         Cmd::Vibration(a) => commands::dynamics::vibration(&a),
+        Cmd::Report(a) => commands::report::report(&a),
         Cmd::Robustness(a) => commands::quasistatic::robustness(&a),
         Cmd::Noise(a) => commands::quasistatic::noise(&a),
         Cmd::Clocking(a) => commands::quasistatic::clocking(&a),

@@ -412,3 +412,39 @@ fn vibration_curves_on_keck() {
     assert!(!ok && err.contains("--fmin"), "{err}");
 }
 
+/// `m1cs report` on Keck (without the co-simulation runs): one page with a section, numbers
+/// and figures per analysis, every linked figure written; a bad layout is named.
+#[test]
+fn report_on_keck() {
+    let dir = std::env::temp_dir().join(format!("m1cs-report-{}", std::process::id()));
+    let (ok, out, err) = m1cs(&[
+        "report",
+        dir.to_str().unwrap(),
+        "--layout",
+        "keck",
+        "--no-cosim",
+    ]);
+    assert!(ok, "{out}\n{err}");
+    let md = std::fs::read_to_string(dir.join("index.md")).unwrap();
+    for title in [
+        "## Interaction matrix",
+        "## Robustness to interaction-matrix errors",
+        "## Vibration",
+        "## Coupling delay",
+    ] {
+        assert!(md.contains(title), "{title} missing");
+    }
+    assert!(!md.contains("**Failed"), "{md}");
+    let mut figures = 0;
+    for line in md.lines().filter(|l| l.starts_with("![")) {
+        let rel = line.split("](").nth(1).unwrap().trim_end_matches(')');
+        assert!(dir.join(rel).is_file(), "{rel} missing");
+        figures += 1;
+    }
+    assert!(figures >= 10, "{figures} figures");
+    assert!(md.contains("| `condition_number` |"), "no numbers");
+    let (ok, _, err) = m1cs(&["report", dir.to_str().unwrap(), "--layout", "nosuch"]);
+    assert!(!ok && err.contains("nosuch"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+

@@ -4,4 +4,5 @@ pub mod cosim;
 pub mod dynamics;
 pub mod optics;
 pub mod quasistatic;
+pub mod report;
 pub mod wind;
