@@ -65,6 +65,74 @@ pub fn hold(f: f64, period: f64) -> c64 {
     (c64::new(1.0, 0.0) - cis(-x)) / c64::new(0.0, x)
 }
 
+/// Actuator order to channel order (piston channels, then tilt channels 2 s + m) with the
+/// segment basis `v` (real or complex values).
+fn to_channel_order<T>(v: &SMatrix<f64, 3, 3>, a: &[T]) -> Vec<T>
+where
+    T: Copy + Default + std::ops::Add<Output = T> + std::ops::Mul<f64, Output = T>,
+{
+    let n = a.len() / 3;
+    let mut c = vec![T::default(); 3 * n];
+    for s in 0..n {
+        let x = &a[3 * s..3 * s + 3];
+        let proj = |j: usize| x[0] * v[(0, j)] + x[1] * v[(1, j)] + x[2] * v[(2, j)];
+        c[s] = proj(0);
+        c[n + 2 * s] = proj(1);
+        c[n + 2 * s + 1] = proj(2);
+    }
+    c
+}
+
+/// Channel order back to actuator order.
+fn to_actuator_order<T>(v: &SMatrix<f64, 3, 3>, c: &[T]) -> Vec<T>
+where
+    T: Copy + Default + std::ops::Add<Output = T> + std::ops::Mul<f64, Output = T>,
+{
+    let n = c.len() / 3;
+    let mut a = vec![T::default(); 3 * n];
+    for s in 0..n {
+        let ch = [c[s], c[n + 2 * s], c[n + 2 * s + 1]];
+        for k in 0..3 {
+            a[3 * s + k] = ch[0] * v[(k, 0)] + ch[1] * v[(k, 1)] + ch[2] * v[(k, 2)];
+        }
+    }
+    a
+}
+
+/// The retained modes of `cell` for `n_segments` segments, or an error if its attachments
+/// do not match.
+fn retained_modes(
+    n_segments: usize,
+    cell: ModalModel,
+    n_modes: usize,
+    damping_ratio: f64,
+) -> Result<ModalSolver, M1Error> {
+    let na = 3 * n_segments;
+    if cell.na != na {
+        return Err(M1Error::SizeMismatch {
+            what: "structure attachments (3 per segment)",
+            expected: na,
+            found: cell.na,
+        });
+    }
+    ModalSolver::new(cell, n_modes, damping_ratio)
+}
+
+/// The number of whole periods in `h`, or an error naming `name` if `h` is not a positive
+/// multiple of `period` (to 1e-9 of it).
+fn whole_periods(h: f64, period: f64, name: &'static str) -> Result<u64, M1Error> {
+    let k = (h / period).round();
+    if h.is_finite() && k >= 1.0 && (h - k * period).abs() <= 1e-9 * period {
+        Ok(k as u64)
+    } else {
+        Err(M1Error::InvalidParameter {
+            name,
+            value: h,
+            reason: "must be a positive multiple of the period it is stepped at",
+        })
+    }
+}
+
 /// The discrete servo at frequency `f` (Hz): `(K_r, K_s)` with $u_k = K_r r_k - K_s s_k$ for
 /// the command $r$ and the stroke $s$ (drive units per metre).
 pub fn servo_transfer(model: &SegmentModel, f: f64) -> (c64, c64) {
@@ -240,15 +308,7 @@ impl FrequencyModel {
         n_modes: usize,
         damping_ratio: f64,
     ) -> Result<Self, M1Error> {
-        let na = 3 * n_segments;
-        if cell.na != na {
-            return Err(M1Error::SizeMismatch {
-                what: "structure attachments (3 per segment)",
-                expected: na,
-                found: cell.na,
-            });
-        }
-        let solver = ModalSolver::new(cell, n_modes, damping_ratio)?;
+        let solver = retained_modes(n_segments, cell, n_modes, damping_ratio)?;
         Self::from_solver(n_segments, model, &solver)
     }
 
@@ -370,31 +430,12 @@ impl FrequencyModel {
 
     /// Actuator order to channel order (piston channels, then tilt channels 2 s + m).
     pub fn to_channels(&self, a: &[c64]) -> Vec<c64> {
-        let n = self.n_segments;
-        let v = &self.basis;
-        let mut c = vec![c64::new(0.0, 0.0); 3 * n];
-        for s in 0..n {
-            let x = &a[3 * s..3 * s + 3];
-            let proj = |j: usize| x[0] * v[(0, j)] + x[1] * v[(1, j)] + x[2] * v[(2, j)];
-            c[s] = proj(0);
-            c[n + 2 * s] = proj(1);
-            c[n + 2 * s + 1] = proj(2);
-        }
-        c
+        to_channel_order(&self.basis, a)
     }
 
     /// Channel order back to actuator order.
     pub fn to_actuators(&self, c: &[c64]) -> Vec<c64> {
-        let n = self.n_segments;
-        let v = &self.basis;
-        let mut a = vec![c64::new(0.0, 0.0); 3 * n];
-        for s in 0..n {
-            let ch = [c[s], c[n + 2 * s], c[n + 2 * s + 1]];
-            for k in 0..3 {
-                a[3 * s + k] = ch[0] * v[(k, 0)] + ch[1] * v[(k, 1)] + ch[2] * v[(k, 2)];
-            }
-        }
-        a
+        to_actuator_order(&self.basis, c)
     }
 
     /// The response at `f` (Hz) to the given inputs.
@@ -912,14 +953,7 @@ impl StateSpaceMirror {
         use nalgebra::{DMatrix, DVector};
         model.validate()?;
         let na = 3 * n_segments;
-        if cell.na != na {
-            return Err(M1Error::SizeMismatch {
-                what: "structure attachments (3 per segment)",
-                expected: na,
-                found: cell.na,
-            });
-        }
-        let structure = ModalSolver::new(cell, n_modes, damping_ratio)?;
+        let structure = retained_modes(n_segments, cell, n_modes, damping_ratio)?;
         let fm = FrequencyModel::from_solver(n_segments, model.clone(), &structure)?;
         let r = fm.n_modes();
         let n = n_segments;
@@ -1123,15 +1157,7 @@ impl StateSpaceMirror {
                 });
             }
         }
-        let k = (h / self.ts).round();
-        if !(h.is_finite() && k >= 1.0 && (h - k * self.ts).abs() <= 1e-9 * self.ts) {
-            return Err(M1Error::InvalidParameter {
-                name: "step",
-                value: h,
-                reason: "must be a positive multiple of the servo period",
-            });
-        }
-        let k = k as u64;
+        let k = whole_periods(h, self.ts, "step")?;
         let step = match self.step.take() {
             Some(s) if s.0 == k => s,
             _ => {
@@ -1171,28 +1197,11 @@ impl StateSpaceMirror {
     }
 
     fn channels(&self, a: &[f64]) -> Vec<f64> {
-        let n = self.n_segments;
-        let v = &self.basis;
-        let mut c = vec![0.0; 3 * n];
-        for s in 0..n {
-            let x = &a[3 * s..3 * s + 3];
-            let proj = |j: usize| x[0] * v[(0, j)] + x[1] * v[(1, j)] + x[2] * v[(2, j)];
-            c[s] = proj(0);
-            c[n + 2 * s] = proj(1);
-            c[n + 2 * s + 1] = proj(2);
-        }
-        c
+        to_channel_order(&self.basis, a)
     }
 
     fn actuators(&self, c: &[f64], z: &mut [f64]) {
-        let n = self.n_segments;
-        let v = &self.basis;
-        for s in 0..n {
-            let ch = [c[s], c[n + 2 * s], c[n + 2 * s + 1]];
-            for k in 0..3 {
-                z[3 * s + k] = ch[0] * v[(k, 0)] + ch[1] * v[(k, 1)] + ch[2] * v[(k, 2)];
-            }
-        }
+        z.copy_from_slice(&to_actuator_order(&self.basis, c));
     }
 
     /// Steady-state response of the mirror displacement, sampled at the end of each step of
@@ -1200,18 +1209,11 @@ impl StateSpaceMirror {
     /// each: `z_k = Re(X e^{i 2 pi f t_k})` for `p_k = Re(e^{i 2 pi f t_k})`, actuator order.
     pub fn pier_response_sampled(&self, f: f64, h: f64) -> Result<Vec<c64>, M1Error> {
         use nalgebra::{Complex, DMatrix, DVector};
-        let k = (h / self.ts).round();
-        if !(h.is_finite() && k >= 1.0 && (h - k * self.ts).abs() <= 1e-9 * self.ts) {
-            return Err(M1Error::InvalidParameter {
-                name: "step",
-                value: h,
-                reason: "must be a positive multiple of the servo period",
-            });
-        }
+        let k = whole_periods(h, self.ts, "step")?;
         let mut p = DMatrix::<f64>::identity(self.tick.nrows(), self.tick.ncols());
         let mut g = DVector::<f64>::zeros(self.tick.nrows());
         let pier = self.tick_in.column(self.tick_in.ncols() - 1);
-        for _ in 0..k as u64 {
+        for _ in 0..k {
             g = &self.tick * g + pier;
             p = &self.tick * p;
         }
@@ -1244,15 +1246,7 @@ impl StateSpaceMirror {
             }
             off += self.ranks[kind];
         }
-        let v = &self.basis;
-        let mut out = vec![c64::new(0.0, 0.0); 3 * n];
-        for s in 0..n {
-            let ch = [c[s], c[n + 2 * s], c[n + 2 * s + 1]];
-            for k in 0..3 {
-                out[3 * s + k] = ch[0] * v[(k, 0)] + ch[1] * v[(k, 1)] + ch[2] * v[(k, 2)];
-            }
-        }
-        Ok(out)
+        Ok(to_actuator_order(&self.basis, &c))
     }
 
     /// Mirror displacement `z` at each actuator (length 3N).
@@ -1314,16 +1308,7 @@ pub fn wind_run(
     duration: f64,
 ) -> Result<Vec<(f64, crate::metrics::SurfaceMetrics)>, M1Error> {
     let every = |period: f64, name: &'static str| -> Result<usize, M1Error> {
-        let k = (period / step).round();
-        if period.is_finite() && k >= 1.0 && (period - k * step).abs() <= 1e-9 * period {
-            Ok(k as usize)
-        } else {
-            Err(M1Error::InvalidParameter {
-                name,
-                value: period,
-                reason: "must be a whole multiple of the step",
-            })
-        }
+        whole_periods(period, step, name).map(|k| k as usize)
     };
     let wind_every = every(wind_period, "wind_period")?;
     let na = 3 * mirror.n_segments;
