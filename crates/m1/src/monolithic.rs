@@ -913,7 +913,7 @@ pub fn highest_bandwidth(
 /// (`Phi_k = Q_k R_k`, `Q_k` orthonormal, rank `r_k <= r`), and identical channels keep any
 /// subspace to itself, so only `Q_k^T X` couples to the modes: `10 (r_p + r_t) + 2 r` states
 /// (660 for Keck with 30 modes). The rest of each channel's state, `(I - Q_k Q_k^T) X`,
-/// evolves as on a rigid base and is taken from a [`SegmentArray`] driven by the same command
+/// evolves as on a rigid base and is taken from a [`SegmentArray`](crate::segment::SegmentArray) driven by the same command
 /// and wind on a cell at rest. Built once by one matrix exponential of the coupled plant: meant
 /// for Keck, or TMT with tens of modes.
 #[derive(Debug, Clone)]
