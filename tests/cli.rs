@@ -379,7 +379,10 @@ fn wind_sweep_on_keck() {
         .map(|r| r["open_loop_rms_surface_nm"].as_f64().unwrap())
         .collect();
     let ratio = open[1] / open[0];
-    assert!((2.5..6.5).contains(&ratio), "open loop 4 m/s / 2 m/s = {ratio}");
+    assert!(
+        (2.5..6.5).contains(&ratio),
+        "open loop 4 m/s / 2 m/s = {ratio}"
+    );
     for r in runs {
         let closed = r["closed_loop_rms_surface_nm"].as_f64().unwrap();
         let open = r["open_loop_rms_surface_nm"].as_f64().unwrap();
@@ -398,7 +401,14 @@ fn wind_sweep_on_keck() {
 #[test]
 fn vibration_curves_on_keck() {
     let v = json(&[
-        "vibration", "--layout", "keck", "--modes", "30", "--step", "1", "--json",
+        "vibration",
+        "--layout",
+        "keck",
+        "--modes",
+        "30",
+        "--step",
+        "1",
+        "--json",
     ]);
     let variants = v["variants"].as_array().unwrap();
     assert_eq!(variants.len(), 3);
@@ -413,8 +423,19 @@ fn vibration_curves_on_keck() {
     assert_eq!(soft["actuator"], "voicecoil");
     let fpeak = soft["peak_frequency_hz"].as_f64().unwrap();
     assert!((2.0..20.0).contains(&fpeak), "{fpeak}");
-    assert!(v["ratio_hard_over_soft_at_29_6_hz"].as_f64().unwrap() > 1.0, "{v}");
-    let (ok, _, err) = m1cs(&["vibration", "--layout", "keck", "--fmin", "5", "--fmax", "2"]);
+    assert!(
+        v["ratio_hard_over_soft_at_29_6_hz"].as_f64().unwrap() > 1.0,
+        "{v}"
+    );
+    let (ok, _, err) = m1cs(&[
+        "vibration",
+        "--layout",
+        "keck",
+        "--fmin",
+        "5",
+        "--fmax",
+        "2",
+    ]);
     assert!(!ok && err.contains("--fmin"), "{err}");
 }
 
@@ -453,4 +474,3 @@ fn report_on_keck() {
     assert!(!ok && err.contains("nosuch"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
-

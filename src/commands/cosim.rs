@@ -623,7 +623,10 @@ fn mirror_spectrum(z: &[Vec<f64>], dt: f64) -> Vec<(f64, f64)> {
 
 /// rms over time of the residual surface of each segment (global piston, tip and tilt removed),
 /// in nm, from actuator time series.
-pub(crate) fn segment_rms_map(layout: &m1::layout::Layout, z: &[Vec<f64>]) -> Result<Vec<f64>, String> {
+pub(crate) fn segment_rms_map(
+    layout: &m1::layout::Layout,
+    z: &[Vec<f64>],
+) -> Result<Vec<f64>, String> {
     use m1::geometry::{Geometry, GeometryParams};
     use m1::metrics::{MirrorMetrics, hexagon_area, hexagon_second_moment};
     let g = Geometry::new(layout, GeometryParams::for_layout(layout)).map_err(|e| e.to_string())?;

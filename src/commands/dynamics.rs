@@ -296,7 +296,10 @@ pub fn vibration(a: &VibrationArgs) -> Result<(), String> {
         ));
     }
     if !(a.step.is_finite() && a.step > 0.0) || (a.fmax - a.fmin) / a.step > 1e5 {
-        return Err(format!("--step {}: must be > 0 and give at most 1e5 points", a.step));
+        return Err(format!(
+            "--step {}: must be > 0 and give at most 1e5 points",
+            a.step
+        ));
     }
     if !(a.pier_rms.is_finite() && a.pier_rms > 0.0) {
         return Err(format!("--pier-rms {}: must be > 0 (m)", a.pier_rms));
@@ -327,9 +330,7 @@ pub fn vibration(a: &VibrationArgs) -> Result<(), String> {
         ("piezo-damped", SegmentModel::piezo_damped_default()),
     ];
     let n = layout.n_segments();
-    let motor = freqs
-        .iter()
-        .position(|f| (f - MOTOR_TONE_HZ).abs() < 1e-9);
+    let motor = freqs.iter().position(|f| (f - MOTOR_TONE_HZ).abs() < 1e-9);
     let mut curves = Vec::new();
     let mut maps = Vec::new();
     for (name, model) in &variants {
@@ -339,7 +340,9 @@ pub fn vibration(a: &VibrationArgs) -> Result<(), String> {
         let mut pssn_pts = Vec::new();
         let mut responses = Vec::with_capacity(freqs.len());
         for (k, &f) in freqs.iter().enumerate() {
-            let r = fm.pier_response(f).map_err(|e| format!("{name} at {f} Hz: {e}"))?;
+            let r = fm
+                .pier_response(f)
+                .map_err(|e| format!("{name} at {f} Hz: {e}"))?;
             rms.push(rms_ratio(&metrics, &r.mirror)?);
             if k % a.pssn_every.max(1) == 0 || Some(k) == motor {
                 pssn_pts.push((f, tone_pssn(&pssn, &geometry, &r.mirror, a.pier_rms)?));
@@ -383,7 +386,8 @@ pub fn vibration(a: &VibrationArgs) -> Result<(), String> {
             .find(|(f, _)| (f - MOTOR_TONE_HZ).abs() < 1e-9)
             .map_or(f64::NAN, |p| p.1)
     };
-    let ratio = |i: usize, j: usize| motor.map_or(f64::NAN, |k| at(&curves[i], k) / at(&curves[j], k));
+    let ratio =
+        |i: usize, j: usize| motor.map_or(f64::NAN, |k| at(&curves[i], k) / at(&curves[j], k));
     let ratio_band = |i: usize, j: usize| near(&curves[i]) / near(&curves[j]);
     if a.json {
         let out = json!({
@@ -446,8 +450,11 @@ pub fn vibration(a: &VibrationArgs) -> Result<(), String> {
             .iter()
             .map(|c| freqs.iter().copied().zip(c.1.iter().copied()).collect())
             .collect();
-        let series: Vec<(&str, &[(f64, f64)])> =
-            curves.iter().zip(&pts).map(|(c, p)| (c.0, p.as_slice())).collect();
+        let series: Vec<(&str, &[(f64, f64)])> = curves
+            .iter()
+            .zip(&pts)
+            .map(|(c, p)| (c.0, p.as_slice()))
+            .collect();
         plot::lines(
             dir.join("rms_surface.png"),
             &series,

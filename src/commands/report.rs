@@ -211,7 +211,10 @@ pub fn report(a: &ReportArgs) -> Result<(), String> {
     let dir = &a.dir;
     std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     let exe = std::env::current_exe().map_err(|e| format!("this executable: {e}"))?;
-    let list: Vec<&Analysis> = ANALYSES.iter().filter(|x| !(a.no_cosim && x.cosim)).collect();
+    let list: Vec<&Analysis> = ANALYSES
+        .iter()
+        .filter(|x| !(a.no_cosim && x.cosim))
+        .collect();
     let bar = indicatif::ProgressBar::new(list.len() as u64);
     bar.set_style(
         indicatif::ProgressStyle::with_template("{prefix:>10} [{bar:30}] {pos}/{len} {msg}")

@@ -278,7 +278,10 @@ pub fn wind(a: &WindArgs) -> Result<(), String> {
         plot::lines(
             dir.join("rms_vs_speed.png"),
             &refs,
-            &format!("{}: M1 rms surface under wind (second half of each run)", a.layout),
+            &format!(
+                "{}: M1 rms surface under wind (second half of each run)",
+                a.layout
+            ),
             "wind speed (m/s)",
             "rms surface (nm)",
             a.speeds.len() > 1,
@@ -289,7 +292,11 @@ pub fn wind(a: &WindArgs) -> Result<(), String> {
             if map.is_empty() {
                 continue;
             }
-            let file = if k == 0 { "map_open_loop.png" } else { "map_closed_loop.png" };
+            let file = if k == 0 {
+                "map_open_loop.png"
+            } else {
+                "map_closed_loop.png"
+            };
             plot::mirror_map(
                 dir.join(file),
                 &layout,

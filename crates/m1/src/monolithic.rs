@@ -619,7 +619,13 @@ impl GlobalLoop {
         let mut cols: Vec<Vec<f64>> = Vec::new();
         let split = |v: &[f64], kind: usize| -> Vec<f64> {
             (0..na)
-                .map(|i| if usize::from(i >= n) == kind { v[i] } else { 0.0 })
+                .map(|i| {
+                    if usize::from(i >= n) == kind {
+                        v[i]
+                    } else {
+                        0.0
+                    }
+                })
                 .collect()
         };
         for j in 0..r {
@@ -627,7 +633,11 @@ impl GlobalLoop {
             cols.push(split(&col, 0));
             cols.push(split(&col, 1));
         }
-        for v in null_cols.iter().chain(&r2_cols).chain(std::iter::once(&focus_col)) {
+        for v in null_cols
+            .iter()
+            .chain(&r2_cols)
+            .chain(std::iter::once(&focus_col))
+        {
             cols.push(split(v, 0));
             cols.push(split(v, 1));
         }
@@ -1303,7 +1313,10 @@ pub fn wind_run(
     metrics: &crate::metrics::MirrorMetrics,
     wind: &crate::wind::WindLoads,
     wind_period: f64,
-    control: Option<(&crate::controller::ControlModes, &crate::controller::ControllerParams)>,
+    control: Option<(
+        &crate::controller::ControlModes,
+        &crate::controller::ControllerParams,
+    )>,
     step: f64,
     duration: f64,
 ) -> Result<Vec<(f64, crate::metrics::SurfaceMetrics)>, M1Error> {
@@ -1599,7 +1612,12 @@ mod tests {
             let z = cis(TAU * f / params.rate);
             let c = hold(f, 1.0 / params.rate) / (z - c64::new(1.0, 0.0));
             let l = faer::Scale(c) * (gc * t);
-            let lmax = l.singular_values().expect("svd").iter().copied().fold(0.0, f64::max);
+            let lmax = l
+                .singular_values()
+                .expect("svd")
+                .iter()
+                .copied()
+                .fold(0.0, f64::max);
             let s = Mat::<c64>::identity(na, na) + &l;
             let smin = s
                 .singular_values()
@@ -1654,8 +1672,8 @@ mod tests {
         let plants: Vec<PlantOnW> = (0..40)
             .map(|k| gl.plant(&fm, 5.0 + 0.125 * f64::from(k), 3))
             .collect();
-        let limit = highest_bandwidth(&gl, &plants, &params, 0.75, 5.0, 2.0, 0.25, 2.0)
-            .expect("search");
+        let limit =
+            highest_bandwidth(&gl, &plants, &params, 0.75, 5.0, 2.0, 0.25, 2.0).expect("search");
         assert!(
             limit.bandwidth_hz > 0.05 && limit.bandwidth_hz < 1.0,
             "{limit:?}"
