@@ -58,6 +58,9 @@ enum Cmd {
     /// Segments and structure as two co-simulation components against the coupled solver: the
     /// largest communication step each actuator variant tolerates, and why one mirror FMU.
     Coupling(commands::dynamics::CouplingArgs),
+    /// Control-structure interaction of the actuator servo loop: sensitivity in Zernike and
+    /// segment bases and with all segments, and the highest servo gain meeting the criterion.
+    Csi(commands::csi::CsiArgs),
     /// M1 rms surface under wind versus wind speed and global-loop bandwidth, open and closed
     /// loop, with the focus-mode share and M1 maps (the master on the standard wind system).
     Wind(commands::wind::WindArgs),
@@ -416,6 +419,7 @@ fn main() -> ExitCode {
         Cmd::Run(a) => commands::cosim::run_cmd(&a),
         Cmd::System(a) => commands::cosim::system(&a),
         Cmd::Coupling(a) => commands::dynamics::coupling(&a),
+        Cmd::Csi(a) => commands::csi::csi(&a),
         Cmd::Wind(a) => commands::wind::wind(&a),
         Cmd::Vibration(a) => commands::dynamics::vibration(&a),
         Cmd::Report(a) => commands::report::report(&a),

@@ -1,6 +1,7 @@
 //! The analysis subcommands of `m1cs`, one module per family.
 
 pub mod cosim;
+pub mod csi;
 pub mod dynamics;
 pub mod optics;
 pub mod quasistatic;

@@ -475,6 +475,77 @@ pub fn rows_dot3_f32<S: Simd>(
     }
 }
 
+/// `y = A^T x` for a real `m x k` row-major `A` (row stride `k`) and a complex `x` given as
+/// its real and imaginary parts (length `m`; `y` length `k`), dispatched to the processor's
+/// widest vectors: one pass over `A`.
+///
+/// # Panics
+/// If a slice is shorter than the dimensions say (a programming error).
+pub fn real_t_times_complex(a: &[f64], m: usize, k: usize, x: [&[f64]; 2], y: [&mut [f64]; 2]) {
+    struct Op<'a> {
+        a: &'a [f64],
+        m: usize,
+        k: usize,
+        x: [&'a [f64]; 2],
+        y: [&'a mut [f64]; 2],
+    }
+    impl pulp::WithSimd for Op<'_> {
+        type Output = ();
+        #[inline(always)]
+        fn with_simd<S: Simd>(self, simd: S) {
+            rows_axpy::<S, 2>(simd, self.a, self.k, self.m, self.k, self.x, self.y);
+        }
+    }
+    if m == 0 {
+        for yl in y {
+            yl[..k].fill(0.0);
+        }
+        return;
+    }
+    pulp::Arch::new().dispatch(Op { a, m, k, x, y });
+}
+
+/// `y = A x` for a real `m x k` row-major `A` (row stride `k`) and a complex `x` given as its
+/// real and imaginary parts (length `k`; `y` length `m`), dispatched to the processor's widest
+/// vectors: one pass over `A` (`scratch`, length `m`, takes a third, unused, right-hand side).
+///
+/// # Panics
+/// If a slice is shorter than the dimensions say (a programming error).
+pub fn real_times_complex(
+    a: &[f64],
+    m: usize,
+    k: usize,
+    x: [&[f64]; 2],
+    y: [&mut [f64]; 2],
+    scratch: &mut [f64],
+) {
+    struct Op<'a> {
+        a: &'a [f64],
+        m: usize,
+        k: usize,
+        x: [&'a [f64]; 2],
+        y: [&'a mut [f64]; 3],
+    }
+    impl pulp::WithSimd for Op<'_> {
+        type Output = ();
+        #[inline(always)]
+        fn with_simd<S: Simd>(self, simd: S) {
+            let [x0, x1] = self.x;
+            rows_dot::<S, 3>(simd, self.a, self.k, self.m, self.k, [x0, x1, x1], self.y);
+        }
+    }
+    let [y0, y1] = y;
+    y0[..m].fill(0.0);
+    y1[..m].fill(0.0);
+    pulp::Arch::new().dispatch(Op {
+        a,
+        m,
+        k,
+        x,
+        y: [y0, y1, scratch],
+    });
+}
+
 /// `out += a x`.
 #[inline(always)]
 pub fn axpy(out: &mut [f64], a: f64, x: &[f64]) {

@@ -7,8 +7,10 @@
 pub mod blockchol;
 pub mod controller;
 pub mod coupling;
+pub mod csi;
 pub mod error;
 pub mod geometry;
+pub mod global_csi;
 pub mod interaction;
 pub mod kernels;
 pub mod krylov;

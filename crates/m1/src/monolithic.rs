@@ -568,6 +568,14 @@ pub struct GlobalLoop {
     focus: Mat<f64>,
     /// Whether each kind has channels outside W.
     complement: [bool; 2],
+    /// Per kind k (piston, tilt rows): `[W N R psi]_k^T W_k` ((w + 6) x w),
+    /// `[W N R psi]_k^T Phi_k` ((w + 6) x r) and `Phi_k^T W_k` (r x w), so that a plant needs
+    /// no product with the n_a rows.
+    cw: [Mat<f64>; 2],
+    cphi: [Mat<f64>; 2],
+    phiw: [Mat<f64>; 2],
+    /// `W^T [N R psi]` (w x 6).
+    wv: Mat<f64>,
 }
 
 /// The global loop at one frequency.
@@ -659,14 +667,45 @@ impl GlobalLoop {
                 .unwrap_or(rows.len())
         };
         let complement = [dim_kind(0) < n, dim_kind(1) < 2 * n];
+        let null = as_mat(&null_cols);
+        let radial2 = as_mat(&r2_cols);
+        let focus = as_mat(std::slice::from_ref(&focus_col));
+        let wdim = w.ncols();
+        let nv = null.ncols() + radial2.ncols() + focus.ncols();
+        let vmat = Mat::from_fn(na, nv, |i, j| {
+            if j < null.ncols() {
+                null[(i, j)]
+            } else if j < null.ncols() + radial2.ncols() {
+                radial2[(i, j - null.ncols())]
+            } else {
+                focus[(i, 0)]
+            }
+        });
+        let cmat = Mat::from_fn(na, wdim + nv, |i, j| {
+            if j < wdim {
+                w[(i, j)]
+            } else {
+                vmat[(i, j - wdim)]
+            }
+        });
+        let rows = [(0, n), (n, na - n)];
+        let phic = &model.phic;
+        let cw = rows.map(|(r0, nr)| cmat.subrows(r0, nr).transpose() * w.subrows(r0, nr));
+        let cphi = rows.map(|(r0, nr)| cmat.subrows(r0, nr).transpose() * phic.subrows(r0, nr));
+        let phiw = rows.map(|(r0, nr)| phic.subrows(r0, nr).transpose() * w.subrows(r0, nr));
+        let wv = w.transpose() * &vmat;
         Ok(Self {
             rate: params.rate,
             gains,
             w,
-            null: as_mat(&null_cols),
-            radial2: as_mat(&r2_cols),
-            focus: as_mat(std::slice::from_ref(&focus_col)),
+            null,
+            radial2,
+            focus,
             complement,
+            cw,
+            cphi,
+            phiw,
+            wv,
         })
     }
 
@@ -707,14 +746,17 @@ impl GlobalLoop {
     /// The gain-independent part of the loop at `f`: the mirror's response to the command on
     /// W (summed over `aliases` images), for evaluating many controller gains.
     pub fn plant(&self, model: &FrequencyModel, f: f64, aliases: usize) -> PlantOnW {
-        let na = model.n_actuators();
-        let n = model.n_segments();
         let r = model.n_modes();
-        let kind = |c: usize| usize::from(c >= n);
         let wdim = self.w.ncols();
-        let wc = Mat::from_fn(na, wdim, |i, j| c64::new(self.w[(i, j)], 0.0));
-        let phic = Mat::from_fn(na, r, |i, j| c64::new(model.phic[(i, j)], 0.0));
-        let mut tw = Mat::<c64>::zeros(na, wdim);
+        let rows = self.cw[0].nrows();
+        let combine = |a: [c64; 2], x: &[Mat<f64>; 2]| {
+            Mat::from_fn(x[0].nrows(), x[0].ncols(), |i, j| {
+                a[0] * x[0][(i, j)] + a[1] * x[1][(i, j)]
+            })
+        };
+        // [W N R psi]^T T W, summed over the images: the diagonal part plus the coupling
+        // through the modes, from the per-kind projections.
+        let mut ctw = Mat::<c64>::zeros(rows, wdim);
         // The complement's scalar per kind, summed over the same images.
         let mut t_kind = [c64::new(0.0, 0.0); 2];
         let k_max = i32::try_from(aliases).unwrap_or(i32::MAX);
@@ -722,28 +764,34 @@ impl GlobalLoop {
             let fk = f + f64::from(k) * self.rate;
             let ch = model.channels(fk);
             let h = hold(fk, 1.0 / self.rate);
-            // T W: diagonal part plus the coupling through the modes.
-            tw += Mat::from_fn(na, wdim, |i, j| wc[(i, j)] * ch[kind(i)].mirror[0] * h);
+            ctw += combine([ch[0].mirror[0] * h, ch[1].mirror[0] * h], &self.cw);
             if r > 0 {
-                let fw = Mat::from_fn(na, wdim, |i, j| wc[(i, j)] * ch[kind(i)].force[0]);
-                let rhs = phic.transpose() * &fw;
+                let rhs = combine([ch[0].force[0], ch[1].force[0]], &self.phiw);
                 let q = model.modal_stiffness(fk, &ch).partial_piv_lu().solve(&rhs);
-                let zc = &phic * &q;
-                tw += Mat::from_fn(na, wdim, |i, j| zc[(i, j)] * ch[kind(i)].mirror[1] * h);
+                let left = combine([ch[0].mirror[1] * h, ch[1].mirror[1] * h], &self.cphi);
+                ctw += left * q;
             }
             for (t, c) in t_kind.iter_mut().zip(&ch) {
                 *t += c.mirror[0] * h;
             }
         }
-        // W^T T W and the low-rank pieces the gains act through.
-        let proj = |b: &Mat<f64>| -> (Mat<c64>, Mat<c64>) {
-            let bc = Mat::from_fn(b.nrows(), b.ncols(), |i, j| c64::new(b[(i, j)], 0.0));
-            (wc.transpose() * &bc, bc.transpose() * &tw)
+        // W^T T W and the low-rank pieces the gains act through: (W^T B, B^T T W).
+        let wtw = Mat::from_fn(wdim, wdim, |i, j| ctw[(i, j)]);
+        let (n0, n1) = (self.null.ncols(), self.radial2.ncols());
+        let piece = |c0: usize, nc: usize| -> (Mat<c64>, Mat<c64>) {
+            (
+                Mat::from_fn(wdim, nc, |i, j| c64::new(self.wv[(i, c0 + j)], 0.0)),
+                Mat::from_fn(nc, wdim, |i, j| ctw[(wdim + c0 + i, j)]),
+            )
         };
-        let pieces = [proj(&self.null), proj(&self.radial2), proj(&self.focus)];
+        let pieces = [
+            piece(0, n0),
+            piece(n0, n1),
+            piece(n0 + n1, self.focus.ncols()),
+        ];
         PlantOnW {
             frequency: f,
-            wtw: wc.transpose() * &tw,
+            wtw,
             pieces,
             t_kind,
         }
