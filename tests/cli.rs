@@ -458,8 +458,22 @@ fn report_on_keck() {
         "## Robustness to interaction-matrix errors",
         "## Vibration",
         "## Coupling delay",
+        "## Control-structure interaction",
     ] {
         assert!(md.contains(title), "{title} missing");
+    }
+    // The CSI section shows its selected numbers and its three figures.
+    assert!(
+        md.contains("| `global.highest_bandwidth.bandwidth_hz` |"),
+        "{md}"
+    );
+    assert!(md.contains("| `highest_gain.gain_factor` |"), "{md}");
+    for f in [
+        "csi/sensitivity.png",
+        "csi/convergence.png",
+        "csi/global.png",
+    ] {
+        assert!(md.contains(&format!("![{f}]")), "{f} not shown");
     }
     assert!(!md.contains("**Failed"), "{md}");
     let mut figures = 0;

@@ -359,9 +359,14 @@ pub fn csi(a: &CsiArgs) -> Result<(), String> {
             a.max_degree
         );
         for p in &sw.all_segment_peaks {
+            let label = if p.label.starts_with('Z') {
+                p.label.clone()
+            } else {
+                format!("{} (Z{})", p.label, p.noll)
+            };
             println!(
-                "  {:>9.3} Hz  {:>8.4}  {} (Z{})",
-                p.frequency_hz, p.sensitivity_max, p.label, p.noll
+                "  {:>9.3} Hz  {:>8.4}  {label}",
+                p.frequency_hz, p.sensitivity_max
             );
         }
     }
@@ -399,6 +404,13 @@ pub fn csi(a: &CsiArgs) -> Result<(), String> {
             bw(limit.bandwidth_hz),
             bw(limit.nominal_bandwidth_hz)
         );
+        if let (Some(f), Some(p)) = (limit.lowest_peak_factor, limit.lowest_peak_sensitivity) {
+            println!(
+                "lowest peak over the valid factors scanned: {p:.3} (all segments) at factor \
+                 {f:.3} (bandwidth {})",
+                bw(m1::csi::crossover(lp.model().model(), f))
+            );
+        }
     }
     print_global(&gsw, q.as_ref());
     println!(
@@ -447,7 +459,7 @@ fn q_allowance(geometry: &Geometry, realizations: usize) -> Result<Option<QAllow
 fn print_global(g: &GlobalSweep, q: Option<&QAllowance>) {
     println!(
         "Global loop ({} modes, {} Hz, bandwidths {} / {} / {} Hz, {} images each side; \
-         {}-{:.2} Hz, {} points):",
+         {:.3}-{:.2} Hz, {} points):",
         g.modes,
         g.params.rate,
         g.params.bandwidth,

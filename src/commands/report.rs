@@ -42,6 +42,8 @@ struct Analysis {
     args: &'static [&'static str],
     plot: Plot,
     cosim: bool,
+    /// JSON paths (prefixes) shown in the section's table; empty: every scalar.
+    keys: &'static [&'static str],
 }
 
 const ANALYSES: &[Analysis] = &[
@@ -51,6 +53,7 @@ const ANALYSES: &[Analysis] = &[
         args: &["geometry"],
         plot: Plot::File("geometry.png"),
         cosim: false,
+        keys: &[],
     },
     Analysis {
         title: "Interaction matrix",
@@ -59,6 +62,7 @@ const ANALYSES: &[Analysis] = &[
         args: &["amatrix"],
         plot: Plot::File("amatrix.png"),
         cosim: false,
+        keys: &[],
     },
     Analysis {
         title: "Robustness to interaction-matrix errors",
@@ -67,6 +71,7 @@ const ANALYSES: &[Analysis] = &[
         args: &["robustness"],
         plot: Plot::File("robustness.png"),
         cosim: false,
+        keys: &[],
     },
     Analysis {
         title: "Sensor noise",
@@ -74,6 +79,7 @@ const ANALYSES: &[Analysis] = &[
         args: &["noise"],
         plot: Plot::File("noise.png"),
         cosim: false,
+        keys: &[],
     },
     Analysis {
         title: "Segment clocking",
@@ -82,6 +88,7 @@ const ANALYSES: &[Analysis] = &[
         args: &["clocking"],
         plot: Plot::File("clocking.png"),
         cosim: false,
+        keys: &[],
     },
     Analysis {
         title: "Calibration of the sensors' cross-sensitivity",
@@ -90,6 +97,7 @@ const ANALYSES: &[Analysis] = &[
         args: &["calibration"],
         plot: Plot::File("calibration.png"),
         cosim: false,
+        keys: &[],
     },
     Analysis {
         title: "Zernike basis",
@@ -98,6 +106,7 @@ const ANALYSES: &[Analysis] = &[
         args: &["zernike"],
         plot: Plot::File("zernike.png"),
         cosim: false,
+        keys: &[],
     },
     Analysis {
         title: "PSSN",
@@ -106,6 +115,7 @@ const ANALYSES: &[Analysis] = &[
         args: &["pssn"],
         plot: Plot::File("pssn.png"),
         cosim: false,
+        keys: &[],
     },
     Analysis {
         title: "Coupling delay between segments and structure",
@@ -114,6 +124,37 @@ const ANALYSES: &[Analysis] = &[
         args: &["coupling"],
         plot: Plot::File("coupling.png"),
         cosim: false,
+        keys: &[],
+    },
+    Analysis {
+        title: "Control-structure interaction",
+        what: "The seed paper's Figure 11: the actuator servo loop's sensitivity in Zernike bases \
+               of growing radial degree, in segment bases and with all segments, its peaks \
+               labelled by Zernike family, and the highest servo gain meeting sigma_max(S) < 2 \
+               below 15 Hz; the global loop's principal loop gain and sensitivity against 1/2 \
+               over the interaction-matrix allowance, and its highest bandwidth.",
+        args: &["csi"],
+        plot: Plot::Dir("csi"),
+        cosim: false,
+        keys: &[
+            "coupled_dimension",
+            "sweep.all_segments.peak",
+            "sweep.all_segment_peaks",
+            "sweep.zernike[8].peak",
+            "highest_gain.gain_factor",
+            "highest_gain.bandwidth_hz",
+            "highest_gain.peak",
+            "highest_gain.meets_criterion",
+            "highest_gain.limited_by",
+            "global.modes",
+            "global.loop_gain_limit",
+            "global.all_segments.peak",
+            "global.all_segments.high_frequency",
+            "global.meets",
+            "global.highest_bandwidth",
+            "q_allowance.worst",
+            "elapsed_s",
+        ],
     },
     Analysis {
         title: "Vibration",
@@ -122,6 +163,7 @@ const ANALYSES: &[Analysis] = &[
         args: &["vibration"],
         plot: Plot::Dir("vibration"),
         cosim: false,
+        keys: &[],
     },
     Analysis {
         title: "Wind",
@@ -130,6 +172,7 @@ const ANALYSES: &[Analysis] = &[
         args: &["wind"],
         plot: Plot::Dir("wind"),
         cosim: true,
+        keys: &[],
     },
     Analysis {
         title: "The closed-loop scenario (the main job)",
@@ -138,6 +181,7 @@ const ANALYSES: &[Analysis] = &[
         args: &["run"],
         plot: Plot::Out("run"),
         cosim: true,
+        keys: &[],
     },
 ];
 
@@ -285,6 +329,9 @@ pub fn report(a: &ReportArgs) -> Result<(), String> {
             Ok(v) => {
                 let mut rows = Vec::new();
                 scalars(&v, "", &mut rows);
+                if !an.keys.is_empty() {
+                    rows.retain(|(k, _)| an.keys.iter().any(|p| k.starts_with(p)));
+                }
                 let _ = writeln!(md, "| quantity | value |\n|---|---|");
                 for (k, val) in rows.iter().take(60) {
                     let _ = writeln!(md, "| `{k}` | {} |", val.replace('|', "/"));

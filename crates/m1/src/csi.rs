@@ -997,6 +997,11 @@ pub struct GainLimit {
     pub zernike_gain_factor: Option<f64>,
     /// That Zernike degree.
     pub zernike_degree: u32,
+    /// When no factor meets the criterion: the scanned factor with the lowest peak in the
+    /// Zernike basis, and its all-segment peak (the best this structure allows).
+    pub lowest_peak_factor: Option<f64>,
+    /// That all-segment peak sensitivity below the criterion's frequency.
+    pub lowest_peak_sensitivity: Option<f64>,
     /// What stops a higher factor: "sensitivity", "servo stability" (the rigid-base loop of
     /// the next factor is unstable), "search range" (the top factor passes), "all-segment
     /// check" (the Zernike factor failed with all segments and was lowered), "no factor meets
@@ -1165,6 +1170,8 @@ pub fn highest_gain(
             meets_criterion: meets,
             zernike_gain_factor: za,
             zernike_degree: degree as u32,
+            lowest_peak_factor: None,
+            lowest_peak_sensitivity: None,
             limited_by: why.into(),
         }
     };
@@ -1196,7 +1203,24 @@ pub fn highest_gain(
     }
     let none = |why: &str| -> Result<GainLimit, M1Error> {
         let a = if valid_at(1.0) { 1.0 } else { factors[0] };
-        Ok(result(a, Some(all_peak(a)?), false, None, why))
+        let mut r = result(a, Some(all_peak(a)?), false, None, why);
+        // The valid scanned factor with the lowest Zernike peak, checked with all segments.
+        let mut best: Option<(f64, f64)> = None;
+        for &f in factors.iter().filter(|&&f| valid_at(f)) {
+            let v: Vec<f64> = (0..band.len())
+                .into_par_iter()
+                .map(|i| zval(i, f))
+                .collect::<Result<_, _>>()?;
+            let peak = v.iter().copied().fold(0.0f64, f64::max);
+            if best.is_none_or(|(_, p)| peak < p) {
+                best = Some((f, peak));
+            }
+        }
+        if let Some((f, _)) = best {
+            r.lowest_peak_factor = Some(f);
+            r.lowest_peak_sensitivity = Some(all_peak(f)?.0);
+        }
+        Ok(r)
     };
     let Some((az, why)) = search_factor(&factors, &zpass)? else {
         return none("no factor meets the criterion");
