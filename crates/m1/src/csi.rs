@@ -224,6 +224,41 @@ fn sensitivity_max(m: &Mat<c64>, s: c64, n: usize) -> Result<f64, M1Error> {
     }
 }
 
+/// `x <- K^-1 x` (or `K^-H x`) with `K`'s LU factors, in this thread: the solves sit in the
+/// Lanczos loop of one frequency, and the frequencies are what runs in parallel.
+fn seq_solve(
+    lu: &PartialPivLu<c64>,
+    x: &mut [c64],
+    adjoint: bool,
+    stack: &mut faer::dyn_stack::MemBuffer,
+) {
+    use faer::linalg::lu::partial_pivoting::solve;
+    let n = x.len();
+    let rhs = faer::MatMut::from_column_major_slice_mut(x, n, 1);
+    let st = faer::dyn_stack::MemStack::new(stack);
+    if adjoint {
+        solve::solve_transpose_in_place_with_conj(
+            lu.L(),
+            lu.U(),
+            lu.P(),
+            faer::Conj::Yes,
+            rhs,
+            faer::Par::Seq,
+            st,
+        );
+    } else {
+        solve::solve_in_place_with_conj(
+            lu.L(),
+            lu.U(),
+            lu.P(),
+            faer::Conj::No,
+            rhs,
+            faer::Par::Seq,
+            st,
+        );
+    }
+}
+
 /// The entries of `m` row by row.
 fn row_major(m: &Mat<f64>) -> Vec<f64> {
     (0..m.nrows())
@@ -232,7 +267,7 @@ fn row_major(m: &Mat<f64>) -> Vec<f64> {
 }
 
 /// Lanczos steps at most for the all-segment $\sigma_{max}(S)$.
-const LANCZOS_MAX_STEPS: usize = 200;
+const LANCZOS_MAX_STEPS: usize = 120;
 /// Relative residual of the top Ritz pair of $S^H S$ at which Lanczos stops (the eigenvalue
 /// to this relative accuracy, its square root to half of it).
 const LANCZOS_TOL: f64 = 1e-10;
@@ -587,6 +622,13 @@ impl ActuatorLoop {
         let (rr, gram, rank) = (&self.coupled_r, &self.coupled_gram, self.coupled_rank);
         let big = r.max(w);
         let mut buf = vec![0.0; 5 * big];
+        let mut stack = faer::dyn_stack::MemBuffer::new(
+            faer::linalg::lu::partial_pivoting::solve::solve_in_place_scratch::<usize, c64>(
+                r,
+                1,
+                faer::Par::Seq,
+            ),
+        );
         let (mut a, mut z, mut z2) = ([vec![zero; r], vec![zero; r]], vec![zero; r], vec![zero; r]);
         let op = |x: &[c64], o: &mut [c64]| {
             let (xr, rest) = buf.split_at_mut(big);
@@ -613,7 +655,7 @@ impl ActuatorLoop {
             for (j, zj) in z.iter_mut().enumerate() {
                 *zj = cy[0] * a[0][j] + cy[1] * a[1][j];
             }
-            lu.solve_in_place(faer::MatMut::from_column_major_slice_mut(&mut z, r, 1));
+            seq_solve(&lu, &mut z, false, &mut stack);
             for (j, zj) in z.iter().enumerate() {
                 xr[j] = zj.re;
                 xi[j] = zj.im;
@@ -633,7 +675,7 @@ impl ActuatorLoop {
                     *z2j += c * (dk * a[kd][j] - xk * c64::new(t0[j], t1[j]));
                 }
             }
-            lu.solve_adjoint_in_place(faer::MatMut::from_column_major_slice_mut(&mut z2, r, 1));
+            seq_solve(&lu, &mut z2, true, &mut stack);
             for kd in 0..2 {
                 let (c1, c2) = (d[kd].conj() * cx[kd], cy[kd].conj());
                 for j in 0..r {

@@ -1,0 +1,51 @@
+//! The frequency-domain studies of issue 6 on the TMT mirror and its built-in cell, per
+//! frequency point: the monolithic model's response to the pier (`FrequencyModel::pier_response`,
+//! one r x r complex LU), the exact all-segment servo-loop sensitivity (`ActuatorLoop`:
+//! closed-loop modal stiffness and Lanczos) at a separated peak (10.49 Hz) and in the band where
+//! the top singular values cluster (40 Hz), and one global-loop point (`GlobalCsi::point`:
+//! Zernike bases to degree 8 and all segments, 3 images each side).
+#![allow(clippy::expect_used, clippy::unwrap_used, clippy::panic)]
+use criterion::{Criterion, criterion_group, criterion_main};
+use m1::controller::ControllerParams;
+use m1::csi::ActuatorLoop;
+use m1::geometry::{Geometry, GeometryParams};
+use m1::global_csi::GlobalCsi;
+use m1::layout::Layout;
+use m1::monolithic::FrequencyModel;
+use m1::segment::SegmentModel;
+use m1::structure::{CellModel, CellParams};
+use std::hint::black_box;
+
+fn bench(c: &mut Criterion) {
+    let layout = Layout::tmt();
+    let n = layout.n_segments();
+    let geometry = Geometry::new(&layout, GeometryParams::for_layout(&layout)).unwrap();
+    let cell = CellModel::new(&layout, &CellParams::default())
+        .and_then(|c| c.modes())
+        .unwrap();
+    let mut g = c.benchmark_group("tmt_frequency_point");
+    g.sample_size(10);
+    for r in [60usize, 500] {
+        let fm = FrequencyModel::new(n, SegmentModel::voice_coil(), cell.clone(), r, 0.02).unwrap();
+        g.bench_function(format!("pier_response/{r}_modes"), |b| {
+            b.iter(|| black_box(fm.pier_response(black_box(29.6)).unwrap().mirror[0]))
+        });
+        let lp = ActuatorLoop::new(fm.clone(), &layout, &geometry, 8, &[1]).unwrap();
+        for f in [10.49, 40.0] {
+            g.bench_function(format!("servo_all_segments/{r}_modes/{f}_hz"), |b| {
+                b.iter(|| black_box(lp.all_sensitivity(black_box(f), 1.0).unwrap()))
+            });
+        }
+        if r <= 100 {
+            let gl =
+                GlobalCsi::new(fm, &layout, &geometry, ControllerParams::default(), 8, 3).unwrap();
+            g.bench_function(format!("global_point/{r}_modes"), |b| {
+                b.iter(|| black_box(gl.point(black_box(8.95)).unwrap().0.loop_gain))
+            });
+        }
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
