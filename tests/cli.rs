@@ -166,6 +166,59 @@ fn fmu_dir() -> String {
         .unwrap_or_else(|_| concat!(env!("CARGO_MANIFEST_DIR"), "/target/fmu").to_string())
 }
 
+/// Issue 6: the wind residual with zero controller gains equals the open-loop response. The
+/// standard Keck wind system run closed loop with every bandwidth at 0 (the controller FMU
+/// enabled, sampling the sensors and integrating with zero gain) records exactly the open
+/// loop's rows: nothing but the gains separates the two runs.
+#[test]
+fn zero_gain_wind_run_is_the_open_loop() {
+    let dir = std::env::temp_dir().join(format!("m1cs-cli-zero-gain-{}", std::process::id()));
+    let out = dir.to_string_lossy().into_owned();
+    let fmus = fmu_dir();
+    let v = json(&[
+        "run",
+        "--layout",
+        "keck",
+        "--duration",
+        "1",
+        "--bandwidth",
+        "0",
+        "--focus-bandwidth",
+        "0",
+        "--fmu-dir",
+        &fmus,
+        "--out",
+        &out,
+        "--json",
+    ]);
+    let runs = v["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 2);
+    assert_eq!(runs[0]["rms_surface_m"], runs[1]["rms_surface_m"], "{v}");
+    let open = std::fs::read_to_string(dir.join("open_loop.csv")).unwrap();
+    let closed = std::fs::read_to_string(dir.join("closed_loop.csv")).unwrap();
+    assert!(open.lines().count() > 900, "{} rows", open.lines().count());
+    assert_eq!(
+        open, closed,
+        "closed loop with zero gains differs from the open loop"
+    );
+    // And with the default gains it does not.
+    let v = json(&[
+        "run",
+        "--layout",
+        "keck",
+        "--duration",
+        "1",
+        "--fmu-dir",
+        &fmus,
+        "--out",
+        &out,
+        "--json",
+    ]);
+    let runs = v["runs"].as_array().unwrap();
+    assert_ne!(runs[0]["rms_surface_m"], runs[1]["rms_surface_m"], "{v}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// The standard Keck wind system through the included master: runs open and closed loop
 /// (rigid cell and coupled mirror at the default 1 ms; the split segments/structure pair at 0.2 ms in Gauss-Seidel order), writes CSV, plots and a summary whose figures are
 /// finite and physical; the same system written as .ssp runs from the file.

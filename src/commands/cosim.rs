@@ -166,8 +166,20 @@ pub fn standard_system(a: &SystemArgs, closed: bool) -> Result<System, String> {
             a.duration, a.step
         ));
     }
-    if !(a.wind_speed > 0.0 && a.bandwidth > 0.0 && a.focus_bandwidth > 0.0) {
-        return Err("--wind-speed, --bandwidth and --focus-bandwidth must be positive".into());
+    if !(a.wind_speed.is_finite() && a.wind_speed > 0.0) {
+        return Err(format!("--wind-speed {}: must be positive", a.wind_speed));
+    }
+    // Zero bandwidths are allowed: the controller then runs with zero gains (its integrators
+    // hold), the open loop with the controller in it.
+    if !(a.bandwidth.is_finite()
+        && a.bandwidth >= 0.0
+        && a.focus_bandwidth.is_finite()
+        && a.focus_bandwidth >= 0.0)
+    {
+        return Err(format!(
+            "--bandwidth {} and --focus-bandwidth {}: must be finite and >= 0",
+            a.bandwidth, a.focus_bandwidth
+        ));
     }
     let per = |hz: f64| {
         if a.uniform {

@@ -229,16 +229,22 @@ pub fn largest_hermitian_eigenpair(
                 .fold(c64::new(0.0, 0.0), |a, (p, q)| a + p.conj() * q)
                 .re,
         );
-        // Two passes of classical Gram-Schmidt against every basis vector.
+        // Classical Gram-Schmidt against every basis vector, a second pass only when the
+        // first removed most of the vector (Kahan's "twice is enough": below 1/sqrt(2) of it).
         let q = basis.subcols(0, j + 1);
+        let mut b = largest;
         for _ in 0..2 {
+            let before = b;
             let c = q.adjoint() * faer::MatRef::from_column_major_slice(&w, n, 1);
             let qc = q * &c;
             for (i, wi) in w.iter_mut().enumerate() {
                 *wi -= qc[(i, 0)];
             }
+            b = norm(&w);
+            if b > std::f64::consts::FRAC_1_SQRT_2 * before {
+                break;
+            }
         }
-        let b = norm(&w);
         let steps = j + 1;
         let check = steps == m || (steps >= min_steps && steps % 2 == 0) || b == 0.0;
         if check {
