@@ -133,13 +133,13 @@ fn variants() -> [Variant; 3] {
             fmu: "mirror_piezo",
             shunt: false,
             model: SegmentModel::piezo(),
-            tol: [1e-3, 5e-3, 5e-3],
+            tol: [1e-3, 1e-2, 1e-2],
         },
         Variant {
             fmu: "mirror_piezo",
             shunt: true,
             model: SegmentModel::piezo_damped_default(),
-            tol: [1e-3, 5e-3, 5e-3],
+            tol: [1e-3, 1e-2, 1e-2],
         },
     ]
 }
