@@ -649,6 +649,26 @@ pub fn lines_in_colours(
     log_x: bool,
     log_y: bool,
 ) -> Result<(), PlotError> {
+    lines_marked(path, series, &[], title, x_label, y_label, log_x, log_y)
+}
+
+/// A labelled point for [`lines_marked`]: `((x, y), label)`.
+pub type PointMark<'a> = ((f64, f64), &'a str);
+
+/// As [`lines_in_colours`], with each `((x, y), label)` of `marks` circled and labelled (e.g.
+/// the peaks of a curve); marks outside the plotted range (or not positive on a logarithmic
+/// axis) are left out. Labels of marks close in x are stacked apart.
+#[allow(clippy::too_many_arguments)]
+pub fn lines_marked(
+    path: impl AsRef<Path>,
+    series: &[ColouredSeries],
+    marks: &[PointMark],
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    log_x: bool,
+    log_y: bool,
+) -> Result<(), PlotError> {
     let path = path.as_ref();
     let usable = |v: f64, log: bool| v.is_finite() && (!log || v > 0.0);
     let curves: Vec<Curve> = series
@@ -674,6 +694,37 @@ pub fn lines_in_colours(
     let all = || curves.iter().flat_map(|c| c.points.iter());
     let x_range = data_range(all().map(|p| p.0), log_x);
     let y_range = padded_range(all().map(|p| p.1), log_y);
+    // Position of a value in a range, 0 to 1 (logarithmic on a log axis).
+    let frac = |v: f64, r: &Range<f64>, log: bool| {
+        if log {
+            (v / r.start).ln() / (r.end / r.start).ln()
+        } else {
+            (v - r.start) / (r.end - r.start)
+        }
+    };
+    let mut sorted: Vec<(f64, f64, f64, &str)> = marks
+        .iter()
+        .filter(|((x, y), _)| usable(*x, log_x) && usable(*y, log_y))
+        .map(|&((x, y), l)| (frac(x, &x_range, log_x), x, y, l))
+        .filter(|m| (0.0..=1.0).contains(&m.0) && (0.0..=1.0).contains(&frac(m.2, &y_range, log_y)))
+        .collect();
+    sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut mark_list: Vec<Mark> = Vec::new();
+    let mut previous: Option<(f64, i32)> = None;
+    for (fx, x, y, label) in sorted {
+        let level = match previous {
+            Some((px, level)) if fx - px <= 0.12 => (level + 1) % 4,
+            _ => 0,
+        };
+        previous = Some((fx, level));
+        mark_list.push(Mark {
+            at: (x, y),
+            label: label.to_string(),
+            left: fx > 0.6,
+            below: frac(y, &y_range, log_y) > 0.6,
+            level,
+        });
+    }
     let plot = XyPlot {
         title: title.into(),
         x_label: x_label.into(),
@@ -683,7 +734,7 @@ pub fn lines_in_colours(
         x_range,
         y_range,
         curves,
-        marks: Vec::new(),
+        marks: mark_list,
         bars: Vec::new(),
         note: Vec::new(),
     };
@@ -880,32 +931,163 @@ where
 
     let mark_colour = RGBColor(200, 30, 30);
     let mark_font = font(LABEL_SIZE).color(&mark_colour);
-    for mark in &plot.marks {
-        let dx = if mark.left { -18 } else { 18 };
-        let dy = (24 + 22 * mark.level) * if mark.below { 1 } else { -1 };
+    // Greedy placement: each label takes the nearest free spot around its point (rings of
+    // growing radius, eight directions, the preferred side first), free meaning inside the
+    // plotting area and clear of the labels placed before it and of every marked point, so
+    // that the leader stays short and labels of close peaks do not overlap.
+    let (area_x, area_y) = chart.plotting_area().get_pixel_range();
+    let centres: Vec<(i32, i32)> = plot
+        .marks
+        .iter()
+        .map(|m| chart.backend_coord(&m.at))
+        .collect();
+    // The legend goes to the corner its box hides the least data in (curves sampled along
+    // their segments, marks counting more), upper right on a tie; labels then avoid it.
+    let legend_labels: Vec<&str> = plot
+        .curves
+        .iter()
+        .map(|c| c.label.as_str())
+        .filter(|l| !l.is_empty())
+        .collect();
+    let mut placed: Vec<[i32; 4]> = Vec::new();
+    let mut legend_corner = SeriesLabelPosition::UpperRight;
+    if !legend_labels.is_empty() {
+        let legend_font = font(LABEL_SIZE);
+        let mut w = 0;
+        let mut th = 0;
+        for l in &legend_labels {
+            let (lw, lh) = root.estimate_text_size(l, &legend_font)?;
+            w = w.max(lw as i32);
+            th = th.max(lh as i32);
+        }
+        let (bw, bh) = (w + 50, legend_labels.len() as i32 * (th + 6) + 16);
+        let (m, x0, x1, y0, y1) = (12, area_x.start, area_x.end, area_y.start, area_y.end);
+        let corners = [
+            (
+                SeriesLabelPosition::UpperRight,
+                [x1 - m - bw, y0 + m, x1 - m, y0 + m + bh],
+            ),
+            (
+                SeriesLabelPosition::UpperLeft,
+                [x0 + m, y0 + m, x0 + m + bw, y0 + m + bh],
+            ),
+            (
+                SeriesLabelPosition::LowerRight,
+                [x1 - m - bw, y1 - m - bh, x1 - m, y1 - m],
+            ),
+            (
+                SeriesLabelPosition::LowerLeft,
+                [x0 + m, y1 - m - bh, x0 + m + bw, y1 - m],
+            ),
+        ];
+        let mut pixels: Vec<(i32, i32)> = Vec::new();
+        for c in &plot.curves {
+            let px: Vec<(i32, i32)> = c.points.iter().map(|p| chart.backend_coord(p)).collect();
+            for pair in px.windows(2) {
+                for k in 0..4 {
+                    let t = f64::from(k) / 4.0;
+                    let lerp =
+                        |a: i32, b: i32| (f64::from(a) + t * f64::from(b - a)).round() as i32;
+                    pixels.push((lerp(pair[0].0, pair[1].0), lerp(pair[0].1, pair[1].1)));
+                }
+            }
+            pixels.extend(px.last().copied());
+        }
+        let inside =
+            |b: &[i32; 4], (x, y): (i32, i32)| x >= b[0] && x <= b[2] && y >= b[1] && y <= b[3];
+        let score = |b: &[i32; 4]| {
+            pixels.iter().filter(|&&p| inside(b, p)).count()
+                + 50 * centres.iter().filter(|&&p| inside(b, p)).count()
+        };
+        let mut best = (usize::MAX, 0);
+        for (k, (_, b)) in corners.iter().enumerate() {
+            let sc = score(b);
+            if sc < best.0 {
+                best = (sc, k);
+            }
+        }
+        placed.push(corners[best.1].1);
+        if let Some((corner, _)) = corners.into_iter().nth(best.1) {
+            legend_corner = corner;
+        }
+    }
+    for (mark, &(px, py)) in plot.marks.iter().zip(&centres) {
         let (w, h) = root.estimate_text_size(&mark.label, &mark_font)?;
         let (w, h) = (w as i32, h as i32);
-        let (text_x, h_pos) = if mark.left {
-            (dx - 4, HPos::Right)
-        } else {
-            (dx + 4, HPos::Left)
+        // The label's box relative to the point for an anchor (dx, dy): beside the anchor on
+        // the side it points to, centred where it points straight up, down or sideways.
+        let rel = |dx: i32, dy: i32| {
+            let x0 = match dx.signum() {
+                1 => dx,
+                -1 => dx - w - 4,
+                _ => -(w + 4) / 2,
+            };
+            let y0 = match dy.signum() {
+                1 => dy,
+                -1 => dy - h - 4,
+                _ => -(h + 4) / 2,
+            };
+            [x0, y0, x0 + w + 4, y0 + h + 4]
         };
-        let x_left = if mark.left { text_x - w } else { text_x };
+        let free = |r: &[i32; 4]| {
+            let b = [px + r[0], py + r[1], px + r[2], py + r[3]];
+            let inside = b[0] >= area_x.start
+                && b[2] <= area_x.end
+                && b[1] >= area_y.start
+                && b[3] <= area_y.end;
+            let clear_of_labels = placed
+                .iter()
+                .all(|o| b[2] < o[0] || o[2] < b[0] || b[3] < o[1] || o[3] < b[1]);
+            let clear_of_points = centres
+                .iter()
+                .all(|&(cx, cy)| cx + 8 < b[0] || b[2] < cx - 8 || cy + 8 < b[1] || b[3] < cy - 8);
+            inside && clear_of_labels && clear_of_points
+        };
+        let sx = if mark.left { -1 } else { 1 };
+        let sy = if mark.below { 1 } else { -1 };
+        let directions = [
+            (sx, sy),
+            (sx, 0),
+            (-sx, sy),
+            (-sx, 0),
+            (0, sy),
+            (sx, -sy),
+            (-sx, -sy),
+            (0, -sy),
+        ];
+        let mut choice = None;
+        'search: for radius in [12, 26, 44, 66, 92, 122] {
+            for (ux, uy) in directions {
+                // Diagonals at the same distance as the axes.
+                let k = if ux != 0 && uy != 0 { 0.7 } else { 1.0 };
+                let d = (k * f64::from(radius)).round() as i32;
+                let anchor = (ux * d, uy * d);
+                let r = rel(anchor.0, anchor.1);
+                if free(&r) {
+                    choice = Some((anchor, r));
+                    break 'search;
+                }
+            }
+        }
+        let (anchor, r) = choice.unwrap_or_else(|| {
+            let a = (18 * sx, (24 + 22 * mark.level) * sy);
+            (a, rel(a.0, a.1))
+        });
+        placed.push([px + r[0], py + r[1], px + r[2], py + r[3]]);
+        let leader = if anchor.0.abs().max(anchor.1.abs()) > 12 {
+            vec![(0, 0), anchor]
+        } else {
+            Vec::new()
+        };
         chart.draw_series(std::iter::once(
             EmptyElement::at(mark.at)
                 + Circle::new((0, 0), 7, mark_colour.stroke_width(2))
-                + PathElement::new(vec![(0, 0), (dx, dy)], mark_colour.stroke_width(1))
-                + Rectangle::new(
-                    [
-                        (x_left - 2, dy - h / 2 - 2),
-                        (x_left + w + 2, dy + h / 2 + 2),
-                    ],
-                    WHITE.mix(0.8).filled(),
-                )
+                + PathElement::new(leader, mark_colour.stroke_width(1))
+                + Rectangle::new([(r[0], r[1]), (r[2], r[3])], WHITE.mix(0.8).filled())
                 + Text::new(
                     mark.label.clone(),
-                    (text_x, dy + Y_LABEL_NUDGE),
-                    mark_font.clone().pos(Pos::new(h_pos, VPos::Center)),
+                    (r[0] + 2, (r[1] + r[3]) / 2 + Y_LABEL_NUDGE),
+                    mark_font.clone().pos(Pos::new(HPos::Left, VPos::Center)),
                 ),
         ))?;
     }
@@ -913,7 +1095,7 @@ where
     if legend {
         chart
             .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
+            .position(legend_corner)
             .margin(12)
             .label_font(font(LABEL_SIZE))
             .background_style(WHITE.mix(0.85))

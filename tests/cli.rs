@@ -525,6 +525,7 @@ fn report_on_keck() {
         "csi/sensitivity.png",
         "csi/convergence.png",
         "csi/global.png",
+        "csi/global_band.png",
     ] {
         assert!(md.contains(&format!("![{f}]")), "{f} not shown");
     }
@@ -618,9 +619,38 @@ fn csi_on_keck() {
         all_hf < 0.25,
         "the verdict follows the curve: {gl}"
     );
+    // Every peak carries its Zernike family: the all-segment curves' maxima (the structure's
+    // resonances above 5 Hz exceed half the limit in loop gain on Keck), each above its
+    // threshold.
+    let families = |l: &str| matches!(l, "P" | "TT" | "FA") || l.starts_with('Z');
+    for c in gz.iter().chain(std::iter::once(&gl["all_segments"])) {
+        for key in ["peak_sensitivity_label", "high_frequency_loop_gain_label"] {
+            let l = c[key].as_str().unwrap_or_else(|| panic!("{key}: {c}"));
+            assert!(families(l), "{key} {l}");
+        }
+    }
+    let peaks = gl["all_segment_peaks"].as_array().expect("global peaks");
+    assert!(
+        peaks.iter().any(|p| p["quantity"] == "loop_gain"),
+        "{peaks:?}"
+    );
+    for p in peaks {
+        assert!(families(p["label"].as_str().expect("label")), "{p}");
+        let from = if p["quantity"] == "sensitivity" {
+            1.2
+        } else {
+            0.125
+        };
+        assert!(p["value"].as_f64().expect("value") > from, "{p}");
+    }
     let q = v["q_allowance"]["worst_sigma_gamma_q"].as_f64().expect("Q");
     assert!(q > 1.0 && q < 2.0, "{q}");
-    for png in ["sensitivity.png", "convergence.png", "global.png"] {
+    for png in [
+        "sensitivity.png",
+        "convergence.png",
+        "global.png",
+        "global_band.png",
+    ] {
         let len = std::fs::metadata(dir.join(png))
             .map(|m| m.len())
             .unwrap_or(0);

@@ -13,7 +13,9 @@ use serde_json::json;
 use m1::controller::ControllerParams;
 use m1::csi::{ActuatorLoop, BasisCurve, highest_gain, log_grid, sweep};
 use m1::geometry::{Geometry, GeometryParams};
-use m1::global_csi::{GlobalCriteria, GlobalCsi, GlobalSweep, global_sweep};
+use m1::global_csi::{
+    GlobalCriteria, GlobalCsi, GlobalQuantity, GlobalSweep, SENSITIVITY_LABEL_FROM, global_sweep,
+};
 use m1::monolithic::FrequencyModel;
 use m1::quasistatic::{self, Case, Nominal, Perturbation, RobustnessParams};
 use m1::segment::SegmentModel;
@@ -130,7 +132,8 @@ pub struct CsiArgs {
     /// Print one JSON object instead of the table.
     #[arg(long)]
     pub json: bool,
-    /// Directory for sensitivity.png, convergence.png and global.png.
+    /// Directory for sensitivity.png, convergence.png, global.png and global_band.png (the
+    /// loop-gain band on a linear axis); peaks are labelled with their Zernike family.
     #[arg(long)]
     pub plot: Option<String>,
 }
@@ -359,11 +362,7 @@ pub fn csi(a: &CsiArgs) -> Result<(), String> {
             a.max_degree
         );
         for p in &sw.all_segment_peaks {
-            let label = if p.label.starts_with('Z') {
-                p.label.clone()
-            } else {
-                format!("{} (Z{})", p.label, p.noll)
-            };
+            let label = family(&p.label, p.noll);
             println!(
                 "  {:>9.3} Hz  {:>8.4}  {label}",
                 p.frequency_hz, p.sensitivity_max
@@ -456,6 +455,15 @@ fn q_allowance(geometry: &Geometry, realizations: usize) -> Result<Option<QAllow
     }))
 }
 
+/// A peak's label with its Noll index: `TT (Z7)`, or `Z11` alone.
+fn family(label: &str, noll: usize) -> String {
+    if label.starts_with('Z') {
+        label.to_string()
+    } else {
+        format!("{label} (Z{noll})")
+    }
+}
+
 fn print_global(g: &GlobalSweep, q: Option<&QAllowance>) {
     println!(
         "Global loop ({} modes, {} Hz, bandwidths {} / {} / {} Hz, {} images each side; \
@@ -471,18 +479,34 @@ fn print_global(g: &GlobalSweep, q: Option<&QAllowance>) {
         g.frequencies_hz.len()
     );
     println!(
-        "{:<14} {:>9} {:>10} {:>9} {:>13} {:>9}",
-        "basis", "vectors", "||S||inf", "at (Hz)", "max L >= 5Hz", "at (Hz)"
+        "{:<14} {:>9} {:>10} {:>9} {:>9} {:>13} {:>9} {:>9}",
+        "basis",
+        "vectors",
+        "||S||inf",
+        "at (Hz)",
+        "label",
+        format!("max L >={}Hz", g.criteria.band_start_hz),
+        "at (Hz)",
+        "label"
     );
+    let lab = |l: &Option<String>, n: Option<usize>| match (l, n) {
+        (Some(l), Some(n)) => family(l, n),
+        _ => "-".into(),
+    };
     let row = |name: String, c: &m1::global_csi::GlobalCurve| {
         println!(
-            "{:<14} {:>9} {:>10.4} {:>9.3} {:>13.4} {:>9.3}",
+            "{:<14} {:>9} {:>10.4} {:>9.3} {:>9} {:>13.4} {:>9.3} {:>9}",
             name,
             c.n_vectors,
             c.peak_sensitivity,
             c.peak_sensitivity_hz,
+            lab(&c.peak_sensitivity_label, c.peak_sensitivity_noll),
             c.high_frequency_loop_gain,
-            c.high_frequency_loop_gain_hz
+            c.high_frequency_loop_gain_hz,
+            lab(
+                &c.high_frequency_loop_gain_label,
+                c.high_frequency_loop_gain_noll
+            )
         );
     };
     for c in &g.zernike {
@@ -492,6 +516,27 @@ fn print_global(g: &GlobalSweep, q: Option<&QAllowance>) {
         );
     }
     row("all segments".into(), &g.all_segments);
+    if !g.all_segment_peaks.is_empty() {
+        println!(
+            "all-segment peaks (sensitivity above {SENSITIVITY_LABEL_FROM}, loop gain from {} Hz \
+             above {}; label from Zernike p<={}):",
+            g.criteria.band_start_hz,
+            0.5 * g.loop_gain_limit,
+            g.zernike.len().saturating_sub(1)
+        );
+        for p in &g.all_segment_peaks {
+            println!(
+                "  {:>9.3} Hz  {:<11} {:>8.4}  {}",
+                p.frequency_hz,
+                match p.quantity {
+                    GlobalQuantity::Sensitivity => "sensitivity",
+                    GlobalQuantity::LoopGain => "loop gain",
+                },
+                p.value,
+                family(&p.label, p.noll)
+            );
+        }
+    }
     let ok = |b: bool| if b { "met" } else { "NOT met" };
     println!(
         "criteria: ||S||inf < {} {}; principal loop gain < {} / {} = {} at and above {} Hz {}",
@@ -561,15 +606,28 @@ fn write_global_plot(dir: &str, name: &str, g: &GlobalSweep) -> Result<(), Strin
             .map(|&x| (x, g.loop_gain_limit))
             .collect(),
     );
-    let series: Vec<(&str, &[(f64, f64)])> = labels
+    let series: Vec<plot::ColouredSeries> = labels
         .iter()
         .zip(&data)
-        .map(|(l, d)| (l.as_str(), d.as_slice()))
+        .enumerate()
+        .map(|(k, (l, d))| (l.as_str(), k, d.as_slice()))
+        .collect();
+    let texts: Vec<String> = g
+        .all_segment_peaks
+        .iter()
+        .map(|p| family(&p.label, p.noll))
+        .collect();
+    let marks: Vec<plot::PointMark> = g
+        .all_segment_peaks
+        .iter()
+        .zip(&texts)
+        .map(|(p, t)| ((p.frequency_hz, p.value), t.as_str()))
         .collect();
     let path = std::path::Path::new(dir).join("global.png");
-    plot::lines(
+    plot::lines_marked(
         &path,
         &series,
+        &marks,
         &format!(
             "global loop, {name} ({} Hz bandwidth, {} modes)",
             g.params.bandwidth, g.modes
@@ -578,6 +636,37 @@ fn write_global_plot(dir: &str, name: &str, g: &GlobalSweep) -> Result<(), Strin
         "max singular value",
         true,
         true,
+    )
+    .map_err(|e| format!("--plot {}: {e}", path.display()))?;
+    // The band of the loop-gain criterion on a linear axis, where the structure's peaks crowd.
+    let from = g.criteria.band_start_hz;
+    let band: Vec<Vec<(f64, f64)>> = data
+        .iter()
+        .map(|d| d.iter().copied().filter(|p| p.0 >= from).collect())
+        .collect();
+    if band.iter().all(|d| d.len() < 2) {
+        return Ok(());
+    }
+    let series: Vec<plot::ColouredSeries> = labels
+        .iter()
+        .zip(&band)
+        .enumerate()
+        .map(|(k, (l, d))| (l.as_str(), k, d.as_slice()))
+        .collect();
+    let marks: Vec<plot::PointMark> = marks.into_iter().filter(|m| m.0.0 >= from).collect();
+    let path = std::path::Path::new(dir).join("global_band.png");
+    plot::lines_marked(
+        &path,
+        &series,
+        &marks,
+        &format!(
+            "global loop from {from} Hz, {name} ({} Hz bandwidth, {} modes)",
+            g.params.bandwidth, g.modes
+        ),
+        "frequency (Hz)",
+        "max singular value",
+        false,
+        false,
     )
     .map_err(|e| format!("--plot {}: {e}", path.display()))
 }
@@ -604,15 +693,28 @@ fn write_plots(
     }
     labels.push(format!("all segments ({})", 3 * n));
     data.push(pts(&sw.all_segments.sensitivity_max));
-    let series: Vec<(&str, &[(f64, f64)])> = labels
+    let series: Vec<plot::ColouredSeries> = labels
         .iter()
         .zip(&data)
-        .map(|(l, d)| (l.as_str(), d.as_slice()))
+        .enumerate()
+        .map(|(k, (l, d))| (l.as_str(), k, d.as_slice()))
+        .collect();
+    let texts: Vec<String> = sw
+        .all_segment_peaks
+        .iter()
+        .map(|p| family(&p.label, p.noll))
+        .collect();
+    let marks: Vec<plot::PointMark> = sw
+        .all_segment_peaks
+        .iter()
+        .zip(&texts)
+        .map(|(p, t)| ((p.frequency_hz, p.sensitivity_max), t.as_str()))
         .collect();
     let path = std::path::Path::new(dir).join("sensitivity.png");
-    plot::lines(
+    plot::lines_marked(
         &path,
         &series,
+        &marks,
         &format!(
             "actuator servo sensitivity, {name} ({} modes, {})",
             a.modes,

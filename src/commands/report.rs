@@ -132,7 +132,8 @@ const ANALYSES: &[Analysis] = &[
                of growing radial degree, in segment bases and with all segments, its peaks \
                labelled by Zernike family, and the highest servo gain meeting sigma_max(S) < 2 \
                below 15 Hz; the global loop's principal loop gain and sensitivity against 1/2 \
-               over the interaction-matrix allowance, and its highest bandwidth.",
+               over the interaction-matrix allowance, their peaks labelled the same way, and \
+               its highest bandwidth.",
         args: &["csi"],
         plot: Plot::Dir("csi"),
         cosim: false,
@@ -150,6 +151,7 @@ const ANALYSES: &[Analysis] = &[
             "global.loop_gain_limit",
             "global.all_segments.peak",
             "global.all_segments.high_frequency",
+            "global.all_segment_peaks",
             "global.meets",
             "global.highest_bandwidth",
             "q_allowance.worst",

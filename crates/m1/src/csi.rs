@@ -375,6 +375,17 @@ impl ZernikeChannels {
         })
     }
 
+    /// The family and Noll index of the largest Zernike coefficient (in modulus) of the
+    /// pattern `basis[.., ..u.len()] u`, among the modes up to radial degree `degree`.
+    pub(crate) fn dominant(&self, u: &[c64], degree: u32) -> (String, usize) {
+        let nz = modes_up_to_degree(degree);
+        let c = self.coefficients(u, nz);
+        let j = (0..nz)
+            .max_by(|&a, &b| c[a].norm().total_cmp(&c[b].norm()))
+            .map_or(1, |i| i + 1);
+        (family_label(j, self.piston_share[j - 1]), j)
+    }
+
     /// Zernike coefficients (by Noll index - 1, `nz` of them) of the pattern `basis[.., ..n] u`.
     pub(crate) fn coefficients(&self, u: &[c64], nz: usize) -> Vec<c64> {
         let n = u.len();
@@ -763,12 +774,7 @@ impl ActuatorLoop {
             .unwrap_or(0);
         let v = svd.V();
         let u: Vec<c64> = (0..nb).map(|i| v[(i, imin)]).collect();
-        let nz = modes_up_to_degree(degree);
-        let c = self.zernike.coefficients(&u, nz);
-        let j = (0..nz)
-            .max_by(|&a, &b| c[a].norm().total_cmp(&c[b].norm()))
-            .map_or(1, |i| i + 1);
-        Ok((family_label(j, self.zernike.piston_share[j - 1]), j))
+        Ok(self.zernike.dominant(&u, degree))
     }
 }
 

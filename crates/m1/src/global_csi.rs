@@ -28,6 +28,18 @@
 //! and an $r \times n_b$ solve. The bases are nested, so one matrix at the largest degree serves
 //! every degree through its leading blocks.
 //!
+//! # Peak labels
+//!
+//! As for the servo loop ([`crate::csi`]): at a peak the dominant direction is written in
+//! Zernike coefficients and the peak takes the family of the largest (`P`, `TT`, `FA` or
+//! `Z<j>`). For the sensitivity the direction is the top left singular vector of $S_B$ (the
+//! right singular vector of $I + L_B$ with its smallest singular value), for the loop gain the
+//! top left singular vector of $L_B$. A Zernike curve's peaks are labelled in its own basis,
+//! the all-segment curve's in the basis of the largest degree. The all-segment curve's local
+//! maxima are labelled too: those of the sensitivity above [`SENSITIVITY_LABEL_FROM`] and
+//! those of the loop gain at and above the band start above half the loop-gain limit (at most
+//! [`MAX_LABELLED_PEAKS`] of each, the largest).
+//!
 //! # Criteria (seed paper)
 //!
 //! The peak sensitivity below 2, and the principal loop gain at the higher frequencies (at and
@@ -50,10 +62,41 @@ use crate::geometry::Geometry;
 use crate::layout::Layout;
 use crate::monolithic::{FrequencyModel, GlobalLoop, PlantOnW, hold};
 
+/// Local maxima of the all-segment sensitivity above this are labelled.
+pub const SENSITIVITY_LABEL_FROM: f64 = 1.2;
+/// At most this many local maxima of each quantity are labelled (the largest).
+pub const MAX_LABELLED_PEAKS: usize = 8;
+
+/// What a global-loop peak is the peak of.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GlobalQuantity {
+    /// $\sigma_{max}(S)$.
+    Sensitivity,
+    /// $\sigma_{max}(L)$.
+    LoopGain,
+}
+
+/// A labelled local maximum of an all-segment curve.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct GlobalPeak {
+    /// Which curve.
+    pub quantity: GlobalQuantity,
+    /// Frequency (Hz).
+    pub frequency_hz: f64,
+    /// The maximum singular value there (all segments).
+    pub value: f64,
+    /// Family of the dominant Zernike mode (largest degree of the analysis).
+    pub label: String,
+    /// Its Noll index.
+    pub noll: usize,
+}
+
 /// The global loop of a mirror on its structure, with its Zernike bases.
 #[derive(Debug, Clone)]
 pub struct GlobalCsi {
     fm: FrequencyModel,
+    zc: ZernikeChannels,
     params: ControllerParams,
     gl: GlobalLoop,
     /// Orthonormal Zernike columns per degree (prefix sizes).
@@ -128,6 +171,14 @@ pub struct GlobalCurve {
     pub high_frequency_loop_gain: f64,
     /// Where (Hz).
     pub high_frequency_loop_gain_hz: f64,
+    /// Family of the dominant Zernike mode at the sensitivity peak.
+    pub peak_sensitivity_label: Option<String>,
+    /// Its Noll index.
+    pub peak_sensitivity_noll: Option<usize>,
+    /// Family of the dominant Zernike mode at the high-frequency loop-gain peak.
+    pub high_frequency_loop_gain_label: Option<String>,
+    /// Its Noll index.
+    pub high_frequency_loop_gain_noll: Option<usize>,
 }
 
 /// The global loop's sweep against the criteria.
@@ -149,6 +200,9 @@ pub struct GlobalSweep {
     pub zernike: Vec<GlobalCurve>,
     /// All segments (exact on the coupled subspace).
     pub all_segments: GlobalCurve,
+    /// Labelled local maxima of the all-segment curves, by frequency (see the module
+    /// documentation).
+    pub all_segment_peaks: Vec<GlobalPeak>,
     /// Whether the peak sensitivity (all segments) meets its criterion.
     pub meets_sensitivity: bool,
     /// Whether the high-frequency loop gain (all segments) meets its criterion.
@@ -280,6 +334,7 @@ impl GlobalCsi {
             params,
             gl,
             prefix: zc.prefix.clone(),
+            zc,
             ctb,
             ctphi,
             phitb,
@@ -355,6 +410,68 @@ impl GlobalCsi {
         })
     }
 
+    /// The dominant Zernike mode at `f` (Hz) of `quantity` in the Zernike basis of radial
+    /// degree `degree`, with the analysed controller: `(label, Noll index)`.
+    ///
+    /// # Errors
+    /// As [`Self::point`]; [`M1Error::InvalidParameter`] for a degree beyond the basis.
+    pub fn peak_label(
+        &self,
+        f: f64,
+        degree: u32,
+        quantity: GlobalQuantity,
+    ) -> Result<(String, usize), M1Error> {
+        let gains = self.params.gains()?;
+        let pz = self.zernike_plant(f)?;
+        self.label_from_plant(f, &pz, &gains, degree, quantity)
+    }
+
+    /// [`Self::peak_label`] from the Zernike plant at `f`.
+    fn label_from_plant(
+        &self,
+        f: f64,
+        pz: &Mat<c64>,
+        gains: &LoopGains,
+        degree: u32,
+        quantity: GlobalQuantity,
+    ) -> Result<(String, usize), M1Error> {
+        let nb = *self
+            .prefix
+            .get(degree as usize)
+            .ok_or(M1Error::InvalidParameter {
+                name: "degree",
+                value: f64::from(degree),
+                reason: "beyond the largest Zernike degree of the analysis",
+            })?;
+        let lz = self.zernike_loop(f, pz, gains);
+        let one = if quantity == GlobalQuantity::Sensitivity {
+            1.0
+        } else {
+            0.0
+        };
+        let a = Mat::from_fn(nb, nb, |i, j| {
+            lz[(i, j)] + if i == j { c(one) } else { c(0.0) }
+        });
+        let svd = a
+            .svd()
+            .map_err(|_| M1Error::Numerical(format!("SVD of the global loop failed at {f} Hz")))?;
+        let sv = svd.S().column_vector();
+        let order = |x: &usize, y: &usize| sv[*x].re.total_cmp(&sv[*y].re);
+        // S_B = V Sigma^-1 U^H for I + L_B = U Sigma V^H: its top left singular vector is V's
+        // column of the smallest singular value; L_B's is U's column of the largest.
+        let u: Vec<c64> = match quantity {
+            GlobalQuantity::Sensitivity => {
+                let k = (0..nb).min_by(order).unwrap_or(0);
+                (0..nb).map(|i| svd.V()[(i, k)]).collect()
+            }
+            GlobalQuantity::LoopGain => {
+                let k = (0..nb).max_by(order).unwrap_or(0);
+                (0..nb).map(|i| svd.U()[(i, k)]).collect()
+            }
+        };
+        Ok(self.zc.dominant(&u, degree))
+    }
+
     /// Every basis at `f` (Hz) with the analysed controller, and the all-segment plant (for
     /// bandwidth searches).
     ///
@@ -428,19 +545,31 @@ pub fn global_sweep(
         .map(|&f| g.point_with_plants(f))
         .collect::<Result<_, _>>()?;
     let limit = criteria.max_loop_gain / criteria.allowance;
+    let gains = g.params.gains()?;
+    let top = g.prefix.len().saturating_sub(1) as u32;
+    let label = |i: usize, degree: u32, q: GlobalQuantity| {
+        g.label_from_plant(grid[i], &pts[i].2, &gains, degree, q)
+    };
     let curve = |basis: &str, degree: Option<u32>, nv: usize, s: Vec<f64>, l: Vec<f64>| {
         let (mut ps, mut psf, mut pl, mut plf) = (0.0f64, f64::NAN, 0.0f64, f64::NAN);
+        let (mut psi, mut pli) = (None, None);
         for (i, &f) in grid.iter().enumerate() {
             if s[i] > ps {
                 ps = s[i];
                 psf = f;
+                psi = Some(i);
             }
             if f >= criteria.band_start_hz && l[i] > pl {
                 pl = l[i];
                 plf = f;
+                pli = Some(i);
             }
         }
-        GlobalCurve {
+        let d = degree.unwrap_or(top);
+        let at = |i: Option<usize>, q| i.map(|i| label(i, d, q)).transpose();
+        let sl = at(psi, GlobalQuantity::Sensitivity)?;
+        let ll = at(pli, GlobalQuantity::LoopGain)?;
+        Ok::<_, M1Error>(GlobalCurve {
             basis: basis.into(),
             max_radial_degree: degree,
             n_vectors: nv,
@@ -450,7 +579,11 @@ pub fn global_sweep(
             peak_sensitivity_hz: psf,
             high_frequency_loop_gain: pl,
             high_frequency_loop_gain_hz: plf,
-        }
+            peak_sensitivity_noll: sl.as_ref().map(|x| x.1),
+            peak_sensitivity_label: sl.map(|x| x.0),
+            high_frequency_loop_gain_noll: ll.as_ref().map(|x| x.1),
+            high_frequency_loop_gain_label: ll.map(|x| x.0),
+        })
     };
     let zernike = g
         .prefix
@@ -465,14 +598,50 @@ pub fn global_sweep(
                 pts.iter().map(|p| p.0.zernike_loop_gain[d]).collect(),
             )
         })
-        .collect();
+        .collect::<Result<Vec<_>, _>>()?;
     let all = curve(
         "all_segments",
         None,
         g.fm.n_actuators(),
         pts.iter().map(|p| p.0.sensitivity).collect(),
         pts.iter().map(|p| p.0.loop_gain).collect(),
-    );
+    )?;
+    let mut peaks = Vec::new();
+    for (q, v, from, in_band) in [
+        (
+            GlobalQuantity::Sensitivity,
+            &all.sensitivity_max,
+            SENSITIVITY_LABEL_FROM,
+            false,
+        ),
+        (
+            GlobalQuantity::LoopGain,
+            &all.loop_gain_max,
+            0.5 * limit,
+            true,
+        ),
+    ] {
+        let mut found: Vec<usize> = (0..v.len())
+            .filter(|&i| {
+                let left = i == 0 || v[i] >= v[i - 1];
+                let right = i + 1 == v.len() || v[i] > v[i + 1];
+                left && right && v[i] > from && (!in_band || grid[i] >= criteria.band_start_hz)
+            })
+            .collect();
+        found.sort_by(|&x, &y| v[y].total_cmp(&v[x]));
+        found.truncate(MAX_LABELLED_PEAKS);
+        for i in found {
+            let (label, noll) = label(i, top, q)?;
+            peaks.push(GlobalPeak {
+                quantity: q,
+                frequency_hz: grid[i],
+                value: v[i],
+                label,
+                noll,
+            });
+        }
+    }
+    peaks.sort_by(|x, y| x.frequency_hz.total_cmp(&y.frequency_hz));
     let mut plants = Vec::with_capacity(pts.len());
     let mut zplants = Vec::with_capacity(pts.len());
     for (_, p, z) in pts {
@@ -497,6 +666,7 @@ pub fn global_sweep(
         meets_loop_gain: all.high_frequency_loop_gain < limit,
         zernike,
         all_segments: all,
+        all_segment_peaks: peaks,
         highest_bandwidth: highest,
     })
 }
@@ -773,6 +943,39 @@ mod tests {
         );
         assert!((z0 - a0).abs() < 1e-2 * a0, "{z0} vs {a0}");
         assert!(sw.highest_bandwidth.bandwidth_hz > 0.0);
+    }
+
+    /// At low frequency the loop is large in every direction but the controller's null space
+    /// (global piston, tip and tilt, at zero gain), where the sensitivity stays near 1: its
+    /// peak direction is Z1, Z2 or Z3. The loop gain's top direction is elsewhere.
+    #[test]
+    fn low_frequency_sensitivity_is_labelled_by_the_null_space() {
+        let g = keck(0, 0);
+        for d in [2, 4, 6] {
+            let (label, noll) = g.peak_label(0.01, d, GlobalQuantity::Sensitivity).unwrap();
+            assert!(noll <= 3, "degree {d}: {label} (Z{noll})");
+            assert!(label == "P" || label == "TT", "{label}");
+            let (_, nl) = g.peak_label(0.01, d, GlobalQuantity::LoopGain).unwrap();
+            assert!(nl > 3, "degree {d}: loop gain's direction Z{nl}");
+        }
+        let e = g
+            .peak_label(0.01, 7, GlobalQuantity::Sensitivity)
+            .unwrap_err();
+        assert!(e.to_string().contains("degree"), "{e}");
+        let grid = crate::csi::log_grid(0.005, 9.9, 30);
+        let sw = global_sweep(&g, &grid, &GlobalCriteria::default()).unwrap();
+        for c in sw.zernike.iter().chain(std::iter::once(&sw.all_segments)) {
+            assert!(
+                c.peak_sensitivity_label.is_some() && c.high_frequency_loop_gain_noll.is_some()
+            );
+        }
+        for p in &sw.all_segment_peaks {
+            let from = match p.quantity {
+                GlobalQuantity::Sensitivity => SENSITIVITY_LABEL_FROM,
+                GlobalQuantity::LoopGain => 0.5 * sw.loop_gain_limit,
+            };
+            assert!(p.value > from, "{p:?}");
+        }
     }
 
     /// The criteria are checked.
