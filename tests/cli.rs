@@ -521,6 +521,12 @@ fn report_on_keck() {
         "{md}"
     );
     assert!(md.contains("| `highest_gain.gain_factor` |"), "{md}");
+    // Labelled peaks are one row each; the output directory is written DIR, not its path.
+    assert!(
+        md.contains("| `global.all_segment_peaks[0]` | frequency_hz "),
+        "{md}"
+    );
+    assert!(!md.contains(dir.to_str().unwrap()), "{md}");
     for f in [
         "csi/sensitivity.png",
         "csi/convergence.png",

@@ -208,6 +208,15 @@ fn scalars(v: &serde_json::Value, path: &str, out: &mut Vec<(String, String)>) {
             if a.len() <= 8 && a.iter().all(|x| !x.is_object() && !x.is_array()) {
                 let items: Vec<String> = a.iter().map(text).collect();
                 out.push((path.to_string(), format!("[{}]", items.join(", "))));
+            } else if a.len() <= 16 && a.iter().all(flat_object) {
+                // A table-like list (e.g. labelled peaks): one row per element.
+                for (i, x) in a.iter().enumerate() {
+                    let fields: Vec<String> = x
+                        .as_object()
+                        .map(|m| m.iter().map(|(k, y)| format!("{k} {}", text(y))).collect())
+                        .unwrap_or_default();
+                    out.push((format!("{path}[{i}]"), fields.join(", ")));
+                }
             } else if a.len() <= 12 && a.iter().all(serde_json::Value::is_object) {
                 for (i, x) in a.iter().enumerate() {
                     scalars(x, &format!("{path}[{i}]"), out);
@@ -218,6 +227,12 @@ fn scalars(v: &serde_json::Value, path: &str, out: &mut Vec<(String, String)>) {
         }
         _ => out.push((path.to_string(), text(v))),
     }
+}
+
+/// An object of at most 6 scalar fields.
+fn flat_object(v: &serde_json::Value) -> bool {
+    v.as_object()
+        .is_some_and(|m| m.len() <= 6 && m.values().all(|x| !x.is_object() && !x.is_array()))
 }
 
 fn text(v: &serde_json::Value) -> String {
@@ -335,8 +350,10 @@ pub fn report(a: &ReportArgs) -> Result<(), String> {
                     rows.retain(|(k, _)| an.keys.iter().any(|p| k.starts_with(p)));
                 }
                 let _ = writeln!(md, "| quantity | value |\n|---|---|");
+                let prefix = format!("{}/", dir.display());
                 for (k, val) in rows.iter().take(60) {
-                    let _ = writeln!(md, "| `{k}` | {} |", val.replace('|', "/"));
+                    let val = val.replace(&prefix, "DIR/").replace('|', "/");
+                    let _ = writeln!(md, "| `{k}` | {val} |");
                 }
                 if rows.len() > 60 {
                     let _ = writeln!(md, "| ... | {} more in `--json` |", rows.len() - 60);
