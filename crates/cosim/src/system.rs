@@ -11,12 +11,24 @@
 //! - **Jacobi** (the library's default): at a communication point every due component first
 //!   receives the outputs all components had at that point, then all due components step, in
 //!   parallel on rayon's pool when at least two of them take over [`PARALLEL_MIN_SECONDS`] per
-//!   step (a running mean), in turn otherwise (same results). Results do not depend on the order
+//!   step (a running mean); with one such component, it steps on the calling thread while the
+//!   others step in turn on a worker when they add up to [`SPLIT_MIN_SECONDS`] and it outlasts
+//!   them by [`WAKE_SECONDS`] (the worker's wake-up hides behind it); in turn otherwise (same
+//!   results in every case). Results do not depend on the order
 //!   of components; each connection carries a value one step old, which is the standard
 //!   co-simulation delay (fmpy.ssp works the same way).
 //! - **Gauss-Seidel**: due components step one after the other in the order they were added,
-//!   each receiving the outputs its predecessors just produced: less delay along the order,
-//!   no parallelism.
+//!   each receiving the outputs its predecessors just produced: less delay along the order.
+//!   **Look-ahead**: a component whose outputs nobody needs right away (the next due component
+//!   does not read them, and they are not recorded) may step on a second thread while the
+//!   master goes on with the next components, into the next base step if nothing reads it:
+//!   its inputs are gathered at its turn, and it is waited for before anything that reads it
+//!   (or its own next step, or the end of the run). Every component therefore receives exactly
+//!   the values of the sequential order, bit for bit (tested); only the wall time changes. One
+//!   component is in flight at a time, and only one taking at least
+//!   [`LOOKAHEAD_MIN_SECONDS`] per step (a running mean), so that handing it over pays. In the
+//!   standard TMT system the edge sensors (read by the 20 Hz controller only) step while the
+//!   master moves on to the optics and the next step's wind and mirror.
 //!
 //! Values move in bulk: per component and step one `fmi2SetReal` over all its connected inputs
 //! and one `fmi2GetReal` over all its connected outputs, through buffers allocated once.
@@ -199,10 +211,20 @@ impl Running {
     /// its outputs into `out_buf`: one fmi2SetReal, one fmi2DoStep, one fmi2GetReal, no
     /// allocation.
     fn advance(&mut self, outputs: &[f64], t: f64, h: f64, left: usize) -> Result<()> {
-        let t0 = Instant::now();
+        self.gather(outputs);
+        self.step_gathered(t, h, left)
+    }
+
+    /// Copies its inputs out of `outputs` into `in_buf`.
+    fn gather(&mut self, outputs: &[f64]) {
         for (b, &s) in self.in_buf.iter_mut().zip(&self.in_src) {
             *b = outputs[s];
         }
+    }
+
+    /// [`Self::advance`] on the inputs gathered in `in_buf`.
+    fn step_gathered(&mut self, t: f64, h: f64, left: usize) -> Result<()> {
+        let t0 = Instant::now();
         self.instance.set_real(&self.in_vrs, &self.in_buf)?;
         self.instance.do_step(t, h * self.every.min(left) as f64)?;
         self.instance.get_real(&self.out_vrs, &mut self.out_buf)?;
@@ -235,11 +257,85 @@ impl Running {
 /// 2-core machine).
 pub const PARALLEL_MIN_SECONDS: f64 = 2e-4;
 
+/// Jacobi with a single heavy component: the others (at least this much work per step, s)
+/// step on a worker while it steps, if it takes at least [`WAKE_SECONDS`] longer than they do.
+pub const SPLIT_MIN_SECONDS: f64 = 5e-5;
+
+/// The worst time to wake a sleeping worker measured on the 2-core machine (s).
+pub const WAKE_SECONDS: f64 = 1.5e-4;
+
+/// Mean time per step (s) from which a component may step on the look-ahead thread in
+/// Gauss-Seidel order (handing it over and back costs a few microseconds when the thread is
+/// awake, up to 50-150 us to wake it on the 2-core machine, hidden while the master steps the
+/// others).
+pub const LOOKAHEAD_MIN_SECONDS: f64 = 5e-5;
+
+/// A component's step on the look-ahead thread: it goes there with its inputs gathered and
+/// comes back stepped, with the outcome.
+struct Job {
+    index: usize,
+    comp: Box<Running>,
+    t: f64,
+    h: f64,
+    left: usize,
+    result: Result<()>,
+}
+
+/// The look-ahead thread of a Gauss-Seidel simulation and the component it has in flight.
+struct Lookahead {
+    jobs: Option<std::sync::mpsc::SyncSender<Job>>,
+    done: std::sync::mpsc::Receiver<Job>,
+    thread: Option<std::thread::JoinHandle<()>>,
+    in_flight: Option<usize>,
+    /// Components' steps taken there so far.
+    deferred: u64,
+}
+
+impl Lookahead {
+    fn start() -> Result<Self> {
+        let (jobs, inbox) = std::sync::mpsc::sync_channel::<Job>(1);
+        let (outbox, done) = std::sync::mpsc::sync_channel::<Job>(1);
+        let thread = std::thread::Builder::new()
+            .name("cosim-lookahead".into())
+            .spawn(move || {
+                while let Ok(mut job) = inbox.recv() {
+                    job.result = job.comp.step_gathered(job.t, job.h, job.left);
+                    if outbox.send(job).is_err() {
+                        break;
+                    }
+                }
+            })
+            .map_err(|e| CosimError::Invalid(format!("cannot start the look-ahead thread: {e}")))?;
+        Ok(Self {
+            jobs: Some(jobs),
+            done,
+            thread: Some(thread),
+            in_flight: None,
+            deferred: 0,
+        })
+    }
+}
+
+impl Drop for Lookahead {
+    fn drop(&mut self) {
+        // Closing the channel ends the thread's loop; a job still in flight comes back (or is
+        // dropped with the thread) before the libraries close: Simulation's fields drop after
+        // this one.
+        self.jobs = None;
+        if self.in_flight.take().is_some() {
+            let _ = self.done.recv();
+        }
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
 /// Steps the due components of `comps` in parallel by recursive halving (`rayon::join`: no
 /// allocation, and the calling thread takes one half). Returns the wall time of the FMU calls
 /// on the critical path (the longer of the two halves, recursively).
 fn advance_split(
-    comps: &mut [Running],
+    comps: &mut [Option<Box<Running>>],
     due: &(dyn Fn(&Running) -> bool + Sync),
     outputs: &[f64],
     t: f64,
@@ -248,13 +344,10 @@ fn advance_split(
 ) -> Result<f64> {
     match comps {
         [] => Ok(0.0),
-        [r] => {
-            if due(r) {
-                r.advance(outputs, t, h, left).map(|()| r.last)
-            } else {
-                Ok(0.0)
-            }
-        }
+        [r] => match r.as_deref_mut() {
+            Some(r) if due(r) => r.advance(outputs, t, h, left).map(|()| r.last),
+            _ => Ok(0.0),
+        },
         _ => {
             let (a, b) = comps.split_at_mut(comps.len() / 2);
             let (x, y) = rayon::join(
@@ -276,7 +369,18 @@ pub struct Recorded {
 
 /// The system instantiated and initialised, ready to step.
 pub struct Simulation {
-    comps: Vec<Running>,
+    /// The components in order; `None` while on the look-ahead thread.
+    comps: Vec<Option<Box<Running>>>,
+    /// Per component, the components it reads from (sorted, without duplicates).
+    sources: Vec<Vec<usize>>,
+    /// Per component, its period in base steps.
+    every: Vec<u64>,
+    /// Per component, whether any of its outputs is recorded.
+    recorded_comp: Vec<bool>,
+    /// Gauss-Seidel's look-ahead thread (None: off, or Jacobi).
+    lookahead: Option<Lookahead>,
+    /// Mean step time from which a component may go to the look-ahead thread (s).
+    lookahead_min: f64,
     /// Latest output values of all components, concatenated.
     outputs: Vec<f64>,
     /// Snapshot of `outputs` at the communication point (Jacobi).
@@ -531,8 +635,31 @@ impl Simulation {
                 .collect();
             exits.into_iter().collect::<Result<Vec<()>>>()?;
         }
+        let sources: Vec<Vec<usize>> = in_conn
+            .iter()
+            .map(|v| {
+                let mut s: Vec<usize> = v.iter().map(|x| x.1).collect();
+                s.sort_unstable();
+                s.dedup();
+                s
+            })
+            .collect();
+        let mut recorded_comp = vec![false; n];
+        for r in &rec_local {
+            recorded_comp[r.1] = true;
+        }
+        let lookahead = if system.order == Order::GaussSeidel && n > 1 {
+            Some(Lookahead::start()?)
+        } else {
+            None
+        };
         let mut sim = Self {
-            comps,
+            every: comps.iter().map(|r| r.every as u64).collect(),
+            comps: comps.into_iter().map(|r| Some(Box::new(r))).collect(),
+            sources,
+            recorded_comp,
+            lookahead,
+            lookahead_min: LOOKAHEAD_MIN_SECONDS,
             outputs: vec![0.0; total],
             snapshot: vec![0.0; total],
             order: system.order,
@@ -558,10 +685,76 @@ impl Simulation {
     }
 
     fn read_outputs(&mut self, c: usize) -> Result<()> {
-        let r = &mut self.comps[c];
-        r.instance.get_real(&r.out_vrs, &mut r.out_buf)?;
-        r.publish(&mut self.outputs);
+        self.settle()?;
+        if let Some(r) = self.comps[c].as_deref_mut() {
+            r.instance.get_real(&r.out_vrs, &mut r.out_buf)?;
+            r.publish(&mut self.outputs);
+        }
         Ok(())
+    }
+
+    /// Waits for the component on the look-ahead thread (if any), puts it back and publishes
+    /// its outputs: afterwards every component is in place and every output current.
+    ///
+    /// # Errors
+    /// The error of that component's step (naming it and the time), or a look-ahead thread
+    /// that stopped.
+    pub fn settle(&mut self) -> Result<()> {
+        let Some(la) = self.lookahead.as_mut() else {
+            return Ok(());
+        };
+        let Some(i) = la.in_flight.take() else {
+            return Ok(());
+        };
+        let t0 = Instant::now();
+        let job = la.done.recv().map_err(|_| {
+            CosimError::Invalid(format!(
+                "{}: the look-ahead thread stopped during its step",
+                self.names_hint(i)
+            ))
+        })?;
+        self.fmu_critical += t0.elapsed().as_secs_f64();
+        let Job {
+            index,
+            comp,
+            result,
+            ..
+        } = job;
+        comp.publish(&mut self.outputs);
+        self.comps[index] = Some(comp);
+        result
+    }
+
+    fn names_hint(&self, i: usize) -> String {
+        self.comps
+            .get(i)
+            .and_then(|c| c.as_deref())
+            .map_or_else(|| format!("component {i}"), |r| r.name.clone())
+    }
+
+    /// Turns Gauss-Seidel's look-ahead off (`None`) or lets components of at least that mean
+    /// step time (s) use it (the default is [`LOOKAHEAD_MIN_SECONDS`]); results are the same
+    /// either way. No effect in Jacobi order.
+    ///
+    /// # Errors
+    /// As [`Self::settle`] (a component in flight is waited for first).
+    pub fn set_lookahead(&mut self, min_seconds: Option<f64>) -> Result<()> {
+        self.settle()?;
+        match min_seconds {
+            None => self.lookahead = None,
+            Some(m) => {
+                self.lookahead_min = m;
+                if self.lookahead.is_none() && self.order == Order::GaussSeidel {
+                    self.lookahead = Some(Lookahead::start()?);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Components' steps taken on the look-ahead thread so far.
+    pub fn lookahead_steps(&self) -> u64 {
+        self.lookahead.as_ref().map_or(0, |l| l.deferred)
     }
 
     /// Current simulation time (s).
@@ -614,33 +807,137 @@ impl Simulation {
                 let heavy = self
                     .comps
                     .iter()
+                    .flatten()
                     .filter(|r| due(r) && r.mean >= PARALLEL_MIN_SECONDS)
                     .count();
+                // One heavy component and enough light work to move: the heavy one on this
+                // thread, the others in turn on a worker, whose wake-up hides behind it.
+                let (mut top, mut top_mean, mut rest) = (None, 0.0, 0.0);
+                for (i, r) in self.comps.iter().enumerate() {
+                    if let Some(r) = r.as_deref().filter(|r| due(r)) {
+                        let m = if r.mean.is_finite() { r.mean } else { 0.0 };
+                        if m > top_mean {
+                            rest += top_mean;
+                            top = Some(i);
+                            top_mean = m;
+                        } else {
+                            rest += m;
+                        }
+                    }
+                }
                 let critical = if heavy > 1 {
                     advance_split(&mut self.comps, &due, snapshot, t, h, left)?
+                } else if let Some(i) = top
+                    && rest >= SPLIT_MIN_SECONDS
+                    && top_mean >= rest + WAKE_SECONDS
+                {
+                    let (before, from) = self.comps.split_at_mut(i);
+                    let (heaviest, after) = from.split_at_mut(1);
+                    let (x, y) = rayon::join(
+                        || advance_split(heaviest, &due, snapshot, t, h, left),
+                        || -> Result<f64> {
+                            let mut sum = 0.0;
+                            for r in before
+                                .iter_mut()
+                                .chain(after.iter_mut())
+                                .flatten()
+                                .filter(|r| due(r))
+                            {
+                                r.advance(snapshot, t, h, left)?;
+                                sum += r.last;
+                            }
+                            Ok(sum)
+                        },
+                    );
+                    x?.max(y?)
                 } else {
                     let mut sum = 0.0;
-                    for r in self.comps.iter_mut().filter(|r| due(r)) {
+                    for r in self.comps.iter_mut().flatten().filter(|r| due(r)) {
                         r.advance(snapshot, t, h, left)?;
                         sum += r.last;
                     }
                     sum
                 };
-                for r in self.comps.iter().filter(|r| due(r)) {
+                for r in self.comps.iter().flatten().filter(|r| due(r)) {
                     r.publish(&mut self.outputs);
                 }
                 self.fmu_critical += critical;
             }
-            Order::GaussSeidel => {
-                for r in self.comps.iter_mut().filter(|r| due(r)) {
-                    r.advance(&self.outputs, t, h, left)?;
-                    r.publish(&mut self.outputs);
-                    self.fmu_critical += r.last;
-                }
-            }
+            Order::GaussSeidel => self.step_gauss_seidel(k, t, h, left)?,
         }
         self.n_steps += 1;
         self.time = self.start + self.n_steps as f64 * h;
+        Ok(())
+    }
+
+    /// Gauss-Seidel: the due components in turn, each on the newest outputs; one whose
+    /// outputs are not needed right away may go to the look-ahead thread (module docs).
+    fn step_gauss_seidel(&mut self, k: u64, t: f64, h: f64, left: usize) -> Result<()> {
+        for i in 0..self.comps.len() {
+            if !k.is_multiple_of(self.every[i]) {
+                continue;
+            }
+            // Wait for the component in flight if it is this one's previous step or this one
+            // reads it.
+            if let Some(j) = self.lookahead.as_ref().and_then(|l| l.in_flight)
+                && (j == i || self.sources[i].binary_search(&j).is_ok())
+            {
+                self.settle()?;
+            }
+            self.gs_turn(i, k, t, h, left)?;
+        }
+        Ok(())
+    }
+
+    /// The turn of due component `i` in Gauss-Seidel order (nothing it reads is in flight).
+    fn gs_turn(&mut self, i: usize, k: u64, t: f64, h: f64, left: usize) -> Result<()> {
+        let n = self.comps.len();
+        // The next turn: the next due component of this step, or the first of the next step.
+        let next = (i + 1..n)
+            .find(|&j| k.is_multiple_of(self.every[j]))
+            .or_else(|| (0..=i).find(|&j| (k + 1).is_multiple_of(self.every[j])));
+        let Some(r) = self.comps[i].as_deref_mut() else {
+            return Err(CosimError::Invalid(format!(
+                "component {i} is missing from the master (internal error)"
+            )));
+        };
+        r.gather(&self.outputs);
+        let defer = !self.recorded_comp[i]
+            && r.mean.is_finite()
+            && r.mean >= self.lookahead_min
+            && next.is_some_and(|j| j != i && self.sources[j].binary_search(&i).is_err());
+        if defer
+            && let Some(la) = self.lookahead.as_mut()
+            && la.in_flight.is_none()
+            && let Some(tx) = la.jobs.as_ref()
+            && let Some(comp) = self.comps[i].take()
+        {
+            let job = Job {
+                index: i,
+                comp,
+                t,
+                h,
+                left,
+                result: Ok(()),
+            };
+            match tx.send(job) {
+                Ok(()) => {
+                    la.in_flight = Some(i);
+                    la.deferred += 1;
+                    return Ok(());
+                }
+                Err(std::sync::mpsc::SendError(job)) => {
+                    // The thread is gone: step it here, and no more look-ahead.
+                    self.comps[i] = Some(job.comp);
+                    self.lookahead = None;
+                }
+            }
+        }
+        if let Some(r) = self.comps[i].as_deref_mut() {
+            r.step_gathered(t, h, left)?;
+            r.publish(&mut self.outputs);
+            self.fmu_critical += r.last;
+        }
         Ok(())
     }
 
@@ -649,7 +946,8 @@ impl Simulation {
     /// # Errors
     /// The first component that fails to terminate.
     pub fn terminate(&mut self) -> Result<()> {
-        for r in &mut self.comps {
+        self.settle()?;
+        for r in self.comps.iter_mut().flatten() {
             r.instance.terminate()?;
         }
         Ok(())
@@ -659,6 +957,7 @@ impl Simulation {
     pub fn component_seconds(&self) -> Vec<(String, f64)> {
         self.comps
             .iter()
+            .flatten()
             .map(|r| (r.name.clone(), r.busy))
             .collect()
     }
@@ -669,6 +968,7 @@ impl Simulation {
     pub fn component_setup_seconds(&self) -> Vec<(String, f64)> {
         self.comps
             .iter()
+            .flatten()
             .map(|r| (r.name.clone(), r.setup))
             .collect()
     }
@@ -680,7 +980,11 @@ impl Simulation {
 
     /// Component names in order.
     pub fn component_names(&self) -> Vec<&str> {
-        self.comps.iter().map(|r| r.name.as_str()).collect()
+        self.comps
+            .iter()
+            .flatten()
+            .map(|r| r.name.as_str())
+            .collect()
     }
 }
 
@@ -865,6 +1169,12 @@ pub fn run(
             sample(&sim, &mut values, &mut filled);
         }
         progress(sim.time(), sim.stop_time());
+    }
+    // The component still on the look-ahead thread comes back (its error, if any, counts).
+    if let Err(e) = sim.settle()
+        && failed.is_none()
+    {
+        failed = Some(e);
     }
     let timing = Timing {
         loop_seconds: t0.elapsed().as_secs_f64(),

@@ -607,3 +607,75 @@ fn an_open_fmu_is_shared_until_closed() {
     let d = Fmu::open(&path).unwrap();
     assert_ne!(d.unpacked_dir(), c.unpacked_dir());
 }
+
+/// Gauss-Seidel's look-ahead (every eligible component handed to the second thread: threshold
+/// 0) gives bit for bit the values of the sequential order: a feeds b (every 3 steps) and c, b
+/// feeds d (every 2). b is read by neither of the next turns, so it steps on the look-ahead
+/// thread while c steps, and d waits for it. The step loop allocates nothing on this thread
+/// with the look-ahead on, and a deferred component's failure is reported with its name,
+/// function and time at the next wait.
+#[test]
+fn gauss_seidel_lookahead_changes_no_value() {
+    let path = tiny_fmu("lookahead", &tiny_xml(), &[], true);
+    let sys = |fail_b: f64| {
+        System::new(0.3, 0.001)
+            .component("a", &path)
+            .parameter("a", "u", Value::Real(1.5))
+            .component("b", &path)
+            .every(3)
+            .parameter("b", "k", Value::Real(0.7))
+            .parameter("b", "fail_at", Value::Real(fail_b))
+            .component("c", &path)
+            .component("d", &path)
+            .every(2)
+            .connect("a.y", "b.u")
+            .connect("a.y", "c.u")
+            .connect("b.y", "d.u")
+            .order(Order::GaussSeidel)
+    };
+    let record = ["c.y".to_string(), "d.y".to_string()];
+    let rows = |lookahead: Option<f64>| {
+        let mut sim = cosim::Simulation::new(&sys(-1.0), &record).unwrap();
+        sim.set_lookahead(lookahead).unwrap();
+        let mut out = Vec::with_capacity(2 * 400);
+        let mut row = [0.0; 2];
+        let mut allocs = (0, 0);
+        let mut k = 0;
+        while !sim.finished() {
+            sim.step().unwrap();
+            sim.recorded_values(&mut row);
+            out.extend_from_slice(&row);
+            k += 1;
+            // After the first waits (the channel's per-thread context is made once).
+            if k == 30 {
+                allocs.0 = ALLOCATIONS.with(std::cell::Cell::get);
+            }
+        }
+        allocs.1 = ALLOCATIONS.with(std::cell::Cell::get);
+        sim.settle().unwrap();
+        (out, sim.lookahead_steps(), allocs)
+    };
+    let (plain, none, _) = rows(None);
+    let (ahead, steps, allocs) = rows(Some(0.0));
+    assert_eq!(none, 0);
+    // b steps 100 times; all but none go ahead.
+    assert!(steps >= 90, "{steps} steps went ahead");
+    assert_eq!(plain.len(), 600);
+    assert_eq!(plain, ahead, "the look-ahead changed a value");
+    assert!(plain.iter().any(|&x| x != 0.0));
+    assert_eq!(allocs.0, allocs.1, "the loop allocated");
+    // A failure on the look-ahead thread.
+    let mut sim = cosim::Simulation::new(&sys(0.15), &record).unwrap();
+    sim.set_lookahead(Some(0.0)).unwrap();
+    let e = loop {
+        if let Err(e) = sim.step() {
+            break e;
+        }
+        assert!(!sim.finished(), "b's failure was not reported");
+    };
+    let msg = e.to_string();
+    assert!(
+        msg.contains("b: fmi2DoStep returned fmi2Error at t = 0.15"),
+        "{msg}"
+    );
+}

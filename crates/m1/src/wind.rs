@@ -529,14 +529,19 @@ pub struct WindLoads {
     direction: [f64; 2],
     /// Segment centre along the flow, in samples.
     along: Vec<f64>,
-    /// Wind-frame integrals `[G_0, G_xi, G_eta]` -> `Q = [F, M_alpha, M_beta]`, per segment.
+    /// Wind-frame integrals `[G_0, G_xi, G_eta]` of the unit screen -> `Q = [F, M_alpha,
+    /// M_beta]`, per segment, for a unit rms pressure (times `pressure_rms` in `to_load`).
+    unit_load: Vec<[[f64; 3]; 3]>,
+    /// The same -> actuator forces (`P^-T` times `unit_load`), per segment.
+    unit_forces: Vec<[[f64; 3]; 3]>,
+    /// `unit_load` and `unit_forces` times `pressure_rms`.
     to_load: Vec<[[f64; 3]; 3]>,
-    /// Wind-frame integrals -> actuator forces (`P^-T` times `to_load`), per segment.
     to_forces: Vec<[[f64; 3]; 3]>,
-    /// `tables[(3 i + q) N + n]`: integral `q` of segment `i` with the screen shifted by
-    /// `(along_i - n) dx`.
-    tables: Vec<f64>,
-    expected_force_rms: f64,
+    /// `tables[(3 i + q) N + n]`: integral `q` of segment `i` over the screen of unit rms
+    /// pressure shifted by `(along_i - n) dx` (shared: [`WindLoads::with_flow`] reuses them).
+    tables: std::sync::Arc<[f64]>,
+    /// Expected rms of `G_0` for the unit screen.
+    unit_force_rms: f64,
     area: f64,
     pressure_rms: f64,
 }
@@ -547,9 +552,18 @@ impl WindLoads {
     /// Fails with [`M1Error::InvalidParameter`] for a bad screen ([`ScreenParams::check`]), a
     /// negative or non-finite speed, a non-finite direction, or a screen narrower than the
     /// mirror (`size` must exceed `2 max|c| + 2 a`: across the flow the screen repeats too).
+    ///
+    /// The tables are those of the screen of unit rms pressure (the screen is linear in
+    /// `pressure_rms`), scaled by it in the maps to loads and forces: so
+    /// [`WindLoads::with_flow`] gives for another speed or rms pressure exactly what `new`
+    /// gives.
     pub fn new(geometry: &Geometry, params: &WindParams) -> Result<WindLoads, M1Error> {
-        let sp = &params.screen;
-        sp.check()?;
+        params.screen.check()?;
+        let unit = ScreenParams {
+            pressure_rms: 1.0,
+            ..params.screen.clone()
+        };
+        let sp = &unit;
         if !(params.speed.is_finite() && params.speed >= 0.0) {
             return Err(invalid(
                 "wind_speed",
@@ -673,19 +687,66 @@ impl WindLoads {
             to_forces.push(m);
         }
 
-        Ok(WindLoads {
+        let unit = WindLoads {
             samples: n,
             spacing: dx,
-            speed: params.speed,
+            speed: 0.0,
             direction: [cos, sin],
             along,
-            to_load,
-            to_forces,
-            tables,
-            expected_force_rms: variance.sqrt(),
+            to_load: Vec::new(),
+            to_forces: Vec::new(),
+            unit_load: to_load,
+            unit_forces: to_forces,
+            tables: tables.into(),
+            unit_force_rms: variance.sqrt(),
             area,
-            pressure_rms: sp.pressure_rms,
+            pressure_rms: 0.0,
+        };
+        unit.with_flow(params.speed, params.screen.pressure_rms)
+    }
+
+    /// The same screen and direction at another wind `speed` (m/s, finite, >= 0) and rms
+    /// pressure `pressure_rms` (Pa, finite, >= 0), sharing the tables: identical to
+    /// [`WindLoads::new`] with those values (a sweep over wind speed builds the screen once).
+    ///
+    /// # Errors
+    /// [`M1Error::InvalidParameter`] for a bad speed or rms pressure.
+    pub fn with_flow(&self, speed: f64, pressure_rms: f64) -> Result<WindLoads, M1Error> {
+        if !(speed.is_finite() && speed >= 0.0) {
+            return Err(invalid("wind_speed", speed, "must be finite and >= 0"));
+        }
+        if !(pressure_rms.is_finite() && pressure_rms >= 0.0) {
+            return Err(invalid(
+                "pressure_rms",
+                pressure_rms,
+                "must be finite and >= 0",
+            ));
+        }
+        let scaled = |m: &[[[f64; 3]; 3]]| -> Vec<[[f64; 3]; 3]> {
+            m.iter()
+                .map(|b| b.map(|row| row.map(|x| x * pressure_rms)))
+                .collect()
+        };
+        Ok(WindLoads {
+            samples: self.samples,
+            spacing: self.spacing,
+            speed,
+            direction: self.direction,
+            along: self.along.clone(),
+            to_load: scaled(&self.unit_load),
+            to_forces: scaled(&self.unit_forces),
+            unit_load: self.unit_load.clone(),
+            unit_forces: self.unit_forces.clone(),
+            tables: self.tables.clone(),
+            unit_force_rms: self.unit_force_rms,
+            area: self.area,
+            pressure_rms,
         })
+    }
+
+    /// Mean wind speed (m/s).
+    pub fn speed(&self) -> f64 {
+        self.speed
     }
 
     /// Number of segments.
@@ -721,15 +782,16 @@ impl WindLoads {
     /// Expected rms of `int_Hex p dA` over the aperture-plane hexagon (N):
     /// `sqrt(sum_k Phi_d(k) |H(k)|^2)`; compare with `sigma_p A` for the aperture attenuation.
     pub fn expected_force_rms(&self) -> f64 {
-        self.expected_force_rms
+        self.pressure_rms * self.unit_force_rms
     }
 
     /// Bytes held by the tables and maps.
     pub fn memory_bytes(&self) -> usize {
-        8 * (self.tables.len() + self.along.len() + 18 * self.to_load.len())
+        8 * (self.tables.len() + self.along.len() + 36 * self.to_load.len())
     }
 
-    /// Wind-frame integrals `[G_0, G_xi, G_eta]` of segment `i` at time `t`.
+    /// Wind-frame integrals `[G_0, G_xi, G_eta]` of segment `i` at time `t`, for the unit
+    /// screen.
     fn wind_integrals(&self, i: usize, t: f64) -> [f64; 3] {
         let n = self.samples;
         let u = self.along[i] - self.speed * t / self.spacing;
@@ -746,7 +808,7 @@ impl WindLoads {
     /// # Panics
     /// If `i >= n_segments()`.
     pub fn integrals(&self, i: usize, t: f64) -> [f64; 3] {
-        let [g0, g1, g2] = self.wind_integrals(i, t);
+        let [g0, g1, g2] = self.wind_integrals(i, t).map(|g| g * self.pressure_rms);
         let [c, s] = self.direction;
         [g0, c * g1 - s * g2, s * g1 + c * g2]
     }

@@ -519,3 +519,36 @@ fn bad_parameters_are_refused_with_their_name() {
     assert_eq!(name(&p), "screen_samples");
     assert!(WindLoads::new(&g, &ok).is_ok());
 }
+
+/// Another speed and rms pressure from the same tables is exactly a fresh build, and the loads
+/// scale with the rms pressure: twice the pressure, twice every force; zero pressure, none.
+#[test]
+fn with_flow_is_a_fresh_build() {
+    let g = geometry("keck", false);
+    let at = |speed: f64, sigma: f64| WindParams {
+        speed,
+        direction: 20.0,
+        screen: screen(sigma, &DEFAULT_SCALES, 32.0, 128, 5),
+    };
+    let base = WindLoads::new(&g, &at(3.0, 0.05)).unwrap();
+    let fresh = WindLoads::new(&g, &at(7.0, 0.2)).unwrap();
+    let reused = base.with_flow(7.0, 0.2).unwrap();
+    let n = g.layout.n_actuators();
+    let (mut a, mut b, mut c) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+    for t in [0.0, 0.37, 2.9] {
+        fresh.forces(t, &mut a).unwrap();
+        reused.forces(t, &mut b).unwrap();
+        assert_eq!(a, b, "t = {t}");
+        base.with_flow(7.0, 0.4).unwrap().forces(t, &mut c).unwrap();
+        for (x, y) in a.iter().zip(&c) {
+            assert!((2.0 * x - y).abs() <= 1e-15 * y.abs().max(1e-30), "{x} {y}");
+        }
+        assert_eq!(fresh.integrals(3, t), reused.integrals(3, t));
+        base.with_flow(7.0, 0.0).unwrap().forces(t, &mut c).unwrap();
+        assert!(c.iter().all(|&x| x == 0.0));
+    }
+    assert_eq!(fresh.expected_force_rms(), reused.expected_force_rms());
+    assert_eq!(fresh.period(), reused.period());
+    assert!(base.with_flow(-1.0, 0.1).is_err());
+    assert!(base.with_flow(1.0, f64::NAN).is_err());
+}

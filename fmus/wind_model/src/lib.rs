@@ -55,9 +55,15 @@ struct Key {
     actuator_radius: f64,
 }
 
-/// Tables shared by the clones of one instance (the runtime initialises a copy when outputs are
-/// read in initialisation mode; the tables it builds are reused at fmi2ExitInitializationMode).
-type Cache = Arc<Mutex<Option<(Key, Arc<WindLoads>)>>>;
+/// How many screens' tables a process keeps ([`Wind::build`]).
+const SCREEN_CACHE: usize = 2;
+
+/// The tables of the last [`SCREEN_CACHE`] screens built in this process, keyed by everything
+/// but the speed and the rms pressure (the tables are those of the unit screen: see
+/// [`WindLoads::with_flow`]). Instances share them while the library stays loaded: the
+/// runtime's copy in initialisation mode, the closed-loop run after the open one, the runs of
+/// a sweep over wind speed that reuses one extracted FMU.
+static SCREENS: Mutex<Vec<(Key, Arc<WindLoads>)>> = Mutex::new(Vec::new());
 
 /// The `wind` FMU.
 #[derive(Clone, Serialize, Deserialize)]
@@ -68,8 +74,6 @@ pub struct Wind {
     /// Rebuilt from the parameters after a deserialised FMU state (deterministic).
     #[serde(skip)]
     loads: Option<Arc<WindLoads>>,
-    #[serde(skip)]
-    cache: Cache,
 }
 
 const DOC: &str = "<h2>Model</h2>\
@@ -325,17 +329,25 @@ impl Wind {
         })
     }
 
-    /// The tables for the current parameters: from the shared cache, or built.
+    /// The tables for the current parameters: the screen from the process's cache (at this
+    /// speed and rms pressure), or built and cached.
     fn build(&self, v: &Values) -> Result<Arc<WindLoads>, FmuError> {
         let key = self.key(v)?;
-        let mut cache = self
-            .cache
+        let (speed, sigma) = (key.wind.speed, key.wind.screen.pressure_rms);
+        let mut screen_key = key.clone();
+        screen_key.wind.speed = 0.0;
+        screen_key.wind.screen.pressure_rms = 1.0;
+        // A poisoned lock only means another instance panicked while holding it: the cached
+        // entries are complete values, still valid.
+        let cached = SCREENS
             .lock()
-            .map_err(|_| FmuError::Model("wind table cache poisoned".into()))?;
-        if let Some((k, loads)) = cache.as_ref()
-            && *k == key
-        {
-            return Ok(loads.clone());
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .iter()
+            .find(|(k, _)| *k == screen_key)
+            .map(|(_, l)| l.clone());
+        if let Some(loads) = cached {
+            let loads = loads.with_flow(speed, sigma).map_err(wiring::model_error)?;
+            return Ok(Arc::new(loads));
         }
         let layout = Layout::preset(&self.layout).map_err(|e| FmuError::Model(e.to_string()))?;
         let params = GeometryParams {
@@ -344,7 +356,14 @@ impl Wind {
         };
         let geometry = Geometry::new(&layout, params).map_err(wiring::model_error)?;
         let loads = Arc::new(WindLoads::new(&geometry, &key.wind).map_err(wiring::model_error)?);
-        *cache = Some((key, loads.clone()));
+        let mut cache = SCREENS
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        cache.retain(|(k, _)| *k != screen_key);
+        cache.push((screen_key, loads.clone()));
+        if cache.len() > SCREEN_CACHE {
+            cache.remove(0);
+        }
         Ok(loads)
     }
 
@@ -391,7 +410,6 @@ impl Model for Wind {
                 layout: layout.name.clone(),
                 na: layout.n_actuators(),
                 loads: None,
-                cache: Cache::default(),
             },
         ))
     }
