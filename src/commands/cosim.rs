@@ -134,6 +134,10 @@ pub struct RunCmd {
     /// convention; for comparisons with it).
     #[arg(long)]
     pub zero_start: bool,
+    /// Gauss-Seidel without the look-ahead thread (every component in turn on this thread;
+    /// the same values, for timing comparisons).
+    #[arg(long)]
+    pub no_lookahead: bool,
 }
 
 /// Stepping order.
@@ -381,6 +385,7 @@ pub fn run_cmd(a: &RunCmd) -> Result<(), String> {
         }
         sys.order = order;
         sys.zero_start = a.zero_start;
+        sys.no_lookahead = a.no_lookahead;
         runs.push(("system".into(), sys));
         // Keep the unpacked archive alive during the run.
         // The optics metrics are recorded when the system has an `optics` component.
@@ -402,6 +407,7 @@ pub fn run_cmd(a: &RunCmd) -> Result<(), String> {
             let mut s = standard_system(&args, true)?;
             s.order = order;
             s.zero_start = a.zero_start;
+            s.no_lookahead = a.no_lookahead;
             runs.push((label.into(), s));
         }
     } else {
@@ -409,6 +415,7 @@ pub fn run_cmd(a: &RunCmd) -> Result<(), String> {
             let mut s = standard_system(&a.system, closed)?;
             s.order = order;
             s.zero_start = a.zero_start;
+            s.no_lookahead = a.no_lookahead;
             runs.push((label.into(), s));
         }
     }

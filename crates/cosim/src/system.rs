@@ -117,6 +117,8 @@ pub struct System {
     /// Start every connection at 0 instead of the components' initial outputs (the convention
     /// of fmpy.ssp, for comparisons with it).
     pub zero_start: bool,
+    /// Gauss-Seidel without the look-ahead thread (module docs): the same values, one thread.
+    pub no_lookahead: bool,
 }
 
 impl System {
@@ -648,7 +650,7 @@ impl Simulation {
         for r in &rec_local {
             recorded_comp[r.1] = true;
         }
-        let lookahead = if system.order == Order::GaussSeidel && n > 1 {
+        let lookahead = if system.order == Order::GaussSeidel && n > 1 && !system.no_lookahead {
             Some(Lookahead::start()?)
         } else {
             None
