@@ -120,9 +120,8 @@ pub struct RunCmd {
     pub decimation: usize,
     /// Stepping order of the master. Gauss-Seidel (default) steps the components in turn on
     /// their predecessors' newest outputs: one delay less per connection (needed by `--cell
-    /// split`), and on two cores the fastest, because the mirror dominates every step and
-    /// waking a second thread for the small components costs more than it saves (measured on
-    /// TMT: master overhead under 1 % against 11-22 % for Jacobi). Jacobi steps them in
+    /// split`), and a component nobody reads right away (the edge sensors) steps on a second
+    /// thread meanwhile (same values; see --no-lookahead). Jacobi steps them in
     /// parallel on the values of the last communication point (results independent of the
     /// component order; fmpy.ssp's convention).
     #[arg(long, value_enum, default_value = "gauss-seidel")]
