@@ -383,6 +383,8 @@ pub struct Simulation {
     lookahead: Option<Lookahead>,
     /// Mean step time from which a component may go to the look-ahead thread (s).
     lookahead_min: f64,
+    /// Jacobi base steps whose components stepped on more than one thread.
+    parallel_steps: u64,
     /// Latest output values of all components, concatenated.
     outputs: Vec<f64>,
     /// Snapshot of `outputs` at the communication point (Jacobi).
@@ -662,6 +664,7 @@ impl Simulation {
             recorded_comp,
             lookahead,
             lookahead_min: LOOKAHEAD_MIN_SECONDS,
+            parallel_steps: 0,
             outputs: vec![0.0; total],
             snapshot: vec![0.0; total],
             order: system.order,
@@ -754,6 +757,11 @@ impl Simulation {
         Ok(())
     }
 
+    /// Jacobi base steps so far whose components stepped on more than one thread.
+    pub fn parallel_steps(&self) -> u64 {
+        self.parallel_steps
+    }
+
     /// Components' steps taken on the look-ahead thread so far.
     pub fn lookahead_steps(&self) -> u64 {
         self.lookahead.as_ref().map_or(0, |l| l.deferred)
@@ -828,11 +836,13 @@ impl Simulation {
                     }
                 }
                 let critical = if heavy > 1 {
+                    self.parallel_steps += 1;
                     advance_split(&mut self.comps, &due, snapshot, t, h, left)?
                 } else if let Some(i) = top
                     && rest >= SPLIT_MIN_SECONDS
                     && top_mean >= rest + WAKE_SECONDS
                 {
+                    self.parallel_steps += 1;
                     let (before, from) = self.comps.split_at_mut(i);
                     let (heaviest, after) = from.split_at_mut(1);
                     let (x, y) = rayon::join(

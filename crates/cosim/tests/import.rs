@@ -679,3 +679,55 @@ fn gauss_seidel_lookahead_changes_no_value() {
         "{msg}"
     );
 }
+
+/// Jacobi with one heavy component (a waits 0.4 ms per step, b and c 0.04 ms): a steps on this
+/// thread while b and c step in turn on a worker, and every value is that of the same system
+/// stepped on one thread (no waits). Gauss-Seidel through `run` with a component slow enough
+/// for the default look-ahead threshold (b, 0.1 ms, read only by d every other step) gives the
+/// values of the same system without waits too, the last deferred step included.
+#[test]
+fn threads_change_no_value() {
+    let path = tiny_fmu("threads", &tiny_xml(), &[], true);
+    let sys = |busy: [f64; 3], order: Order| {
+        System::new(0.06, 0.001)
+            .component("a", &path)
+            .parameter("a", "u", Value::Real(1.0))
+            .parameter("a", "busy", Value::Real(busy[0]))
+            .component("b", &path)
+            .parameter("b", "busy", Value::Real(busy[1]))
+            .component("c", &path)
+            .parameter("c", "busy", Value::Real(busy[2]))
+            .component("d", &path)
+            .every(2)
+            .connect("a.y", "b.u")
+            .connect("a.y", "c.u")
+            .connect("b.y", "d.u")
+            .order(order)
+    };
+    let record = ["a.y".to_string(), "c.y".to_string(), "d.y".to_string()];
+    let values = |s: &System| -> (Vec<f64>, u64) {
+        let mut sim = cosim::Simulation::new(s, &record).unwrap();
+        let mut out = Vec::new();
+        let mut row = [0.0; 3];
+        while !sim.finished() {
+            sim.step().unwrap();
+            sim.recorded_values(&mut row);
+            out.extend_from_slice(&row);
+        }
+        (out, sim.parallel_steps())
+    };
+    let (plain, none) = values(&sys([0.0; 3], Order::Jacobi));
+    let (split, steps) = values(&sys([4e-4, 4e-5, 4e-5], Order::Jacobi));
+    // Only the first step of the light system (nothing measured yet) goes parallel.
+    assert!(none <= 1, "{none}");
+    assert!(steps >= 50, "{steps} of 60 steps split");
+    assert_eq!(plain, split);
+    assert!(plain.iter().all(|x| x.is_finite()) && plain[plain.len() - 1] > 0.0);
+    let rec = ["a.y".to_string(), "d.y".to_string()];
+    let last = |busy| {
+        let r = run(&sys(busy, Order::GaussSeidel), &rec, 1, &mut |_, _| {}).unwrap();
+        assert_eq!(r.timing.components.len(), 4);
+        r.last_row().unwrap().to_vec()
+    };
+    assert_eq!(last([0.0; 3]), last([0.0, 1e-4, 0.0]));
+}
