@@ -20,7 +20,8 @@
 //! - **Gauss-Seidel**: due components step one after the other in the order they were added,
 //!   each receiving the outputs its predecessors just produced: less delay along the order.
 //!   **Look-ahead**: a component whose outputs nobody needs right away (the next due component
-//!   does not read them, and they are not recorded) may step on a second thread while the
+//!   does not read them, they are not recorded, and no other component is an instance of its
+//!   FMU, whose library might keep global state) may step on a second thread while the
 //!   master goes on with the next components, into the next base step if nothing reads it:
 //!   its inputs are gathered at its turn, and it is waited for before anything that reads it
 //!   (or its own next step, or the end of the run). Every component therefore receives exactly
@@ -377,8 +378,9 @@ pub struct Simulation {
     sources: Vec<Vec<usize>>,
     /// Per component, its period in base steps.
     every: Vec<u64>,
-    /// Per component, whether any of its outputs is recorded.
-    recorded_comp: Vec<bool>,
+    /// Per component, whether it must stay on the master's thread in Gauss-Seidel order: any of
+    /// its outputs recorded, or another instance of its FMU in the system.
+    stay_on_master: Vec<bool>,
     /// Gauss-Seidel's look-ahead thread (None: off, or Jacobi).
     lookahead: Option<Lookahead>,
     /// Mean step time from which a component may go to the look-ahead thread (s).
@@ -648,9 +650,17 @@ impl Simulation {
                 s
             })
             .collect();
-        let mut recorded_comp = vec![false; n];
+        // Components that may go to the look-ahead thread: not recorded, and the only
+        // instance of their FMU (instances of one library may share its global state, and
+        // the sequential order never ran two of them at once).
+        let mut stay_on_master = vec![false; n];
         for r in &rec_local {
-            recorded_comp[r.1] = true;
+            stay_on_master[r.1] = true;
+        }
+        for c in 0..n {
+            if fmu_of.iter().filter(|&&k| k == fmu_of[c]).count() > 1 {
+                stay_on_master[c] = true;
+            }
         }
         let lookahead = if system.order == Order::GaussSeidel && n > 1 && !system.no_lookahead {
             Some(Lookahead::start()?)
@@ -661,7 +671,7 @@ impl Simulation {
             every: comps.iter().map(|r| r.every as u64).collect(),
             comps: comps.into_iter().map(|r| Some(Box::new(r))).collect(),
             sources,
-            recorded_comp,
+            stay_on_master,
             lookahead,
             lookahead_min: LOOKAHEAD_MIN_SECONDS,
             parallel_steps: 0,
@@ -914,7 +924,7 @@ impl Simulation {
             )));
         };
         r.gather(&self.outputs);
-        let defer = !self.recorded_comp[i]
+        let defer = !self.stay_on_master[i]
             && r.mean.is_finite()
             && r.mean >= self.lookahead_min
             && next.is_some_and(|j| j != i && self.sources[j].binary_search(&i).is_err());

@@ -617,11 +617,14 @@ fn an_open_fmu_is_shared_until_closed() {
 #[test]
 fn gauss_seidel_lookahead_changes_no_value() {
     let path = tiny_fmu("lookahead", &tiny_xml(), &[], true);
+    // b from its own copy: only the sole instance of an FMU goes ahead.
+    let own = path.with_file_name("tiny_b.fmu");
+    std::fs::copy(&path, &own).unwrap();
     let sys = |fail_b: f64| {
         System::new(0.3, 0.001)
             .component("a", &path)
             .parameter("a", "u", Value::Real(1.5))
-            .component("b", &path)
+            .component("b", &own)
             .every(3)
             .parameter("b", "k", Value::Real(0.7))
             .parameter("b", "fail_at", Value::Real(fail_b))
@@ -655,6 +658,17 @@ fn gauss_seidel_lookahead_changes_no_value() {
         sim.settle().unwrap();
         (out, sim.lookahead_steps(), allocs)
     };
+    // Sharing its FMU with another component, b stays on the master's thread.
+    let mut shared = cosim::Simulation::new(
+        &sys(-1.0).component("e", &own).connect("a.y", "e.u"),
+        &record,
+    )
+    .unwrap();
+    shared.set_lookahead(Some(0.0)).unwrap();
+    while !shared.finished() {
+        shared.step().unwrap();
+    }
+    assert_eq!(shared.lookahead_steps(), 0);
     let (plain, none, _) = rows(None);
     let (ahead, steps, allocs) = rows(Some(0.0));
     assert_eq!(none, 0);
@@ -688,12 +702,14 @@ fn gauss_seidel_lookahead_changes_no_value() {
 #[test]
 fn threads_change_no_value() {
     let path = tiny_fmu("threads", &tiny_xml(), &[], true);
+    let own = path.with_file_name("tiny_b.fmu");
+    std::fs::copy(&path, &own).unwrap();
     let sys = |busy: [f64; 3], order: Order| {
         System::new(0.06, 0.001)
             .component("a", &path)
             .parameter("a", "u", Value::Real(1.0))
             .parameter("a", "busy", Value::Real(busy[0]))
-            .component("b", &path)
+            .component("b", &own)
             .parameter("b", "busy", Value::Real(busy[1]))
             .component("c", &path)
             .parameter("c", "busy", Value::Real(busy[2]))
