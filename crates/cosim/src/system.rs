@@ -362,6 +362,24 @@ fn advance_split(
     }
 }
 
+/// Steps the due components of `comps` one after the other on `outputs`; returns the wall
+/// time of their FMU calls.
+fn advance_in_turn<'a>(
+    comps: impl Iterator<Item = &'a mut Option<Box<Running>>>,
+    due: &dyn Fn(&Running) -> bool,
+    outputs: &[f64],
+    t: f64,
+    h: f64,
+    left: usize,
+) -> Result<f64> {
+    let mut sum = 0.0;
+    for r in comps.flatten().filter(|r| due(r)) {
+        r.advance(outputs, t, h, left)?;
+        sum += r.last;
+    }
+    Ok(sum)
+}
+
 /// A signal to record: component, its signal name, and the slots of its scalars.
 #[derive(Debug, Clone)]
 pub struct Recorded {
@@ -378,6 +396,8 @@ pub struct Simulation {
     sources: Vec<Vec<usize>>,
     /// Per component, its period in base steps.
     every: Vec<u64>,
+    /// Component names in order (also while one is on the look-ahead thread).
+    names: Vec<String>,
     /// Per component, whether it must stay on the master's thread in Gauss-Seidel order: any of
     /// its outputs recorded, or another instance of its FMU in the system.
     stay_on_master: Vec<bool>,
@@ -669,6 +689,7 @@ impl Simulation {
         };
         let mut sim = Self {
             every: comps.iter().map(|r| r.every as u64).collect(),
+            names: comps.iter().map(|r| r.name.clone()).collect(),
             comps: comps.into_iter().map(|r| Some(Box::new(r))).collect(),
             sources,
             stay_on_master,
@@ -725,7 +746,7 @@ impl Simulation {
         let job = la.done.recv().map_err(|_| {
             CosimError::Invalid(format!(
                 "{}: the look-ahead thread stopped during its step",
-                self.names_hint(i)
+                self.names[i]
             ))
         })?;
         self.fmu_critical += t0.elapsed().as_secs_f64();
@@ -738,13 +759,6 @@ impl Simulation {
         comp.publish(&mut self.outputs);
         self.comps[index] = Some(comp);
         result
-    }
-
-    fn names_hint(&self, i: usize) -> String {
-        self.comps
-            .get(i)
-            .and_then(|c| c.as_deref())
-            .map_or_else(|| format!("component {i}"), |r| r.name.clone())
     }
 
     /// Turns Gauss-Seidel's look-ahead off (`None`) or lets components of at least that mean
@@ -824,17 +838,12 @@ impl Simulation {
                 // Threads only pay when at least two components take long enough per step to
                 // hide waking a worker (tens of microseconds): otherwise step them in turn,
                 // which gives the same (Jacobi) results.
-                let heavy = self
-                    .comps
-                    .iter()
-                    .flatten()
-                    .filter(|r| due(r) && r.mean >= PARALLEL_MIN_SECONDS)
-                    .count();
-                // One heavy component and enough light work to move: the heavy one on this
-                // thread, the others in turn on a worker, whose wake-up hides behind it.
-                let (mut top, mut top_mean, mut rest) = (None, 0.0, 0.0);
+                // Also: with one heavy component and enough light work to move, the heavy one
+                // on this thread, the others in turn on a worker, whose wake-up hides behind it.
+                let (mut heavy, mut top, mut top_mean, mut rest) = (0, None, 0.0, 0.0);
                 for (i, r) in self.comps.iter().enumerate() {
                     if let Some(r) = r.as_deref().filter(|r| due(r)) {
+                        heavy += usize::from(r.mean >= PARALLEL_MIN_SECONDS);
                         let m = if r.mean.is_finite() { r.mean } else { 0.0 };
                         if m > top_mean {
                             rest += top_mean;
@@ -857,28 +866,14 @@ impl Simulation {
                     let (heaviest, after) = from.split_at_mut(1);
                     let (x, y) = rayon::join(
                         || advance_split(heaviest, &due, snapshot, t, h, left),
-                        || -> Result<f64> {
-                            let mut sum = 0.0;
-                            for r in before
-                                .iter_mut()
-                                .chain(after.iter_mut())
-                                .flatten()
-                                .filter(|r| due(r))
-                            {
-                                r.advance(snapshot, t, h, left)?;
-                                sum += r.last;
-                            }
-                            Ok(sum)
+                        || {
+                            let others = before.iter_mut().chain(after.iter_mut());
+                            advance_in_turn(others, &due, snapshot, t, h, left)
                         },
                     );
                     x?.max(y?)
                 } else {
-                    let mut sum = 0.0;
-                    for r in self.comps.iter_mut().flatten().filter(|r| due(r)) {
-                        r.advance(snapshot, t, h, left)?;
-                        sum += r.last;
-                    }
-                    sum
+                    advance_in_turn(self.comps.iter_mut(), &due, snapshot, t, h, left)?
                 };
                 for r in self.comps.iter().flatten().filter(|r| due(r)) {
                     r.publish(&mut self.outputs);
@@ -914,23 +909,31 @@ impl Simulation {
     /// The turn of due component `i` in Gauss-Seidel order (nothing it reads is in flight).
     fn gs_turn(&mut self, i: usize, k: u64, t: f64, h: f64, left: usize) -> Result<()> {
         let n = self.comps.len();
-        // The next turn: the next due component of this step, or the first of the next step.
-        let next = (i + 1..n)
-            .find(|&j| k.is_multiple_of(self.every[j]))
-            .or_else(|| (0..=i).find(|&j| (k + 1).is_multiple_of(self.every[j])));
+        let free = self
+            .lookahead
+            .as_ref()
+            .is_some_and(|l| l.in_flight.is_none());
         let Some(r) = self.comps[i].as_deref_mut() else {
             return Err(CosimError::Invalid(format!(
-                "component {i} is missing from the master (internal error)"
+                "{}: missing from the master (internal error)",
+                self.names[i]
             )));
         };
         r.gather(&self.outputs);
-        let defer = !self.stay_on_master[i]
+        // The next turn (the next due component of this step, or the first of the next step)
+        // must not read it, or it would be waited for at once.
+        let next = || {
+            (i + 1..n)
+                .find(|&j| k.is_multiple_of(self.every[j]))
+                .or_else(|| (0..=i).find(|&j| (k + 1).is_multiple_of(self.every[j])))
+        };
+        let defer = free
+            && !self.stay_on_master[i]
             && r.mean.is_finite()
             && r.mean >= self.lookahead_min
-            && next.is_some_and(|j| j != i && self.sources[j].binary_search(&i).is_err());
+            && next().is_some_and(|j| j != i && self.sources[j].binary_search(&i).is_err());
         if defer
             && let Some(la) = self.lookahead.as_mut()
-            && la.in_flight.is_none()
             && let Some(tx) = la.jobs.as_ref()
             && let Some(comp) = self.comps[i].take()
         {
@@ -975,7 +978,8 @@ impl Simulation {
         Ok(())
     }
 
-    /// Wall time spent in each component's calls so far (s), in component order.
+    /// Wall time spent in each component's calls so far (s), in component order (a component
+    /// on the look-ahead thread is missing until [`Self::settle`]).
     pub fn component_seconds(&self) -> Vec<(String, f64)> {
         self.comps
             .iter()
@@ -1002,11 +1006,7 @@ impl Simulation {
 
     /// Component names in order.
     pub fn component_names(&self) -> Vec<&str> {
-        self.comps
-            .iter()
-            .flatten()
-            .map(|r| r.name.as_str())
-            .collect()
+        self.names.iter().map(String::as_str).collect()
     }
 }
 
