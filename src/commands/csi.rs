@@ -583,6 +583,40 @@ fn print_global(g: &GlobalSweep, q: Option<&QAllowance>) {
     );
 }
 
+/// Draws `labels[k]` over `data[k]` with each `((f, value), text)` of `peaks` circled and
+/// labelled, into `dir/file`.
+#[allow(clippy::too_many_arguments)]
+fn marked_plot(
+    dir: &str,
+    file: &str,
+    labels: &[String],
+    data: &[Vec<(f64, f64)>],
+    peaks: &[((f64, f64), String)],
+    title: &str,
+    y_label: &str,
+    log_axes: (bool, bool),
+) -> Result<(), String> {
+    let series: Vec<plot::ColouredSeries> = labels
+        .iter()
+        .zip(data)
+        .enumerate()
+        .map(|(k, (l, d))| (l.as_str(), k, d.as_slice()))
+        .collect();
+    let marks: Vec<plot::PointMark> = peaks.iter().map(|(at, t)| (*at, t.as_str())).collect();
+    let path = std::path::Path::new(dir).join(file);
+    plot::lines_marked(
+        &path,
+        &series,
+        &marks,
+        title,
+        "frequency (Hz)",
+        y_label,
+        log_axes.0,
+        log_axes.1,
+    )
+    .map_err(|e| format!("--plot {}: {e}", path.display()))
+}
+
 fn write_global_plot(dir: &str, name: &str, g: &GlobalSweep) -> Result<(), String> {
     let f = &g.frequencies_hz;
     let pts = |v: &[f64]| -> Vec<(f64, f64)> { f.iter().copied().zip(v.iter().copied()).collect() };
@@ -606,38 +640,25 @@ fn write_global_plot(dir: &str, name: &str, g: &GlobalSweep) -> Result<(), Strin
             .map(|&x| (x, g.loop_gain_limit))
             .collect(),
     );
-    let series: Vec<plot::ColouredSeries> = labels
-        .iter()
-        .zip(&data)
-        .enumerate()
-        .map(|(k, (l, d))| (l.as_str(), k, d.as_slice()))
-        .collect();
-    let texts: Vec<String> = g
+    let peaks: Vec<((f64, f64), String)> = g
         .all_segment_peaks
         .iter()
-        .map(|p| family(&p.label, p.noll))
+        .map(|p| ((p.frequency_hz, p.value), family(&p.label, p.noll)))
         .collect();
-    let marks: Vec<plot::PointMark> = g
-        .all_segment_peaks
-        .iter()
-        .zip(&texts)
-        .map(|(p, t)| ((p.frequency_hz, p.value), t.as_str()))
-        .collect();
-    let path = std::path::Path::new(dir).join("global.png");
-    plot::lines_marked(
-        &path,
-        &series,
-        &marks,
-        &format!(
-            "global loop, {name} ({} Hz bandwidth, {} modes)",
-            g.params.bandwidth, g.modes
-        ),
-        "frequency (Hz)",
+    let about = format!(
+        "{name} ({} Hz bandwidth, {} modes)",
+        g.params.bandwidth, g.modes
+    );
+    marked_plot(
+        dir,
+        "global.png",
+        &labels,
+        &data,
+        &peaks,
+        &format!("global loop, {about}"),
         "max singular value",
-        true,
-        true,
-    )
-    .map_err(|e| format!("--plot {}: {e}", path.display()))?;
+        (true, true),
+    )?;
     // The band of the loop-gain criterion on a linear axis, where the structure's peaks crowd.
     let from = g.criteria.band_start_hz;
     let band: Vec<Vec<(f64, f64)>> = data
@@ -647,28 +668,17 @@ fn write_global_plot(dir: &str, name: &str, g: &GlobalSweep) -> Result<(), Strin
     if band.iter().all(|d| d.len() < 2) {
         return Ok(());
     }
-    let series: Vec<plot::ColouredSeries> = labels
-        .iter()
-        .zip(&band)
-        .enumerate()
-        .map(|(k, (l, d))| (l.as_str(), k, d.as_slice()))
-        .collect();
-    let marks: Vec<plot::PointMark> = marks.into_iter().filter(|m| m.0.0 >= from).collect();
-    let path = std::path::Path::new(dir).join("global_band.png");
-    plot::lines_marked(
-        &path,
-        &series,
-        &marks,
-        &format!(
-            "global loop from {from} Hz, {name} ({} Hz bandwidth, {} modes)",
-            g.params.bandwidth, g.modes
-        ),
-        "frequency (Hz)",
+    let peaks: Vec<((f64, f64), String)> = peaks.into_iter().filter(|p| p.0.0 >= from).collect();
+    marked_plot(
+        dir,
+        "global_band.png",
+        &labels,
+        &band,
+        &peaks,
+        &format!("global loop from {from} Hz, {about}"),
         "max singular value",
-        false,
-        false,
+        (false, false),
     )
-    .map_err(|e| format!("--plot {}: {e}", path.display()))
 }
 
 fn write_plots(
@@ -693,39 +703,30 @@ fn write_plots(
     }
     labels.push(format!("all segments ({})", 3 * n));
     data.push(pts(&sw.all_segments.sensitivity_max));
-    let series: Vec<plot::ColouredSeries> = labels
-        .iter()
-        .zip(&data)
-        .enumerate()
-        .map(|(k, (l, d))| (l.as_str(), k, d.as_slice()))
-        .collect();
-    let texts: Vec<String> = sw
+    let peaks: Vec<((f64, f64), String)> = sw
         .all_segment_peaks
         .iter()
-        .map(|p| family(&p.label, p.noll))
+        .map(|p| {
+            (
+                (p.frequency_hz, p.sensitivity_max),
+                family(&p.label, p.noll),
+            )
+        })
         .collect();
-    let marks: Vec<plot::PointMark> = sw
-        .all_segment_peaks
-        .iter()
-        .zip(&texts)
-        .map(|(p, t)| ((p.frequency_hz, p.sensitivity_max), t.as_str()))
-        .collect();
-    let path = std::path::Path::new(dir).join("sensitivity.png");
-    plot::lines_marked(
-        &path,
-        &series,
-        &marks,
+    marked_plot(
+        dir,
+        "sensitivity.png",
+        &labels,
+        &data,
+        &peaks,
         &format!(
             "actuator servo sensitivity, {name} ({} modes, {})",
             a.modes,
             a.actuator.name()
         ),
-        "frequency (Hz)",
         "max singular value of S",
-        true,
-        false,
-    )
-    .map_err(|e| format!("--plot {}: {e}", path.display()))?;
+        (true, false),
+    )?;
     let zc: Vec<(f64, f64)> = sw
         .zernike
         .iter()
