@@ -522,28 +522,32 @@ impl Default for WindParams {
 /// Tabulated wind loads of every segment over one screen period of frozen flow.
 #[derive(Debug, Clone)]
 pub struct WindLoads {
+    /// The tables, for a unit rms pressure (shared: [`WindLoads::with_flow`] reuses them).
+    screen: std::sync::Arc<UnitScreen>,
+    speed: f64,
+    pressure_rms: f64,
+}
+
+/// What the loads of a screen of unit rms pressure are made of (the screen is linear in its rms
+/// pressure, which scales them at the end).
+#[derive(Debug)]
+struct UnitScreen {
     samples: usize,
     spacing: f64,
-    speed: f64,
     /// (cos theta, sin theta).
     direction: [f64; 2],
     /// Segment centre along the flow, in samples.
     along: Vec<f64>,
-    /// Wind-frame integrals `[G_0, G_xi, G_eta]` of the unit screen -> `Q = [F, M_alpha,
-    /// M_beta]`, per segment, for a unit rms pressure (times `pressure_rms` in `to_load`).
-    unit_load: Vec<[[f64; 3]; 3]>,
-    /// The same -> actuator forces (`P^-T` times `unit_load`), per segment.
-    unit_forces: Vec<[[f64; 3]; 3]>,
-    /// `unit_load` and `unit_forces` times `pressure_rms`.
+    /// Wind-frame integrals `[G_0, G_xi, G_eta]` -> `Q = [F, M_alpha, M_beta]`, per segment.
     to_load: Vec<[[f64; 3]; 3]>,
+    /// Wind-frame integrals -> actuator forces (`P^-T` times `to_load`), per segment.
     to_forces: Vec<[[f64; 3]; 3]>,
-    /// `tables[(3 i + q) N + n]`: integral `q` of segment `i` over the screen of unit rms
-    /// pressure shifted by `(along_i - n) dx` (shared: [`WindLoads::with_flow`] reuses them).
-    tables: std::sync::Arc<[f64]>,
-    /// Expected rms of `G_0` for the unit screen.
-    unit_force_rms: f64,
+    /// `tables[(3 i + q) N + n]`: integral `q` of segment `i` with the screen shifted by
+    /// `(along_i - n) dx`.
+    tables: Vec<f64>,
+    /// Expected rms of `G_0`.
+    force_rms: f64,
     area: f64,
-    pressure_rms: f64,
 }
 
 impl WindLoads {
@@ -554,7 +558,7 @@ impl WindLoads {
     /// mirror (`size` must exceed `2 max|c| + 2 a`: across the flow the screen repeats too).
     ///
     /// The tables are those of the screen of unit rms pressure (the screen is linear in
-    /// `pressure_rms`), scaled by it in the maps to loads and forces: so
+    /// `pressure_rms`), and the integrals read from them are scaled by it: so
     /// [`WindLoads::with_flow`] gives for another speed or rms pressure exactly what `new`
     /// gives.
     pub fn new(geometry: &Geometry, params: &WindParams) -> Result<WindLoads, M1Error> {
@@ -687,22 +691,23 @@ impl WindLoads {
             to_forces.push(m);
         }
 
-        let unit = WindLoads {
+        let screen = std::sync::Arc::new(UnitScreen {
             samples: n,
             spacing: dx,
-            speed: 0.0,
             direction: [cos, sin],
             along,
-            to_load: Vec::new(),
-            to_forces: Vec::new(),
-            unit_load: to_load,
-            unit_forces: to_forces,
-            tables: tables.into(),
-            unit_force_rms: variance.sqrt(),
+            to_load,
+            to_forces,
+            tables,
+            force_rms: variance.sqrt(),
             area,
+        });
+        WindLoads {
+            screen,
+            speed: 0.0,
             pressure_rms: 0.0,
-        };
-        unit.with_flow(params.speed, params.screen.pressure_rms)
+        }
+        .with_flow(params.speed, params.screen.pressure_rms)
     }
 
     /// The same screen and direction at another wind `speed` (m/s, finite, >= 0) and rms
@@ -722,24 +727,9 @@ impl WindLoads {
                 "must be finite and >= 0",
             ));
         }
-        let scaled = |m: &[[[f64; 3]; 3]]| -> Vec<[[f64; 3]; 3]> {
-            m.iter()
-                .map(|b| b.map(|row| row.map(|x| x * pressure_rms)))
-                .collect()
-        };
         Ok(WindLoads {
-            samples: self.samples,
-            spacing: self.spacing,
+            screen: self.screen.clone(),
             speed,
-            direction: self.direction,
-            along: self.along.clone(),
-            to_load: scaled(&self.unit_load),
-            to_forces: scaled(&self.unit_forces),
-            unit_load: self.unit_load.clone(),
-            unit_forces: self.unit_forces.clone(),
-            tables: self.tables.clone(),
-            unit_force_rms: self.unit_force_rms,
-            area: self.area,
             pressure_rms,
         })
     }
@@ -751,27 +741,27 @@ impl WindLoads {
 
     /// Number of segments.
     pub fn n_segments(&self) -> usize {
-        self.along.len()
+        self.screen.along.len()
     }
 
     /// Number of actuators (3 per segment).
     pub fn n_actuators(&self) -> usize {
-        3 * self.along.len()
+        3 * self.screen.along.len()
     }
 
     /// Screen spacing `dx` (m): the shift between table entries.
     pub fn spacing(&self) -> f64 {
-        self.spacing
+        self.screen.spacing
     }
 
     /// Time after which the flow repeats, `L / U` (s); None for `U = 0`.
     pub fn period(&self) -> Option<f64> {
-        (self.speed > 0.0).then(|| self.samples as f64 * self.spacing / self.speed)
+        (self.speed > 0.0).then(|| self.screen.samples as f64 * self.screen.spacing / self.speed)
     }
 
     /// Area of a segment's hexagon in the aperture plane (m^2).
     pub fn segment_area(&self) -> f64 {
-        self.area
+        self.screen.area
     }
 
     /// The rms pressure `sigma_p` (Pa).
@@ -782,23 +772,23 @@ impl WindLoads {
     /// Expected rms of `int_Hex p dA` over the aperture-plane hexagon (N):
     /// `sqrt(sum_k Phi_d(k) |H(k)|^2)`; compare with `sigma_p A` for the aperture attenuation.
     pub fn expected_force_rms(&self) -> f64 {
-        self.pressure_rms * self.unit_force_rms
+        self.pressure_rms * self.screen.force_rms
     }
 
     /// Bytes held by the tables and maps.
     pub fn memory_bytes(&self) -> usize {
-        8 * (self.tables.len() + self.along.len() + 36 * self.to_load.len())
+        8 * (self.screen.tables.len() + self.screen.along.len() + 18 * self.screen.to_load.len())
     }
 
-    /// Wind-frame integrals `[G_0, G_xi, G_eta]` of segment `i` at time `t`, for the unit
-    /// screen.
+    /// Wind-frame integrals `[G_0, G_xi, G_eta]` of segment `i` at time `t` (the unit screen's,
+    /// times the rms pressure).
     fn wind_integrals(&self, i: usize, t: f64) -> [f64; 3] {
-        let n = self.samples;
-        let u = self.along[i] - self.speed * t / self.spacing;
+        let n = self.screen.samples;
+        let u = self.screen.along[i] - self.speed * t / self.screen.spacing;
         let (idx, w) = periodic_stencil(u, n);
         std::array::from_fn(|q| {
-            let tab = &self.tables[(3 * i + q) * n..(3 * i + q + 1) * n];
-            idx.iter().zip(w).map(|(&j, wj)| wj * tab[j]).sum()
+            let tab = &self.screen.tables[(3 * i + q) * n..(3 * i + q + 1) * n];
+            self.pressure_rms * idx.iter().zip(w).map(|(&j, wj)| wj * tab[j]).sum::<f64>()
         })
     }
 
@@ -808,8 +798,8 @@ impl WindLoads {
     /// # Panics
     /// If `i >= n_segments()`.
     pub fn integrals(&self, i: usize, t: f64) -> [f64; 3] {
-        let [g0, g1, g2] = self.wind_integrals(i, t).map(|g| g * self.pressure_rms);
-        let [c, s] = self.direction;
+        let [g0, g1, g2] = self.wind_integrals(i, t);
+        let [c, s] = self.screen.direction;
         [g0, c * g1 - s * g2, s * g1 + c * g2]
     }
 
@@ -820,7 +810,7 @@ impl WindLoads {
     /// If `i >= n_segments()`.
     pub fn segment_load(&self, i: usize, t: f64) -> [f64; 3] {
         let g = self.wind_integrals(i, t);
-        let b = &self.to_load[i];
+        let b = &self.screen.to_load[i];
         std::array::from_fn(|r| (0..3).map(|c| b[r][c] * g[c]).sum())
     }
 
@@ -836,7 +826,7 @@ impl WindLoads {
         }
         for (i, f) in out.chunks_exact_mut(3).enumerate() {
             let g = self.wind_integrals(i, t);
-            let m = &self.to_forces[i];
+            let m = &self.screen.to_forces[i];
             for (k, fk) in f.iter_mut().enumerate() {
                 *fk = m[k][0] * g[0] + m[k][1] * g[1] + m[k][2] * g[2];
             }
