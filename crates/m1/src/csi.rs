@@ -840,6 +840,15 @@ pub struct CsiSweep {
     pub all_segment_peaks: Vec<LabelledPeak>,
 }
 
+/// Indices of the local maxima of `v` (a plateau counts at its last point; the ends count).
+pub(crate) fn local_maxima(v: &[f64]) -> impl Iterator<Item = usize> + '_ {
+    (0..v.len()).filter(move |&i| {
+        let left = i == 0 || v[i] >= v[i - 1];
+        let right = i + 1 == v.len() || v[i] > v[i + 1];
+        left && right
+    })
+}
+
 fn argmax(v: &[f64]) -> usize {
     (0..v.len())
         .max_by(|&a, &b| v[a].total_cmp(&v[b]))
@@ -949,18 +958,14 @@ pub fn sweep(
     let va: Vec<f64> = pts.iter().map(|p| p.all_segments).collect();
     let n = lp.fm.n_segments();
     let mut peaks = Vec::new();
-    for i in 0..va.len() {
-        let left = i == 0 || va[i] >= va[i - 1];
-        let right = i + 1 == va.len() || va[i] > va[i + 1];
-        if left && right && va[i] > label_threshold {
-            let (label, noll) = lp.peak_label(freqs[i], max_degree, 1.0)?;
-            peaks.push(LabelledPeak {
-                frequency_hz: freqs[i],
-                sensitivity_max: va[i],
-                label,
-                noll,
-            });
-        }
+    for i in local_maxima(&va).filter(|&i| va[i] > label_threshold) {
+        let (label, noll) = lp.peak_label(freqs[i], max_degree, 1.0)?;
+        peaks.push(LabelledPeak {
+            frequency_hz: freqs[i],
+            sensitivity_max: va[i],
+            label,
+            noll,
+        });
     }
     let all_segments = curve("all_segments", None, Some(n), 3 * n, va)?;
     Ok(CsiSweep {

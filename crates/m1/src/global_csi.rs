@@ -621,12 +621,8 @@ pub fn global_sweep(
             true,
         ),
     ] {
-        let mut found: Vec<usize> = (0..v.len())
-            .filter(|&i| {
-                let left = i == 0 || v[i] >= v[i - 1];
-                let right = i + 1 == v.len() || v[i] > v[i + 1];
-                left && right && v[i] > from && (!in_band || grid[i] >= criteria.band_start_hz)
-            })
+        let mut found: Vec<usize> = crate::csi::local_maxima(v)
+            .filter(|&i| v[i] > from && (!in_band || grid[i] >= criteria.band_start_hz))
             .collect();
         found.sort_by(|&x, &y| v[y].total_cmp(&v[x]));
         found.truncate(MAX_LABELLED_PEAKS);
