@@ -77,6 +77,8 @@ pub struct SystemArgs {
     /// Structure modes retained (the rest enter as a static correction).
     #[arg(long, default_value_t = 60)]
     pub structure_modes: i32,
+    #[arg(long, default_value = m1::structure::DEFAULT_STRUCTURE, help = super::STRUCTURE_HELP)]
+    pub structure: String,
     /// Step every component at the base step (no multi-rate), as fmpy.ssp does.
     #[arg(long)]
     pub uniform: bool,
@@ -211,16 +213,18 @@ pub fn standard_system(a: &SystemArgs, closed: bool) -> Result<System, String> {
         );
     }
     s = s.component(mirror, fmu(a, file)?);
+    let structure = structure_parameter(&a.structure)?;
     match a.cell {
         Cell::Coupled => {
-            s = s.parameter(mirror, "n_modes", Value::Integer(a.structure_modes));
+            s = s
+                .parameter(mirror, "n_modes", Value::Integer(a.structure_modes))
+                .parameter(mirror, "structure", Value::String(structure));
         }
         Cell::Split => {
-            s = s.component("structure", fmu(a, "structure")?).parameter(
-                "structure",
-                "n_modes",
-                Value::Integer(a.structure_modes),
-            );
+            s = s
+                .component("structure", fmu(a, "structure")?)
+                .parameter("structure", "n_modes", Value::Integer(a.structure_modes))
+                .parameter("structure", "structure", Value::String(structure));
         }
         Cell::Rigid => {}
     }
@@ -263,6 +267,17 @@ pub fn standard_system(a: &SystemArgs, closed: bool) -> Result<System, String> {
         .connect(&format!("{mirror}.z"), "sensors.z")
         .connect("sensors.y", "controller.y")
         .connect(&format!("{mirror}.z"), "optics.z"))
+}
+
+/// The value of the FMUs' `structure` parameter for `--structure NAME`: a preset's name, or a
+/// `.npz` path made absolute (checked to exist), so the system runs from any directory.
+fn structure_parameter(name: &str) -> Result<String, String> {
+    match m1::structure::StructureSource::parse(name).map_err(|e| format!("--structure: {e}"))? {
+        m1::structure::StructureSource::BuiltIn(_) => Ok(name.trim().to_string()),
+        m1::structure::StructureSource::File(path) => std::fs::canonicalize(&path)
+            .map(|p| p.display().to_string())
+            .map_err(|e| format!("--structure {}: {e}", path.display())),
+    }
 }
 
 /// Runs `m1cs system`.

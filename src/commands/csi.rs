@@ -19,7 +19,6 @@ use m1::global_csi::{
 use m1::monolithic::FrequencyModel;
 use m1::quasistatic::{self, Case, Nominal, Perturbation, RobustnessParams};
 use m1::segment::SegmentModel;
-use m1::structure::{CellModel, CellParams};
 
 use crate::plot;
 
@@ -61,6 +60,8 @@ pub struct CsiArgs {
     /// Retained structure modes.
     #[arg(long, default_value_t = 60)]
     pub modes: usize,
+    #[arg(long, default_value = m1::structure::DEFAULT_STRUCTURE, help = super::STRUCTURE_HELP)]
+    pub structure: String,
     /// Modal damping ratio of the structure.
     #[arg(long, default_value_t = 0.02)]
     pub damping: f64,
@@ -248,9 +249,7 @@ pub fn csi(a: &CsiArgs) -> Result<(), String> {
     let layout = crate::load_layout(&a.layout)?;
     let n = layout.n_segments();
     let started = std::time::Instant::now();
-    let cell = CellModel::new(&layout, &CellParams::default())
-        .and_then(|c| c.modes())
-        .map_err(|e| format!("structure of {}: {e}", layout.name))?;
+    let cell = super::structure_modes(&a.structure, &layout)?;
     let cell_modes = cell.clone();
     let fm = FrequencyModel::new(n, a.actuator.model(), cell, a.modes, a.damping)
         .map_err(|e| format!("--modes {}: {e}", a.modes))?;
@@ -311,7 +310,7 @@ pub fn csi(a: &CsiArgs) -> Result<(), String> {
     if a.json {
         println!(
             "{}",
-            json!({"layout": layout.name, "modes": a.modes, "damping": a.damping,
+            json!({"layout": layout.name, "structure": a.structure, "modes": a.modes, "damping": a.damping,
                    "actuator": a.actuator.name(), "max_degree": a.max_degree,
                    "coupled_dimension": lp.coupled_dimension(),
                    "sweep": sw, "highest_gain": limit, "global": gsw, "q_allowance": q,

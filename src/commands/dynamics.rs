@@ -6,7 +6,6 @@ use serde_json::json;
 
 use m1::coupling::{Exchange, Excitation, Mirror, SplitRun, split_vs_coupled};
 use m1::segment::SegmentModel;
-use m1::structure::{CellModel, CellParams};
 
 use crate::plot;
 
@@ -19,6 +18,8 @@ pub struct CouplingArgs {
     /// Retained structure modes.
     #[arg(long, default_value_t = 30)]
     pub modes: usize,
+    #[arg(long, default_value = m1::structure::DEFAULT_STRUCTURE, help = super::STRUCTURE_HELP)]
+    pub structure: String,
     /// Modal damping ratio of the structure.
     #[arg(long, default_value_t = 0.02)]
     pub damping: f64,
@@ -59,9 +60,7 @@ pub fn coupling(a: &CouplingArgs) -> Result<(), String> {
             a.tolerance
         ));
     }
-    let cell = CellModel::new(&layout, &CellParams::default())
-        .and_then(|c| c.modes())
-        .map_err(|e| format!("structure of {}: {e}", layout.name))?;
+    let cell = super::structure_modes(&a.structure, &layout)?;
     let ex = Excitation {
         frequency: a.tone,
         duration: a.duration,
@@ -219,6 +218,8 @@ pub struct VibrationArgs {
     /// Retained structure modes.
     #[arg(long, default_value_t = 60)]
     pub modes: usize,
+    #[arg(long, default_value = m1::structure::DEFAULT_STRUCTURE, help = super::STRUCTURE_HELP)]
+    pub structure: String,
     /// Modal damping ratio of the structure.
     #[arg(long, default_value_t = 0.02)]
     pub damping: f64,
@@ -321,9 +322,7 @@ pub fn vibration(a: &VibrationArgs) -> Result<(), String> {
         Geometry::new(&layout, GeometryParams::for_layout(&layout)).map_err(|e| e.to_string())?;
     let metrics = MirrorMetrics::new(&geometry).map_err(|e| e.to_string())?;
     let pssn = Pssn::new(&layout, PssnParams::default()).map_err(|e| e.to_string())?;
-    let cell = CellModel::new(&layout, &CellParams::default())
-        .and_then(|c| c.modes())
-        .map_err(|e| e.to_string())?;
+    let cell = super::structure_modes(&a.structure, &layout)?;
     let variants = [
         ("voicecoil", SegmentModel::voice_coil()),
         ("piezo", SegmentModel::piezo()),
@@ -392,6 +391,7 @@ pub fn vibration(a: &VibrationArgs) -> Result<(), String> {
     if a.json {
         let out = json!({
             "layout": a.layout,
+            "structure": a.structure,
             "modes": a.modes,
             "pier_rms_m": a.pier_rms,
             "frequencies_hz": freqs,

@@ -26,6 +26,8 @@ pub struct ReportArgs {
     /// packaged FMUs.
     #[arg(long)]
     pub no_cosim: bool,
+    #[arg(long, default_value = m1::structure::DEFAULT_STRUCTURE, help = super::STRUCTURE_HELP)]
+    pub structure: String,
 }
 
 /// Where an analysis draws: one PNG file, or a directory of them.
@@ -45,6 +47,9 @@ struct Analysis {
     /// JSON paths (prefixes) shown in the section's table; empty: every scalar.
     keys: &'static [&'static str],
 }
+
+/// The analyses that build a dynamic plant (they take `--structure`).
+const PLANT_COMMANDS: &[&str] = &["coupling", "csi", "vibration", "wind", "run"];
 
 const ANALYSES: &[Analysis] = &[
     Analysis {
@@ -314,6 +319,10 @@ pub fn report(a: &ReportArgs) -> Result<(), String> {
                 args.push("--out".into());
                 args.push(dir.join(d).display().to_string());
             }
+        }
+        if PLANT_COMMANDS.contains(&an.args[0]) {
+            args.push("--structure".into());
+            args.push(a.structure.clone());
         }
         if an.cosim {
             args.push("--fmu-dir".into());

@@ -41,6 +41,8 @@ pub struct WindArgs {
     /// Structure modes retained.
     #[arg(long, default_value_t = 60)]
     pub structure_modes: i32,
+    #[arg(long, default_value = m1::structure::DEFAULT_STRUCTURE, help = super::STRUCTURE_HELP)]
+    pub structure: String,
     /// Simulated duration of each run (s); statistics over its second half.
     #[arg(long, default_value_t = 5.0)]
     pub duration: f64,
@@ -125,6 +127,7 @@ pub fn wind(a: &WindArgs) -> Result<(), String> {
         focus_bandwidth: a.focus_bandwidth,
         cell: a.cell,
         structure_modes: a.structure_modes,
+        structure: a.structure.clone(),
         uniform: false,
         duration: a.duration,
         step: a.step,
@@ -195,6 +198,7 @@ pub fn wind(a: &WindArgs) -> Result<(), String> {
             "actuator": format!("{:?}", a.actuator).to_lowercase(),
             "cell": format!("{:?}", a.cell).to_lowercase(),
             "structure_modes": a.structure_modes,
+            "structure": a.structure,
             "duration_s": a.duration,
             "focus_bandwidth_hz": a.focus_bandwidth,
             "statistics": "rms over the second half of each run",

@@ -145,7 +145,31 @@ pub struct CellParams {
 }
 
 impl Default for CellParams {
+    /// The [`StructurePreset::Tmt`] preset.
     fn default() -> Self {
+        Self::tmt()
+    }
+}
+
+impl CellParams {
+    /// The `tmt` preset (the default): a TMT-representative mirror cell (see
+    /// [`StructurePreset::Tmt`] for the published statement each value serves).
+    pub fn tmt() -> Self {
+        Self {
+            cell_mass: 1000.0,
+            mount_mass_ratio: 2.0,
+            mount_frequency: 10.0,
+            support_frequency: 30.0,
+            cell_frequency: 15.0,
+            torsion_ratio: 0.5,
+            support_radius: 0.85,
+        }
+    }
+
+    /// The `soft-cell` preset: the first built-in cell (500 kg per node on a ring at 0.65 of
+    /// the radius), whose modes near 6-10 Hz limit both loops: a study of a cell too soft for
+    /// a 1 Hz global loop ([`StructurePreset::SoftCell`]).
+    pub fn soft_cell() -> Self {
         Self {
             cell_mass: 500.0,
             mount_mass_ratio: 2.0,
@@ -154,6 +178,92 @@ impl Default for CellParams {
             cell_frequency: 15.0,
             torsion_ratio: 0.5,
             support_radius: 0.65,
+        }
+    }
+}
+
+/// Name of the default structure preset (`tmt`).
+pub const DEFAULT_STRUCTURE: &str = "tmt";
+
+/// The named parameter sets of the built-in structure (`--structure NAME`, the FMUs'
+/// `structure` parameter).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum StructurePreset {
+    /// `tmt` (the default): TMT-representative; the segment-support resonances, not the cell's
+    /// modes, limit the servo and the global loop.
+    Tmt,
+    /// `soft-cell`: the first built-in cell, too soft for a 1 Hz global loop.
+    SoftCell,
+}
+
+impl StructurePreset {
+    /// Every preset, the default first.
+    pub const ALL: [StructurePreset; 2] = [StructurePreset::Tmt, StructurePreset::SoftCell];
+
+    /// The preset's name.
+    pub fn name(self) -> &'static str {
+        match self {
+            StructurePreset::Tmt => "tmt",
+            StructurePreset::SoftCell => "soft-cell",
+        }
+    }
+
+    /// The preset called `name`, if any.
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|p| p.name() == name)
+    }
+
+    /// Its parameters.
+    pub fn params(self) -> CellParams {
+        match self {
+            StructurePreset::Tmt => CellParams::tmt(),
+            StructurePreset::SoftCell => CellParams::soft_cell(),
+        }
+    }
+
+    /// The names of every preset, comma-separated (for messages).
+    pub fn names() -> String {
+        Self::ALL.map(Self::name).join(", ")
+    }
+}
+
+/// Where a plant's structure comes from: a preset of the built-in cell, or a modal model file.
+#[derive(Debug, Clone, PartialEq)]
+pub enum StructureSource {
+    /// The built-in cell with these parameters.
+    BuiltIn(CellParams),
+    /// A `.npz` modal model ([`ModalModel::from_npz`]).
+    File(std::path::PathBuf),
+}
+
+impl StructureSource {
+    /// A preset name or the path of a `.npz` file.
+    ///
+    /// # Errors
+    /// [`M1Error::InvalidInput`] naming the presets if `name` is neither a preset nor a
+    /// `.npz` path.
+    pub fn parse(name: &str) -> Result<Self, M1Error> {
+        let name = name.trim();
+        if let Some(p) = StructurePreset::from_name(name) {
+            return Ok(Self::BuiltIn(p.params()));
+        }
+        if name.to_ascii_lowercase().ends_with(".npz") {
+            return Ok(Self::File(name.into()));
+        }
+        Err(M1Error::InvalidInput(format!(
+            "structure \"{name}\": not a preset ({}) nor the path of a .npz modal model",
+            StructurePreset::names()
+        )))
+    }
+
+    /// Every mode of the structure for `layout` (`na = 3 N` attachments).
+    ///
+    /// # Errors
+    /// From [`CellModel::new`], [`CellModel::modes`] or [`ModalModel::from_npz`].
+    pub fn modes(&self, layout: &Layout) -> Result<ModalModel, M1Error> {
+        match self {
+            Self::BuiltIn(p) => CellModel::new(layout, p)?.modes(),
+            Self::File(path) => ModalModel::from_npz(path, layout.n_actuators()),
         }
     }
 }

@@ -21,7 +21,7 @@ use fmu::{
 };
 use m1::M1Error;
 use m1::layout::Layout;
-use m1::structure::{CellModel, CellParams, ModalModel, ModalSolver};
+use m1::structure::{CellModel, CellParams, ModalModel, ModalSolver, StructurePreset};
 
 /// Handles of every variable.
 #[derive(Debug, Clone, Copy, Serialize, Deserialize)]
@@ -38,6 +38,7 @@ struct Vars {
 /// such as the coupled mirror).
 #[derive(Debug, Clone, Copy, Serialize, Deserialize)]
 pub struct CellVars {
+    structure: StrVar,
     modal_file: StrVar,
     n_modes: IntVar,
     damping_ratio: RealVar,
@@ -82,6 +83,15 @@ undeformed (<code>z_cell = 0</code>).</p>\
 <p><b>Pier.</b> The mount rests on the pier through the spring k<sub>p</sub>; pier motion is a \
 base excitation through it, the force k<sub>p</sub> pier_z on the mount of a model whose pier \
 spring is grounded. At DC the structure follows the pier rigidly.</p>\
+<h2>Presets (<code>structure</code>)</h2><p><code>tmt</code> (the default): 1000 kg of cell \
+per segment node (4.5 times the 220 kg each segment puts on its actuators: 492 t of cell for \
+108 t of segments) resting on a support ring at 0.85 of the largest centre radius; the first \
+modes are the axisymmetric bounces (7.5 and 11.4 Hz for TMT) and the first non-axisymmetric \
+cell modes lie above 20 Hz, so the segment supports, not the cell, limit the loops. \
+<code>soft-cell</code>: 500 kg per node on a ring at 0.65, first modes 6.3 and 9.1 Hz: a cell \
+too soft for a 1 Hz global loop. <code>custom</code>: the Built-in model parameters below \
+(their start values are the tmt preset's); with a preset they must stay at their start \
+values. A path ending in <code>.npz</code> loads that modal model.</p>\
 <h2>Built-in model (<code>modal_file</code> empty)</h2><p>A beam grillage with one node \
 (w, &theta;<sub>x</sub>, &theta;<sub>y</sub>) at every segment centre and an Euler-Bernoulli \
 beam (EI, GJ = <code>torsion_ratio</code> EI) along every shared edge; the three actuator \
@@ -109,9 +119,20 @@ then in the importer's working directory. See examples/write_structure_npz.py.</
 /// `default_modes` retained modes by default.
 pub fn declare_cell_params(b: &mut T, default_modes: i32) -> CellVars {
     let d = CellParams::default();
+    let structure = b.add_string(
+        T::string("structure")
+            .parameter()
+            .start_str(StructurePreset::Tmt.name())
+            .describe(
+                "Structure model: a preset of the built-in mirror cell (tmt: TMT-representative, \
+                 the default; soft-cell: a cell too soft for a 1 Hz global loop), custom (the \
+                 built-in cell with the cell_* and other Built-in model parameters below), or the \
+                 path of a .npz modal model (as modal_file)",
+            ),
+    );
     let modal_file = b.add_string(T::string("modal_file").parameter().start_str("").describe(
-        "NumPy .npz modal model exported from an FE model (empty: the built-in \
-                 parametric mirror cell); relative paths are looked up in resources/ first",
+        "NumPy .npz modal model exported from an FE model (empty: the model named by \
+                 `structure`); relative paths are looked up in resources/ first",
     ));
     let n_modes = b.add_integer(
         T::integer("n_modes")
@@ -212,6 +233,7 @@ pub fn declare_cell_params(b: &mut T, default_modes: i32) -> CellVars {
             .describe("Number of modes integrated (n_modes, or all the model has)"),
     );
     CellVars {
+        structure,
         modal_file,
         n_modes,
         damping_ratio,
@@ -295,10 +317,14 @@ impl CellVars {
         resource_dir: Option<&Path>,
     ) -> Result<ModalModel, FmuError> {
         let x = self;
-        let file = v.string(x.modal_file).trim().to_string();
+        let structure = v.string(x.structure).trim().to_string();
+        let mut file = v.string(x.modal_file).trim().to_string();
+        if file.is_empty() && structure.to_ascii_lowercase().ends_with(".npz") {
+            file = structure.clone();
+        }
         if file.is_empty() {
             let s = |h: RealVar| v.scalar(h);
-            let params = CellParams {
+            let given = CellParams {
                 cell_mass: s(x.cell_mass),
                 mount_mass_ratio: s(x.mount_mass_ratio),
                 mount_frequency: s(x.mount_frequency),
@@ -306,6 +332,33 @@ impl CellVars {
                 cell_frequency: s(x.cell_frequency),
                 torsion_ratio: s(x.torsion_ratio),
                 support_radius: s(x.support_radius),
+            };
+            let params = if structure == "custom" {
+                given
+            } else if let Some(preset) = StructurePreset::from_name(&structure) {
+                // A preset takes all its values: a Built-in model parameter moved from its
+                // start value would be silently ignored, so it is an error.
+                let start = CellParams::default();
+                if let Some(name) = changed_cell_parameter(&given, &start) {
+                    return Err(FmuError::BadValue {
+                        variable: name.into(),
+                        value: format!("{}", cell_value(&given, name)),
+                        reason: format!(
+                            "would be ignored: structure = \"{structure}\" takes every value from its preset: set \
+                             structure = \"custom\" to use the Built-in model parameters"
+                        ),
+                    });
+                }
+                preset.params()
+            } else {
+                return Err(FmuError::BadValue {
+                    variable: "structure".into(),
+                    value: format!("\"{structure}\""),
+                    reason: format!(
+                        "is not a preset ({}), custom, nor the path of a .npz modal model",
+                        StructurePreset::names()
+                    ),
+                });
             };
             built_in_modes(layout, &params)
         } else {
@@ -337,6 +390,36 @@ impl CellVars {
         v.integers[self.n_modes_retained.slot] =
             i32::try_from(solver.n_modes()).unwrap_or(i32::MAX);
     }
+}
+
+/// The names of the built-in cell's parameters, with their values in `p`.
+fn cell_values(p: &CellParams) -> [(&'static str, f64); 7] {
+    [
+        ("cell_mass", p.cell_mass),
+        ("mount_mass_ratio", p.mount_mass_ratio),
+        ("mount_frequency", p.mount_frequency),
+        ("support_frequency", p.support_frequency),
+        ("cell_frequency", p.cell_frequency),
+        ("torsion_ratio", p.torsion_ratio),
+        ("support_radius", p.support_radius),
+    ]
+}
+
+/// The first built-in cell parameter whose value in `given` differs from `start`.
+fn changed_cell_parameter(given: &CellParams, start: &CellParams) -> Option<&'static str> {
+    cell_values(given)
+        .iter()
+        .zip(cell_values(start))
+        .find(|(g, s)| g.1.to_bits() != s.1.to_bits())
+        .map(|(g, _)| g.0)
+}
+
+/// The value of the built-in cell parameter `name` in `p`.
+fn cell_value(p: &CellParams, name: &str) -> f64 {
+    cell_values(p)
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map_or(f64::NAN, |(_, v)| *v)
 }
 
 /// Where `file` points: absolute as given; relative, in `resource_dir` if it exists there, else
@@ -559,5 +642,47 @@ mod tests {
             e.contains("modal_file") && e.contains("/nonexistent/modes.npz"),
             "{e}"
         );
+    }
+
+    /// Issue 14: the `structure` parameter picks a preset; `custom` takes the individual
+    /// parameters; a preset with a changed individual parameter, or an unknown name, is an
+    /// error naming the variable.
+    #[test]
+    fn issue_14_structure_parameter_picks_a_preset() {
+        let first_mode = |set: &dyn Fn(&mut Values, &Vars)| {
+            let (t, mut m) = Structure::new("keck").expect("keck");
+            let mut v = t.initial_values();
+            set(&mut v, &m.vars);
+            m.initialize(&mut v, 0.0)
+                .map(|()| v.scalar(m.vars.cell.first_mode_frequency))
+                .map_err(|e| e.to_string())
+        };
+        let name = |v: &mut Values, x: &Vars, s: &str| {
+            v.strings[x.cell.structure.slot] = std::ffi::CString::new(s).expect("cstring");
+        };
+        let direct = |p: &CellParams| {
+            CellModel::new(&Layout::keck(), p)
+                .and_then(|c| c.modes())
+                .expect("modes")
+                .frequencies[0]
+        };
+        let tmt = first_mode(&|_, _| {}).expect("default");
+        assert_eq!(tmt, direct(&CellParams::tmt()));
+        let soft = first_mode(&|v, x| name(v, x, "soft-cell")).expect("soft-cell");
+        assert_eq!(soft, direct(&CellParams::soft_cell()));
+        assert_ne!(soft, tmt);
+        let custom = first_mode(&|v, x| {
+            name(v, x, "custom");
+            v.real_mut(x.cell.support_radius)[0] = 0.65;
+            v.real_mut(x.cell.cell_mass)[0] = 500.0;
+        })
+        .expect("custom");
+        assert_eq!(custom, soft);
+        let e = first_mode(&|v, x| v.real_mut(x.cell.cell_mass)[0] = 700.0).expect_err("mixed");
+        assert!(e.contains("cell_mass") && e.contains("custom"), "{e}");
+        let e = first_mode(&|v, x| name(v, x, "stiff")).expect_err("unknown");
+        assert!(e.contains("structure") && e.contains("soft-cell"), "{e}");
+        let e = first_mode(&|v, x| name(v, x, "/nonexistent/cell.npz")).expect_err("no file");
+        assert!(e.contains("/nonexistent/cell.npz"), "{e}");
     }
 }
