@@ -364,6 +364,8 @@ fn coupling_needs_the_servo_period() {
     let png = dir.join("coupling.png");
     let v = json(&[
         "coupling",
+        "--structure",
+        "soft-cell",
         "--steps",
         "0.0002,0.0004",
         "--duration",

@@ -208,7 +208,7 @@ mod tests {
     use crate::structure::{CellModel, CellParams};
 
     fn keck_cell() -> ModalModel {
-        CellModel::new(&Layout::keck(), &CellParams::default())
+        CellModel::new(&Layout::keck(), &CellParams::soft_cell())
             .and_then(|c| c.modes())
             .unwrap_or_else(|e| panic!("{e}"))
     }

@@ -1350,7 +1350,7 @@ mod tests {
         let fm = if modes == 0 {
             FrequencyModel::rigid(n, model).unwrap()
         } else {
-            let cell = CellModel::new(&layout, &CellParams::default())
+            let cell = CellModel::new(&layout, &CellParams::soft_cell())
                 .unwrap()
                 .modes()
                 .unwrap();

@@ -873,7 +873,7 @@ mod tests {
         let fm = if modes == 0 {
             FrequencyModel::rigid(n, SegmentModel::voice_coil()).unwrap()
         } else {
-            let cell = CellModel::new(&layout, &CellParams::default())
+            let cell = CellModel::new(&layout, &CellParams::soft_cell())
                 .unwrap()
                 .modes()
                 .unwrap();

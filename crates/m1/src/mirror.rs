@@ -835,7 +835,7 @@ mod tests {
 
     fn keck(model: SegmentModel, n_modes: usize) -> (CoupledMirror, CellModel) {
         let layout = Layout::keck();
-        let cell = CellModel::new(&layout, &CellParams::default()).expect("cell");
+        let cell = CellModel::new(&layout, &CellParams::soft_cell()).expect("cell");
         let modes = cell.modes().expect("modes");
         let m = CoupledMirror::new(layout.n_segments(), model, modes, n_modes, 0.02, 1)
             .expect("mirror");

@@ -1510,7 +1510,7 @@ mod tests {
 
     fn keck_modes() -> ModalModel {
         let layout = Layout::keck();
-        CellModel::new(&layout, &CellParams::default())
+        CellModel::new(&layout, &CellParams::soft_cell())
             .expect("cell")
             .modes()
             .expect("modes")
@@ -1690,7 +1690,7 @@ mod tests {
         }
     }
 
-    /// Why the TMT closed loop at 1 Hz grows on the built-in cell (README): its principal
+    /// Why the TMT closed loop at 1 Hz grows on the `soft-cell` preset (README): its principal
     /// loop gain reaches 1.6 at 8.95 Hz, next to the 9.09 Hz cell modes, where the seed
     /// paper's criterion asks for under 1/2; sampling at 20 Hz adds a second peak at 9.55 Hz
     /// (the modes near 10.45 Hz folded), which a continuous-time reading misses. The highest
@@ -1701,7 +1701,7 @@ mod tests {
         use crate::geometry::{Geometry, GeometryParams};
         let layout = Layout::tmt();
         let n = layout.n_segments();
-        let cell = CellModel::new(&layout, &CellParams::default())
+        let cell = CellModel::new(&layout, &CellParams::soft_cell())
             .expect("cell")
             .modes()
             .expect("modes");

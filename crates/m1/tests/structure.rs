@@ -197,7 +197,7 @@ fn first_modes_are_between_5_and_20_hz() {
     for name in ["keck", "tmt"] {
         let layout = Layout::preset(name).expect("layout");
         let t0 = std::time::Instant::now();
-        let m = CellModel::new(&layout, &CellParams::default()).expect("model");
+        let m = CellModel::new(&layout, &CellParams::soft_cell()).expect("model");
         let modal = m.modes().expect("modes");
         let dt = t0.elapsed().as_secs_f64();
         let f = &modal.frequencies;
