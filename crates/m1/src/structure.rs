@@ -271,16 +271,8 @@ impl StructureSource {
 impl CellParams {
     /// Checks every field (finite and positive; `support_radius` in (0, 1]).
     pub fn validate(&self) -> Result<(), M1Error> {
-        let pos = [
-            ("cell_mass", self.cell_mass),
-            ("mount_mass_ratio", self.mount_mass_ratio),
-            ("mount_frequency", self.mount_frequency),
-            ("support_frequency", self.support_frequency),
-            ("cell_frequency", self.cell_frequency),
-            ("torsion_ratio", self.torsion_ratio),
-        ];
-        for (name, value) in pos {
-            if !(value.is_finite() && value > 0.0) {
+        for (name, value) in self.named() {
+            if name != "support_radius" && !(value.is_finite() && value > 0.0) {
                 return Err(M1Error::InvalidParameter {
                     name,
                     value,
@@ -296,6 +288,19 @@ impl CellParams {
             });
         }
         Ok(())
+    }
+
+    /// Every field with its parameter name (the FMUs' variable names), in declaration order.
+    pub fn named(&self) -> [(&'static str, f64); 7] {
+        [
+            ("cell_mass", self.cell_mass),
+            ("mount_mass_ratio", self.mount_mass_ratio),
+            ("mount_frequency", self.mount_frequency),
+            ("support_frequency", self.support_frequency),
+            ("cell_frequency", self.cell_frequency),
+            ("torsion_ratio", self.torsion_ratio),
+            ("support_radius", self.support_radius),
+        ]
     }
 }
 

@@ -339,10 +339,10 @@ impl CellVars {
                 // A preset takes all its values: a Built-in model parameter moved from its
                 // start value would be silently ignored, so it is an error.
                 let start = CellParams::default();
-                if let Some(name) = changed_cell_parameter(&given, &start) {
+                if let Some((name, value)) = changed_cell_parameter(&given, &start) {
                     return Err(FmuError::BadValue {
                         variable: name.into(),
-                        value: format!("{}", cell_value(&given, name)),
+                        value: format!("{value}"),
                         reason: format!(
                             "would be ignored: structure = \"{structure}\" takes every value from its preset: set \
                              structure = \"custom\" to use the Built-in model parameters"
@@ -392,34 +392,14 @@ impl CellVars {
     }
 }
 
-/// The names of the built-in cell's parameters, with their values in `p`.
-fn cell_values(p: &CellParams) -> [(&'static str, f64); 7] {
-    [
-        ("cell_mass", p.cell_mass),
-        ("mount_mass_ratio", p.mount_mass_ratio),
-        ("mount_frequency", p.mount_frequency),
-        ("support_frequency", p.support_frequency),
-        ("cell_frequency", p.cell_frequency),
-        ("torsion_ratio", p.torsion_ratio),
-        ("support_radius", p.support_radius),
-    ]
-}
-
-/// The first built-in cell parameter whose value in `given` differs from `start`.
-fn changed_cell_parameter(given: &CellParams, start: &CellParams) -> Option<&'static str> {
-    cell_values(given)
-        .iter()
-        .zip(cell_values(start))
+/// The first built-in cell parameter whose value in `given` differs from `start`, with that value.
+fn changed_cell_parameter(given: &CellParams, start: &CellParams) -> Option<(&'static str, f64)> {
+    given
+        .named()
+        .into_iter()
+        .zip(start.named())
         .find(|(g, s)| g.1.to_bits() != s.1.to_bits())
-        .map(|(g, _)| g.0)
-}
-
-/// The value of the built-in cell parameter `name` in `p`.
-fn cell_value(p: &CellParams, name: &str) -> f64 {
-    cell_values(p)
-        .iter()
-        .find(|(n, _)| *n == name)
-        .map_or(f64::NAN, |(_, v)| *v)
+        .map(|(g, _)| g)
 }
 
 /// Where `file` points: absolute as given; relative, in `resource_dir` if it exists there, else
@@ -450,19 +430,7 @@ fn built_in_modes(layout: &str, params: &CellParams) -> Result<ModalModel, FmuEr
     type Key = (String, [u64; 7]);
     static CACHE: std::sync::Mutex<Vec<(Key, ModalModel)>> = std::sync::Mutex::new(Vec::new());
     let p = params;
-    let key: Key = (
-        layout.to_string(),
-        [
-            p.cell_mass,
-            p.mount_mass_ratio,
-            p.mount_frequency,
-            p.support_frequency,
-            p.cell_frequency,
-            p.torsion_ratio,
-            p.support_radius,
-        ]
-        .map(f64::to_bits),
-    );
+    let key: Key = (layout.to_string(), p.named().map(|(_, v)| v.to_bits()));
     // A poisoned lock only means another instance panicked while holding it: the cached
     // entries are complete values, still valid.
     let cached = {
