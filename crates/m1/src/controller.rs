@@ -10,8 +10,8 @@
 //! updates the actuator command by
 //!
 //! $$u_{k+1} = u_k - G\,P\,B_0\,(y_k - y_{ref,k}),$$
-//! $$G = g\,(P - \psi_f\psi_f^T - R_2 R_2^T - R_{34} R_{34}^T) + g_{34}\,R_{34} R_{34}^T
-//!   + g_2\,R_2 R_2^T + \Gamma g_f\,\psi_f\psi_f^T .$$
+//! $$G = g\,(P - \psi_f\psi_f^T - R_2 R_2^T - R_{34} R_{34}^T) + g_{34}\,R_{34} R_{34}^T +
+//!   g_2\,R_2 R_2^T + \Gamma g_f\,\psi_f\psi_f^T .$$
 //!
 //! Sign convention: the reading of a displacement $z$ is $A z$; the loop drives the mirror to
 //! the state whose readings equal $y_{ref}$, so with a perfect plant ($z = u + d$, $d$ a static
@@ -444,7 +444,7 @@ impl ControlModes {
                 }
             }
             let n = dot(&v, &v).sqrt();
-            if !(n > DEGENERATE) {
+            if n.is_nan() || n <= DEGENERATE {
                 return Err(M1Error::Numerical(
                     "focus-mode lies in the span of the radial-degree-3-4 Zernike modes".into(),
                 ));

@@ -7,8 +7,8 @@
 //! # The loop
 //!
 //! As in [`GlobalLoop`]: at frequency $f$, with the controller's gain matrix
-//! $G = g I + (-g) N N^T + (g_2 - g) R_2 R_2^T + (g_{34} - g) R_{34} R_{34}^T
-//! + (g_f - g) \psi\psi^T$ (global piston/tip/tilt $N$ projected out, radial degrees >= 5 at
+//! $G = g I + (-g) N N^T + (g_2 - g) R_2 R_2^T + (g_{34} - g) R_{34} R_{34}^T +
+//! (g_f - g) \psi\psi^T$ (global piston/tip/tilt $N$ projected out, radial degrees >= 5 at
 //! $g$, the radial-degree-3-4 group $R_{34}$, astigmatism $R_2$ and focus-mode $\psi$ at their
 //! own gains; see [`crate::controller`]), the loop rate $f_c$ and the sensors sampled at it,
 //!
