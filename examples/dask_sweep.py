@@ -15,7 +15,12 @@ component takes its inputs from the newest outputs (components in the order abov
 order from the outputs of the communication point. Values move in bulk: one fmi2SetReal, one fmi2DoStep and one
 fmi2GetReal per component and step, on numpy arrays of value references and values allocated
 once per run. The results equal those of `m1cs run --layout LAYOUT --cell rigid --step STEP
---order ORDER` bit for bit.
+--order ORDER --bandwidth B --bandwidth-radial34 B34 --bandwidth-radial2 B2` bit for bit.
+
+A sweep's bandwidth B is the global loop's on the modes of radial degrees >= 5; radial degrees
+3-4 and 2 get the seed paper's baseline ratios of it (B34 = B x 1 / 1.5, B2 = B x 0.75 / 1.5, the
+ratios of m1::controller's default bandwidths, as `m1cs wind` sweeps), focus-mode its own
+`--focus-bandwidth`.
 
 Following fmpy's parameter-variation example, every Dask worker extracts each FMU once (into its
 own local directory, by a worker plugin), instantiates it once, and runs each sweep point on that
@@ -66,6 +71,12 @@ CONNECTIONS = [
     ("segments", "z", "optics", "z"),
 ]
 ORDERS = ("jacobi", "gauss-seidel")
+# m1::controller's default bandwidths (Hz), the seed paper's baseline tuning: radial degrees
+# >= 5, radial degrees 3-4, radial degree 2 (astigmatism) and focus-mode.
+DEFAULT_BANDWIDTH = 1.5
+DEFAULT_BANDWIDTH_RADIAL34 = 1.0
+DEFAULT_BANDWIDTH_RADIAL2 = 0.75
+DEFAULT_BANDWIDTH_FOCUS = 0.1
 METRICS = ["rms_surface", "focus_mode", "rms_surface_without_focus", "pssn"]
 ACTUATORS = {
     "voicecoil": ("segments_voicecoil", {}),
@@ -73,8 +84,8 @@ ACTUATORS = {
     "piezo-damped": ("segments_piezo", {"shunt_enabled": True}),
 }
 # Columns of the output table.
-COLUMNS = ["wind_speed", "bandwidth", "rms_surface_m", "focus_mode_m",
-           "rms_surface_without_focus_m", "pssn", "wall_s", "worker"]
+COLUMNS = ["wind_speed", "bandwidth", "bandwidth_radial34", "bandwidth_radial2", "rms_surface_m",
+           "focus_mode_m", "rms_surface_without_focus_m", "pssn", "wall_s", "worker"]
 
 
 def fmu_files(fmu_dir, layout, actuator="voicecoil"):
@@ -156,15 +167,30 @@ def _ptr(a, ctype):
     return a.ctypes.data_as(ctypes.POINTER(ctype))
 
 
-def simulate_point(fmus, wind_speed, bandwidth, duration, step, focus_bandwidth=0.1,
-                   seed=1, actuator="voicecoil", order="gauss-seidel", series=False):
+def group_bandwidths(bandwidth):
+    """(radial degrees 3-4, radial degree 2) bandwidths for the bandwidth `bandwidth` of radial
+    degrees >= 5: the baseline's ratios, computed as `m1cs wind` does."""
+    return (bandwidth * DEFAULT_BANDWIDTH_RADIAL34 / DEFAULT_BANDWIDTH,
+            bandwidth * DEFAULT_BANDWIDTH_RADIAL2 / DEFAULT_BANDWIDTH)
+
+
+def simulate_point(fmus, wind_speed, bandwidth, duration, step,
+                   focus_bandwidth=DEFAULT_BANDWIDTH_FOCUS, seed=1, actuator="voicecoil",
+                   order="gauss-seidel", series=False, bandwidth_radial34=None,
+                   bandwidth_radial2=None):
     """Runs the closed loop for one (wind speed, bandwidth) on the instances of `fmus` (an
     FmuSet) and returns the row of metrics (SI units); with `series`, the row also holds
-    row["series"]: "time" and the optics outputs after each optics step (arrays, by name)."""
+    row["series"]: "time" and the optics outputs after each optics step (arrays, by name).
+    `bandwidth` acts on radial degrees >= 5; `bandwidth_radial34` and `bandwidth_radial2`
+    default to the baseline's ratios of it (`group_bandwidths`)."""
     if not (duration > 0 and step > 0 and duration >= step):
         raise ValueError(f"duration {duration} and step {step} must be positive, "
                          f"the duration at least one step")
-    if not (wind_speed > 0 and bandwidth > 0 and focus_bandwidth > 0):
+    r34, r2 = group_bandwidths(bandwidth)
+    bandwidth_radial34 = r34 if bandwidth_radial34 is None else bandwidth_radial34
+    bandwidth_radial2 = r2 if bandwidth_radial2 is None else bandwidth_radial2
+    if not (wind_speed > 0 and bandwidth > 0 and focus_bandwidth > 0
+            and bandwidth_radial34 > 0 and bandwidth_radial2 > 0):
         raise ValueError("wind speed and bandwidths must be positive")
     if order not in ORDERS:
         raise ValueError(f"order {order!r}: expected one of {ORDERS}")
@@ -176,7 +202,8 @@ def simulate_point(fmus, wind_speed, bandwidth, duration, step, focus_bandwidth=
         "segments": dict(ACTUATORS[actuator][1]),
         "sensors": {"seed": seed},
         "controller": {"enabled": True, "bandwidth": bandwidth,
-                       "bandwidth_radial2": 0.75 * bandwidth,
+                       "bandwidth_radial34": bandwidth_radial34,
+                       "bandwidth_radial2": bandwidth_radial2,
                        "bandwidth_focus": focus_bandwidth},
         "optics": {},
     }
@@ -280,6 +307,8 @@ def simulate_point(fmus, wind_speed, bandwidth, duration, step, focus_bandwidth=
     row = {
         "wind_speed": float(wind_speed),
         "bandwidth": float(bandwidth),
+        "bandwidth_radial34": float(bandwidth_radial34),
+        "bandwidth_radial2": float(bandwidth_radial2),
         "rms_surface_m": float(rms[0]),
         "focus_mode_m": float(rms[1]),
         "rms_surface_without_focus_m": float(rms[2]),
@@ -377,9 +406,11 @@ def parse_args(argv=None):
     p.add_argument("--speeds", type=_floats, default=[2.0, 5.0, 10.0],
                    help="wind speeds (m/s), comma-separated")
     p.add_argument("--bandwidths", type=_floats, default=[0.5, 1.0, 2.0],
-                   help="global-loop bandwidths on most modes (Hz), comma-separated; radial "
-                        "degree 2 gets 0.75 of it")
-    p.add_argument("--focus-bandwidth", type=float, default=0.1, help="focus-mode bandwidth (Hz)")
+                   help="global-loop bandwidths on radial degrees >= 5 (Hz), comma-separated; "
+                        "radial degrees 3-4 get 1/1.5 of each, radial degree 2 0.75/1.5 (the "
+                        "baseline's ratios, as `m1cs wind`)")
+    p.add_argument("--focus-bandwidth", type=float, default=DEFAULT_BANDWIDTH_FOCUS,
+                   help="focus-mode bandwidth (Hz)")
     p.add_argument("--actuator", choices=sorted(ACTUATORS), default="voicecoil")
     p.add_argument("--duration", type=float, default=2.0, help="simulated time per point (s)")
     p.add_argument("--step", type=float, default=1e-3,

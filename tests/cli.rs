@@ -183,6 +183,10 @@ fn zero_gain_wind_run_is_the_open_loop() {
         "1",
         "--bandwidth",
         "0",
+        "--bandwidth-radial34",
+        "0",
+        "--bandwidth-radial2",
+        "0",
         "--focus-bandwidth",
         "0",
         "--fmu-dir",
@@ -628,7 +632,7 @@ fn csi_on_keck() {
         "the verdict follows the curve: {gl}"
     );
     // Every peak carries its Zernike family: the all-segment curves' maxima (the structure's
-    // resonances above 5 Hz exceed half the limit in loop gain on Keck), each above its
+    // resonances from 8 Hz up exceed half the limit in loop gain on Keck), each above its
     // threshold.
     let families = |l: &str| matches!(l, "P" | "TT" | "FA") || l.starts_with('Z');
     for c in gz.iter().chain(std::iter::once(&gl["all_segments"])) {
@@ -689,6 +693,10 @@ fn csi_rejects_bad_input() {
         (
             vec!["csi", "--layout", "keck", "--bandwidth", "12"],
             "--bandwidth",
+        ),
+        (
+            vec!["csi", "--layout", "keck", "--bandwidth-radial34", "12"],
+            "--bandwidth-radial34",
         ),
         (
             vec!["csi", "--layout", "keck", "--allowance", "0.5"],

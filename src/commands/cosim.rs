@@ -63,11 +63,19 @@ pub struct SystemArgs {
     /// Mean wind speed (m/s).
     #[arg(long, default_value_t = 5.0)]
     pub wind_speed: f64,
-    /// Global-loop bandwidth on most modes (Hz); radial degree 2 gets 0.75 of it.
-    #[arg(long, default_value_t = 1.0)]
+    /// Global-loop bandwidth on the modes of radial degrees >= 5 (every mode outside the three
+    /// groups below) (Hz).
+    #[arg(long, default_value_t = m1::controller::DEFAULT_BANDWIDTH)]
     pub bandwidth: f64,
+    /// Global-loop bandwidth on radial degrees 3-4 (Z7 to Z15, without radial degree 2 and
+    /// focus-mode) (Hz).
+    #[arg(long, default_value_t = m1::controller::DEFAULT_BANDWIDTH_RADIAL34)]
+    pub bandwidth_radial34: f64,
+    /// Global-loop bandwidth on radial degree 2 without focus-mode (astigmatism) (Hz).
+    #[arg(long, default_value_t = m1::controller::DEFAULT_BANDWIDTH_RADIAL2)]
+    pub bandwidth_radial2: f64,
     /// Global-loop bandwidth on focus-mode (Hz).
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, default_value_t = m1::controller::DEFAULT_BANDWIDTH_FOCUS)]
     pub focus_bandwidth: f64,
     /// Mirror cell: `coupled` (the mirror FMU, segments and structure in one solve), `split`
     /// (segments and structure FMUs exchanging f_cell and z_cell every step; short steps only)
@@ -176,15 +184,15 @@ pub fn standard_system(a: &SystemArgs, closed: bool) -> Result<System, String> {
     }
     // Zero bandwidths are allowed: the controller then runs with zero gains (its integrators
     // hold), the open loop with the controller in it.
-    if !(a.bandwidth.is_finite()
-        && a.bandwidth >= 0.0
-        && a.focus_bandwidth.is_finite()
-        && a.focus_bandwidth >= 0.0)
-    {
-        return Err(format!(
-            "--bandwidth {} and --focus-bandwidth {}: must be finite and >= 0",
-            a.bandwidth, a.focus_bandwidth
-        ));
+    for (name, b) in [
+        ("--bandwidth", a.bandwidth),
+        ("--bandwidth-radial34", a.bandwidth_radial34),
+        ("--bandwidth-radial2", a.bandwidth_radial2),
+        ("--focus-bandwidth", a.focus_bandwidth),
+    ] {
+        if !(b.is_finite() && b >= 0.0) {
+            return Err(format!("{name} {b}: must be finite and >= 0"));
+        }
     }
     let per = |hz: f64| {
         if a.uniform {
@@ -236,8 +244,13 @@ pub fn standard_system(a: &SystemArgs, closed: bool) -> Result<System, String> {
         .parameter("controller", "bandwidth", Value::Real(a.bandwidth))
         .parameter(
             "controller",
+            "bandwidth_radial34",
+            Value::Real(a.bandwidth_radial34),
+        )
+        .parameter(
+            "controller",
             "bandwidth_radial2",
-            Value::Real(0.75 * a.bandwidth),
+            Value::Real(a.bandwidth_radial2),
         )
         .parameter(
             "controller",

@@ -89,14 +89,19 @@ pub struct CsiArgs {
     /// Range of the factor on the servo gains searched (lo,hi).
     #[arg(long, value_delimiter = ',', default_value = "0.05,20")]
     pub gain_range: Vec<f64>,
-    /// Global loop: bandwidth of most modes (Hz).
-    #[arg(long, default_value_t = 1.0)]
+    /// Global loop: bandwidth of the modes of radial degrees >= 5 (every mode outside the three
+    /// groups below) (Hz).
+    #[arg(long, default_value_t = m1::controller::DEFAULT_BANDWIDTH)]
     pub bandwidth: f64,
-    /// Global loop: bandwidth of astigmatism (radial degree 2 without focus) (Hz).
-    #[arg(long, default_value_t = 0.75)]
+    /// Global loop: bandwidth of radial degrees 3-4 (Z7 to Z15, without radial degree 2 and
+    /// focus-mode) (Hz).
+    #[arg(long, default_value_t = m1::controller::DEFAULT_BANDWIDTH_RADIAL34)]
+    pub bandwidth_radial34: f64,
+    /// Global loop: bandwidth of radial degree 2 without focus-mode (astigmatism) (Hz).
+    #[arg(long, default_value_t = m1::controller::DEFAULT_BANDWIDTH_RADIAL2)]
     pub bandwidth_radial2: f64,
     /// Global loop: bandwidth of focus-mode (Hz).
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, default_value_t = m1::controller::DEFAULT_BANDWIDTH_FOCUS)]
     pub bandwidth_focus: f64,
     /// Global loop: sample rate (Hz).
     #[arg(long, default_value_t = 20.0)]
@@ -123,8 +128,10 @@ pub struct CsiArgs {
     /// frequency (the seed paper's allowance for interaction-matrix uncertainty).
     #[arg(long, default_value_t = 2.0)]
     pub allowance: f64,
-    /// Global loop: the loop-gain criterion applies at and above this frequency (Hz).
-    #[arg(long, default_value_t = 5.0)]
+    /// Global loop: the loop-gain criterion applies at and above this frequency (Hz): the
+    /// structural resonances (below 8 Hz the bare integrator's own loop gain approaches the
+    /// limit).
+    #[arg(long, default_value_t = m1::global_csi::DEFAULT_BAND_START_HZ)]
     pub loop_gain_from: f64,
     /// Realizations of 0.1 % sensor-gain errors whose worst sigma_max(Gamma Psi Q Psi^T) is
     /// set against the allowance (0 skips it).
@@ -176,6 +183,7 @@ fn check_args(a: &CsiArgs) -> Result<(f64, f64), String> {
     }
     for (name, v) in [
         ("--bandwidth", a.bandwidth),
+        ("--bandwidth-radial34", a.bandwidth_radial34),
         ("--bandwidth-radial2", a.bandwidth_radial2),
         ("--bandwidth-focus", a.bandwidth_focus),
     ] {
@@ -277,6 +285,7 @@ pub fn csi(a: &CsiArgs) -> Result<(), String> {
     let params = ControllerParams {
         rate: a.loop_rate,
         bandwidth: a.bandwidth,
+        bandwidth_radial34: a.bandwidth_radial34,
         bandwidth_radial2: a.bandwidth_radial2,
         bandwidth_focus: a.bandwidth_focus,
         ..ControllerParams::default()
@@ -465,11 +474,12 @@ fn family(label: &str, noll: usize) -> String {
 
 fn print_global(g: &GlobalSweep, q: Option<&QAllowance>) {
     println!(
-        "Global loop ({} modes, {} Hz, bandwidths {} / {} / {} Hz, {} images each side; \
-         {:.3}-{:.2} Hz, {} points):",
+        "Global loop ({} modes, {} Hz, bandwidths {} / {} / {} / {} Hz on radial degrees >= 5 / \
+         3-4 / 2 / focus-mode, {} images each side; {:.3}-{:.2} Hz, {} points):",
         g.modes,
         g.params.rate,
         g.params.bandwidth,
+        g.params.bandwidth_radial34,
         g.params.bandwidth_radial2,
         g.params.bandwidth_focus,
         g.aliases,
@@ -565,8 +575,8 @@ fn print_global(g: &GlobalSweep, q: Option<&QAllowance>) {
     }
     let h = &g.highest_bandwidth;
     println!(
-        "highest global bandwidth {} both (astigmatism at the same ratio, focus-mode as \
-         given): {:.3} Hz with all segments ({:.3} Hz in the Zernike basis; peak sensitivity \
+        "highest global bandwidth of radial degrees >= 5 {} both (radial degrees 3-4 and 2 at \
+         the same ratios, focus-mode as given): {:.3} Hz with all segments ({:.3} Hz in the Zernike basis; peak sensitivity \
          {:.3}, loop gain {:.3} at {:.2} Hz; limited by {})",
         if h.meets_criteria {
             "meeting"

@@ -28,12 +28,13 @@ pub struct WindArgs {
     /// Mean wind speeds (m/s), comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "2,5,10")]
     pub speeds: Vec<f64>,
-    /// Global-loop bandwidths on most modes (Hz), comma-separated; radial degree 2 gets 0.75 of
-    /// each.
+    /// Global-loop bandwidths on the modes of radial degrees >= 5 (Hz), comma-separated; radial
+    /// degrees 3-4 and 2 get the baseline's ratios of each (1 / 1.5 and 0.75 / 1.5, from m1's
+    /// default bandwidths), focus-mode --focus-bandwidth.
     #[arg(long, value_delimiter = ',', default_value = "0.25,0.5,1")]
     pub bandwidths: Vec<f64>,
     /// Global-loop bandwidth on focus-mode (Hz).
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, default_value_t = m1::controller::DEFAULT_BANDWIDTH_FOCUS)]
     pub focus_bandwidth: f64,
     /// Mirror cell: `coupled` (the mirror FMU) or `rigid` (no structure).
     #[arg(long, value_enum, default_value = "coupled")]
@@ -94,6 +95,20 @@ fn stats(layout: &m1::layout::Layout, o: &mut super::cosim::Outcome) -> Result<S
     })
 }
 
+/// The bandwidths of radial degrees 3-4 and 2 for the bandwidth `bw` of radial degrees >= 5 in a
+/// sweep: the baseline's ratios to it ([`m1::controller::DEFAULT_BANDWIDTH_RADIAL34`] and
+/// [`m1::controller::DEFAULT_BANDWIDTH_RADIAL2`] over [`m1::controller::DEFAULT_BANDWIDTH`]), so
+/// the sweep scales the whole loop but focus-mode.
+fn group_bandwidths(bw: f64) -> (f64, f64) {
+    use m1::controller::{
+        DEFAULT_BANDWIDTH, DEFAULT_BANDWIDTH_RADIAL2, DEFAULT_BANDWIDTH_RADIAL34,
+    };
+    (
+        bw * DEFAULT_BANDWIDTH_RADIAL34 / DEFAULT_BANDWIDTH,
+        bw * DEFAULT_BANDWIDTH_RADIAL2 / DEFAULT_BANDWIDTH,
+    )
+}
+
 /// Share of the residual's variance that is focus-mode: 1 - (rms without focus / rms)^2.
 fn focus_share(s: &Stats) -> f64 {
     (1.0 - (s.without_focus / s.rms).powi(2)).max(0.0)
@@ -124,6 +139,8 @@ pub fn wind(a: &WindArgs) -> Result<(), String> {
         fmu_dir: a.fmu_dir.clone(),
         wind_speed: a.speeds[0],
         bandwidth: a.bandwidths[0],
+        bandwidth_radial34: group_bandwidths(a.bandwidths[0]).0,
+        bandwidth_radial2: group_bandwidths(a.bandwidths[0]).1,
         focus_bandwidth: a.focus_bandwidth,
         cell: a.cell,
         structure_modes: a.structure_modes,
@@ -171,9 +188,12 @@ pub fn wind(a: &WindArgs) -> Result<(), String> {
             maps.push((format!("open loop, {speed} m/s"), open_stats.map.clone()));
         }
         for (j, &bw) in a.bandwidths.iter().enumerate() {
+            let (bw34, bw2) = group_bandwidths(bw);
             let args = SystemArgs {
                 wind_speed: speed,
                 bandwidth: bw,
+                bandwidth_radial34: bw34,
+                bandwidth_radial2: bw2,
                 ..base.clone()
             };
             let mut closed = run_one(
@@ -205,6 +225,8 @@ pub fn wind(a: &WindArgs) -> Result<(), String> {
             "runs": rows.iter().map(|(speed, bw, open, s)| json!({
                 "wind_speed_m_per_s": speed,
                 "bandwidth_hz": bw,
+                "bandwidth_radial34_hz": group_bandwidths(*bw).0,
+                "bandwidth_radial2_hz": group_bandwidths(*bw).1,
                 "open_loop_rms_surface_nm": nm(*open),
                 "closed_loop_rms_surface_nm": nm(s.rms),
                 "closed_loop_focus_mode_coefficient_nm": nm(s.focus),
@@ -217,9 +239,11 @@ pub fn wind(a: &WindArgs) -> Result<(), String> {
         });
         println!("{out}");
     } else {
+        let (r34, r2) = group_bandwidths(1.0);
         println!(
-            "{} {:?} actuators, {:?} cell, {} s per run (statistics over the second half):",
-            a.layout, a.actuator, a.cell, a.duration
+            "{} {:?} actuators, {:?} cell, {} s per run (statistics over the second half); bw on \
+             radial degrees >= 5, {r34:.3} of it on 3-4, {r2:.3} on 2, focus-mode {} Hz:",
+            a.layout, a.actuator, a.cell, a.duration, a.focus_bandwidth
         );
         println!(
             "{:>10} {:>10} {:>12} {:>12} {:>11} {:>14} {:>10} {:>8}",

@@ -126,12 +126,15 @@ def test_python_loop_equals_the_rust_master(tmp_path):
         pytest.fail(f"{m1cs} is missing: run `cargo build --release` first")
     m = load_sweep()
     speed, bandwidth, duration = 5.0, 2.0, 0.2
+    bw34, bw2 = m.group_bandwidths(bandwidth)
+    assert (bw34, bw2) == (bandwidth / 1.5, bandwidth * 0.5)
     for order in m.ORDERS:
         out = tmp_path / order
         subprocess.run([str(m1cs), "run", "--layout", "keck", "--fmu-dir", str(FMU_DIR),
                         "--cell", "rigid", "--order", order, "--step", str(STEP),
                         "--duration", str(duration), "--wind-speed", str(speed),
-                        "--bandwidth", str(bandwidth), "--decimation", "1", "--out", str(out),
+                        "--bandwidth", str(bandwidth), "--bandwidth-radial34", repr(bw34),
+                        "--bandwidth-radial2", repr(bw2), "--decimation", "1", "--out", str(out),
                         "--json"], check=True, capture_output=True)
         with open(out / "closed_loop.csv") as f:
             rows = list(csv.reader(f))

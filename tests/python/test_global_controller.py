@@ -107,8 +107,9 @@ def test_closed_loop_through_the_edge_sensors_removes_a_disturbance():
         rms.append(np.sqrt(np.mean(sensors.get("y") ** 2)))
     sensors.close()
     ctrl.close()
-    # 2 s = 40 samples: the 1 Hz modes are gone ((1 - 0.27)^40 ~ 3e-6); what is left is the
-    # slow focus-mode and astigmatism content, which reads weakly.
+    # 2 s = 40 samples: the 1.5 Hz and 1 Hz modes (radial degrees >= 5 and 3-4) are gone
+    # ((1 - 0.27)^40 ~ 3e-6); what is left is the slow focus-mode and astigmatism content,
+    # which reads weakly.
     assert rms[-1] < 0.02 * y0, (rms[-1], y0)
     # Monotone decay sample after sample (the loop is a set of first-order integrators).
     at_samples = [rms[k] for k in range(49, 2000, 50)]
@@ -117,12 +118,32 @@ def test_closed_loop_through_the_edge_sensors_removes_a_disturbance():
 
 def test_calculated_loop_gains():
     c = Slave(fmu_path("keck", "global_controller"))
-    c.set(rate=40.0, bandwidth=2.0, bandwidth_radial2=1.0, bandwidth_focus=0.5, focus_gain=0.25)
+    c.set(rate=40.0, bandwidth=2.0, bandwidth_radial34=1.5, bandwidth_radial2=1.0,
+          bandwidth_focus=0.5, focus_gain=0.25)
     c.start()
     g = lambda f: 1 - math.exp(-2 * math.pi * f / 40.0)  # noqa: E731
     assert c.get("loop_gain") == pytest.approx(g(2.0), rel=1e-14)
+    assert c.get("loop_gain_radial34") == pytest.approx(g(1.5), rel=1e-14)
     assert c.get("loop_gain_radial2") == pytest.approx(g(1.0), rel=1e-14)
     assert c.get("loop_gain_focus") == pytest.approx(0.25 * g(0.5), rel=1e-14)
+    c.close()
+
+
+def test_default_bandwidths_are_the_baseline_tuning():
+    """The seed paper's baseline: 1.5 Hz on radial degrees >= 5, 1 Hz on 3-4, 0.75 Hz on 2,
+    0.1 Hz on focus-mode, at 20 Hz."""
+    md = read_model_description(str(fmu_path("keck", "global_controller")))
+    start = {v.name: float(v.start) for v in md.modelVariables
+             if v.name in ("rate", "bandwidth", "bandwidth_radial34", "bandwidth_radial2",
+                           "bandwidth_focus")}
+    assert start == {"rate": 20.0, "bandwidth": 1.5, "bandwidth_radial34": 1.0,
+                     "bandwidth_radial2": 0.75, "bandwidth_focus": 0.1}
+    c = Slave(fmu_path("keck", "global_controller"))
+    c.start()
+    g = lambda f: 1 - math.exp(-2 * math.pi * f / 20.0)  # noqa: E731
+    for name, f in [("loop_gain", 1.5), ("loop_gain_radial34", 1.0),
+                    ("loop_gain_radial2", 0.75), ("loop_gain_focus", 0.1)]:
+        assert c.get(name) == pytest.approx(g(f), rel=1e-14), name
     c.close()
 
 
@@ -140,7 +161,8 @@ def test_bad_parameters_are_refused_naming_the_variable(name, value):
     c.close()
 
 
-@pytest.mark.parametrize("name", ["bandwidth", "bandwidth_radial2", "bandwidth_focus"])
+@pytest.mark.parametrize("name", ["bandwidth", "bandwidth_radial34", "bandwidth_radial2",
+                                  "bandwidth_focus"])
 def test_bandwidth_at_or_above_nyquist_is_refused_at_initialisation(name):
     c = Slave(fmu_path("keck", "global_controller"))
     c.set(**{name: 10.0})  # rate 20 Hz: Nyquist 10 Hz

@@ -1,5 +1,5 @@
 //! The global edge-sensor control loop: the reconstructor with global piston/tip/tilt projected
-//! out, a modal decomposition into three orthogonal mode groups and one discrete integrator per
+//! out, a modal decomposition into four orthogonal mode groups and one discrete integrator per
 //! group, sampled at the loop rate (default 20 Hz) with the command held between samples.
 //!
 //! # Control law
@@ -9,24 +9,32 @@
 //! $B_0 A P = P$, $P = I - N N^T$), the readings $y$ and their set-point $y_{ref}$, sample $k$
 //! updates the actuator command by
 //!
-//! $$u_{k+1} = u_k - G\,P\,B_0\,(y_k - y_{ref,k}),\qquad
-//! G = g\,(P - \psi_f\psi_f^T - R R^T) + g_2\,R R^T + \Gamma g_f\,\psi_f\psi_f^T .$$
+//! $$u_{k+1} = u_k - G\,P\,B_0\,(y_k - y_{ref,k}),$$
+//! $$G = g\,(P - \psi_f\psi_f^T - R_2 R_2^T - R_{34} R_{34}^T) + g_{34}\,R_{34} R_{34}^T +
+//!   g_2\,R_2 R_2^T + \Gamma g_f\,\psi_f\psi_f^T .$$
 //!
 //! Sign convention: the reading of a displacement $z$ is $A z$; the loop drives the mirror to
 //! the state whose readings equal $y_{ref}$, so with a perfect plant ($z = u + d$, $d$ a static
 //! disturbance) the error $e = u + d$ (observable part) obeys $e_{k+1} = (I - G) e_k$ exactly.
 //! The mode groups are orthogonal projections that add up to $P$, so on each group the loop is
-//! exactly a first-order discrete integrator, decaying by $(1 - g_{group})$ per sample:
+//! exactly a first-order discrete integrator, decaying by $(1 - g_{group})$ per sample (the seed
+//! paper's baseline tuning, its Figure 11, is the default):
 //!
 //! - **focus-mode** $\psi_f$: the least observable mode of $A$ ([`Nominal::focus`], unit norm,
 //!   orthogonal to $N$), gain $\Gamma g_f$ with $\Gamma$ the reconstructor's modal gain on
-//!   focus-mode (the seed paper's $\Gamma$, `focus_gain`) and $g_f$ from `bandwidth_focus`;
-//! - **radial degree 2** $R$ (two orthonormal columns): the span of the Zernike modes
+//!   focus-mode (the seed paper's $\Gamma$, `focus_gain`) and $g_f$ from `bandwidth_focus`
+//!   (0.1 Hz);
+//! - **radial degree 2** $R_2$ (two orthonormal columns): the span of the Zernike modes
 //!   $Z_4, Z_5, Z_6$ projected on the segments' piston/tip/tilt ([`crate::zernike`]), as
 //!   actuator displacements, with $N$ projected out, minus the direction of that span closest to
 //!   focus-mode (focus-mode is almost exactly $Z_4$ and has its own group). What remains is
-//!   astigmatism, and is exactly orthogonal to $\psi_f$; gain $g_2$ from `bandwidth_radial2`;
-//! - **every other observable mode**, gain $g$ from `bandwidth`.
+//!   astigmatism, and is exactly orthogonal to $\psi_f$; gain $g_2$ from `bandwidth_radial2`
+//!   (0.75 Hz);
+//! - **radial degrees 3 and 4** $R_{34}$ (nine orthonormal columns): the span of $Z_7$ to
+//!   $Z_{15}$ projected the same way, with $N$, the whole radial-degree-2 span ($Z_4, Z_5, Z_6$)
+//!   and focus-mode projected out; gain $g_{34}$ from `bandwidth_radial34` (1 Hz);
+//! - **every other observable mode** (radial degrees 5 and up), gain $g$ from `bandwidth`
+//!   (1.5 Hz).
 //!
 //! $u$ never holds global piston/tip/tilt: $P$ is applied to every update (it starts at 0).
 //!
@@ -37,9 +45,9 @@
 //! $$g = 1 - e^{-2\pi f_{bw}/f_s},$$
 //!
 //! which matches the discrete pole $1 - g$ to the continuous first-order loop
-//! $e(t) = e^{-2\pi f_{bw} t}$ (time constant $1/(2\pi f_{bw})$). For 1 Hz at 20 Hz:
-//! $g = 0.2696$; 0.75 Hz: 0.2096; 0.1 Hz: 0.0309. $f_{bw} = 0$ opens the loop on that group;
-//! bandwidths must stay below $f_s/2$.
+//! $e(t) = e^{-2\pi f_{bw} t}$ (time constant $1/(2\pi f_{bw})$). At 20 Hz: 1.5 Hz gives
+//! $g = 0.3758$; 1 Hz: 0.2696; 0.75 Hz: 0.2099; 0.1 Hz: 0.0309. $f_{bw} = 0$ opens the loop on
+//! that group; bandwidths must stay below $f_s/2$.
 //!
 //! # Sampling
 //!
@@ -63,8 +71,10 @@ use crate::zernike::ZernikeBasis;
 
 /// Default loop sample rate (Hz).
 pub const DEFAULT_RATE: f64 = 20.0;
-/// Default closed-loop bandwidth of most modes (Hz).
-pub const DEFAULT_BANDWIDTH: f64 = 1.0;
+/// Default closed-loop bandwidth of the modes of radial degree 5 and up (Hz).
+pub const DEFAULT_BANDWIDTH: f64 = 1.5;
+/// Default bandwidth of the radial-degree-3-4 group (Hz).
+pub const DEFAULT_BANDWIDTH_RADIAL34: f64 = 1.0;
 /// Default bandwidth of the radial-degree-2 group (astigmatism) (Hz).
 pub const DEFAULT_BANDWIDTH_RADIAL2: f64 = 0.75;
 /// Default bandwidth of focus-mode (Hz, *assumed*).
@@ -78,6 +88,14 @@ pub const TIME_TOLERANCE: f64 = 1e-9;
 
 /// Noll indices of the radial-degree-2 Zernike modes (focus, astigmatism x2).
 const RADIAL2_NOLL: [usize; 3] = [4, 5, 6];
+/// Number of modes of the radial-degree-3-4 group.
+pub const N_RADIAL34: usize = 9;
+/// Noll indices of the Zernike modes of radial degrees 3 and 4 (coma, trefoil, spherical,
+/// secondary astigmatism, quadrafoil): Z7 to Z15.
+const RADIAL34_NOLL: std::ops::RangeInclusive<usize> = 7..=6 + N_RADIAL34;
+/// A Zernike mode whose part outside global piston/tip/tilt and the lower modes is below this
+/// fraction of its norm (as actuator displacements) is taken as degenerate on the aperture.
+const DEGENERATE: f64 = 1e-6;
 
 /// Integrator gain of a first-order discrete loop with closed-loop bandwidth `bandwidth` (Hz)
 /// sampled at `rate` (Hz): $g = 1 - e^{-2\pi f_{bw}/f_s}$.
@@ -90,8 +108,11 @@ pub fn integrator_gain(bandwidth: f64, rate: f64) -> f64 {
 pub struct ControllerParams {
     /// Loop sample rate (Hz) (default: 20).
     pub rate: f64,
-    /// Bandwidth of every mode outside the two groups below (Hz) (default: 1).
+    /// Bandwidth of every mode outside the three groups below, radial degrees 5 and up (Hz)
+    /// (default: 1.5).
     pub bandwidth: f64,
+    /// Bandwidth of the radial-degree-3-4 group, Z7 to Z15 (Hz) (default: 1).
+    pub bandwidth_radial34: f64,
     /// Bandwidth of the radial-degree-2 group, astigmatism (Hz) (default: 0.75).
     pub bandwidth_radial2: f64,
     /// Bandwidth of focus-mode (Hz) (default: 0.1).
@@ -105,6 +126,7 @@ impl Default for ControllerParams {
         Self {
             rate: DEFAULT_RATE,
             bandwidth: DEFAULT_BANDWIDTH,
+            bandwidth_radial34: DEFAULT_BANDWIDTH_RADIAL34,
             bandwidth_radial2: DEFAULT_BANDWIDTH_RADIAL2,
             bandwidth_focus: DEFAULT_BANDWIDTH_FOCUS,
             focus_gain: DEFAULT_FOCUS_GAIN,
@@ -132,6 +154,7 @@ impl ControllerParams {
         }
         for (name, f) in [
             ("bandwidth", self.bandwidth),
+            ("bandwidth_radial34", self.bandwidth_radial34),
             ("bandwidth_radial2", self.bandwidth_radial2),
             ("bandwidth_focus", self.bandwidth_focus),
         ] {
@@ -151,17 +174,20 @@ impl ControllerParams {
         }
         Ok(LoopGains {
             rest: integrator_gain(self.bandwidth, self.rate),
+            radial34: integrator_gain(self.bandwidth_radial34, self.rate),
             radial2: integrator_gain(self.bandwidth_radial2, self.rate),
             focus: self.focus_gain * integrator_gain(self.bandwidth_focus, self.rate),
         })
     }
 }
 
-/// Integrator gains per sample of the three mode groups (each in [0, 1)).
+/// Integrator gains per sample of the four mode groups (each in [0, 1)).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct LoopGains {
-    /// Every mode outside the two groups below.
+    /// Every mode outside the three groups below (radial degrees 5 and up).
     pub rest: f64,
+    /// Radial degrees 3 and 4 (Z7 to Z15).
+    pub radial34: f64,
     /// Radial degree 2 without focus-mode (astigmatism).
     pub radial2: f64,
     /// Focus-mode (already multiplied by the modal gain $\Gamma$).
@@ -251,6 +277,7 @@ impl SampleClock {
 pub struct ControlModes {
     nominal: Nominal,
     radial2: [Vec<f64>; 2],
+    radial34: Vec<Vec<f64>>,
     focus_z4_correlation: f64,
 }
 
@@ -307,27 +334,32 @@ fn actuator_displacements(geometry: &Geometry, ptt: &[[f64; 3]]) -> Vec<f64> {
 }
 
 impl ControlModes {
-    /// Builds A, the reconstructor, focus-mode and the radial-degree-2 group of `geometry`.
+    /// Builds A, the reconstructor, focus-mode and the radial-degree-2 and 3-4 groups of
+    /// `geometry`.
     ///
     /// # Errors
-    /// From [`Nominal::new`] and [`ZernikeBasis::new`]; [`M1Error::Numerical`] if the
-    /// radial-degree-2 modes are degenerate on this aperture.
+    /// From [`Nominal::new`] and [`ZernikeBasis::new`] (Z1 to Z15 must be independent on the
+    /// segments' piston/tip/tilt); [`M1Error::Numerical`] if a Zernike mode of radial degree 2
+    /// to 4 is degenerate with global piston/tip/tilt and the lower modes on this aperture.
     pub fn new(geometry: Geometry) -> Result<Self, M1Error> {
-        let zern = ZernikeBasis::new(&geometry.layout, RADIAL2_NOLL[2])?;
+        let last = *RADIAL34_NOLL.end();
+        let zern = ZernikeBasis::new(&geometry.layout, last)?;
         let nominal = Nominal::new(geometry)?;
         let g = &nominal.geometry;
         let na = g.n_actuators();
         let null = nominal.b0.null_space();
         let k = null.ncols();
-        // [N | Z4 Z5 Z6], orthonormalised: the last three columns are the radial-2 span with
-        // global piston/tip/tilt removed.
-        let mut m = Mat::<f64>::zeros(na, k + 3);
+        // [N | Z4 Z5 Z6 | Z7 .. Z15], orthonormalised (Gram-Schmidt, column by column): columns
+        // k..k+3 are the radial-2 span with global piston/tip/tilt removed, the last nine the
+        // radial-3-4 span with N and the whole radial-2 span removed.
+        let noll: Vec<usize> = RADIAL2_NOLL.iter().copied().chain(RADIAL34_NOLL).collect();
+        let mut m = Mat::<f64>::zeros(na, k + noll.len());
         for c in 0..k {
             for r in 0..na {
                 m[(r, c)] = null[(r, c)];
             }
         }
-        for (c, &j) in RADIAL2_NOLL.iter().enumerate() {
+        for (c, &j) in noll.iter().enumerate() {
             let mode = zern
                 .mode(j)
                 .ok_or_else(|| M1Error::Numerical(format!("Zernike mode {j} missing")))?;
@@ -337,18 +369,21 @@ impl ControlModes {
             }
         }
         let q = orthonormalize(m.as_ref());
-        let span: Vec<Vec<f64>> = (0..3)
-            .map(|c| (0..na).map(|r| q[(r, k + c)]).collect())
-            .collect();
-        for s in &span {
-            let n = dot(s, s).sqrt();
-            if (n - 1.0).abs() > 1e-6 {
-                return Err(M1Error::Numerical(
-                    "the radial-degree-2 Zernike modes are degenerate with global piston/tip/tilt"
-                        .into(),
-                ));
+        let col = |c: usize| -> Vec<f64> { (0..na).map(|r| q[(r, c)]).collect() };
+        // Gram-Schmidt leaves each column's part outside the previous ones as q_c . m_c.
+        for (c, &j) in noll.iter().enumerate() {
+            let mc: Vec<f64> = (0..na).map(|r| m[(r, k + c)]).collect();
+            let qc = col(k + c);
+            let residual = dot(&qc, &mc).abs();
+            let n = dot(&mc, &mc).sqrt();
+            if !(residual > DEGENERATE * n && (dot(&qc, &qc).sqrt() - 1.0).abs() < 1e-6) {
+                return Err(M1Error::Numerical(format!(
+                    "the Zernike mode Z{j} is degenerate with global piston/tip/tilt and the \
+                     lower modes on this aperture"
+                )));
             }
         }
+        let span: Vec<Vec<f64>> = (0..3).map(|c| col(k + c)).collect();
         // Coordinates of focus-mode in the span; the 2-D complement of that direction in R^3
         // (Gram-Schmidt on the two unit vectors least aligned with it) maps to two orthonormal
         // modes of the span, exactly orthogonal to focus-mode.
@@ -386,11 +421,43 @@ impl ControlModes {
             }
             r
         });
+        // Radial degrees 3-4: the radial-3-4 span with focus-mode projected out too (focus-mode
+        // is orthogonal to N only to round-off, so N, astigmatism, focus-mode and the previous
+        // columns are projected out twice, sequentially), orthonormalised.
+        let mut radial34: Vec<Vec<f64>> = Vec::with_capacity(N_RADIAL34);
+        for c in 0..N_RADIAL34 {
+            let mut v = col(k + 3 + c);
+            for _ in 0..2 {
+                for i in 0..k {
+                    let d: f64 = (0..na).map(|r| null[(r, i)] * v[r]).sum();
+                    v.iter_mut()
+                        .enumerate()
+                        .for_each(|(r, x)| *x -= d * null[(r, i)]);
+                }
+                for b in radial2
+                    .iter()
+                    .chain(std::iter::once(focus))
+                    .chain(&radial34)
+                {
+                    let d = dot(&v, b);
+                    axpy(-d, b, &mut v);
+                }
+            }
+            let n = dot(&v, &v).sqrt();
+            if n.is_nan() || n <= DEGENERATE {
+                return Err(M1Error::Numerical(
+                    "focus-mode lies in the span of the radial-degree-3-4 Zernike modes".into(),
+                ));
+            }
+            v.iter_mut().for_each(|x| *x /= n);
+            radial34.push(v);
+        }
         // span[0] is Z4 with global piston/tip/tilt removed, unit norm.
         let focus_z4_correlation = dot(&span[0], focus).abs();
         Ok(Self {
             nominal,
             radial2,
+            radial34,
             focus_z4_correlation,
         })
     }
@@ -409,6 +476,13 @@ impl ControlModes {
     /// focus-mode and to global piston/tip/tilt.
     pub fn radial2(&self) -> &[Vec<f64>; 2] {
         &self.radial2
+    }
+
+    /// The nine orthonormal modes of the radial-degree-3-4 group (the span of Z7 to Z15),
+    /// orthogonal to global piston/tip/tilt, to the whole radial-degree-2 span (astigmatism
+    /// included) and to focus-mode.
+    pub fn radial34(&self) -> &[Vec<f64>] {
+        &self.radial34
     }
 
     /// Global piston/tip/tilt (orthonormal columns), never commanded.
@@ -483,16 +557,17 @@ impl ControlModes {
             let d: f64 = x.iter().enumerate().map(|(i, v)| col[i] * v).sum();
             x.iter_mut().enumerate().for_each(|(i, v)| *v -= d * col[i]);
         }
-        // G x = g x + (g_f - g)(psi . x) psi + sum (g_2 - g)(r . x) r.
-        let cf = (gains.focus - gains.rest) * dot(&self.nominal.focus, x);
-        let c2 = [
-            (gains.radial2 - gains.rest) * dot(&self.radial2[0], x),
-            (gains.radial2 - gains.rest) * dot(&self.radial2[1], x),
-        ];
-        axpy(-gains.rest, x, u);
-        axpy(-cf, &self.nominal.focus, u);
-        axpy(-c2[0], &self.radial2[0], u);
-        axpy(-c2[1], &self.radial2[1], u);
+        // G x = g x + sum over the groups of (g_group - g)(v . x) v, v the group's orthonormal
+        // modes (x is not changed, so each coefficient is taken just before its update).
+        let rest = gains.rest;
+        axpy(-rest, x, u);
+        let groups = std::iter::once((gains.focus, &self.nominal.focus))
+            .chain(self.radial2.iter().map(|v| (gains.radial2, v)))
+            .chain(self.radial34.iter().map(|v| (gains.radial34, v)));
+        for (g, v) in groups {
+            let c = (g - rest) * dot(v, x);
+            axpy(-c, v, u);
+        }
         Ok(())
     }
 

@@ -531,7 +531,7 @@ impl FrequencyModel {
 }
 
 /// The global edge-sensor loop in the frequency domain: the controller of
-/// [`crate::controller`] (integrators at its sample rate on three mode groups, output held) on
+/// [`crate::controller`] (integrators at its sample rate on four mode groups, output held) on
 /// the mirror of a [`FrequencyModel`] read by ideal edge sensors.
 ///
 /// # Loop gain
@@ -540,7 +540,9 @@ impl FrequencyModel {
 /// the command is
 /// $$L(\omega) = c(\omega)\, G\, T(\omega), \qquad
 ///   c = \frac{\tilde H_c(\omega)}{e^{i\omega/f_c} - 1},$$
-/// with $G = g P + (g_2 - g) R R^T + (g_f - g)\psi\psi^T$ the controller's gain matrix,
+/// with $G = g P + (g_{34} - g) R_{34} R_{34}^T + (g_2 - g) R_2 R_2^T + (g_f - g)\psi\psi^T$
+/// the controller's gain matrix (radial degrees >= 5 at $g$, 3-4 at $g_{34}$, astigmatism at
+/// $g_2$, focus-mode at $g_f$),
 /// $T$ the mirror's response to the command (servo and structure), $f_c$ the loop rate and
 /// $\tilde H_c$ its hold. The sensors are sampled at $f_c$: above $f_c/2$ their response
 /// folds, which this fundamental-only model leaves out (it is the standard continuous-time
@@ -550,9 +552,9 @@ impl FrequencyModel {
 ///
 /// In the channel basis $T = \mathrm{diag}(t_k) + \mathrm{diag}(t_{gz}) \Phi_c K^{-1}
 /// \Phi_c^T \mathrm{diag}(t_{fr})$ with one coefficient per channel kind, and $G$ is $g$ times
-/// the identity plus a rank-6 term in the span of $N$, $R$, $\psi$. Let $W$ be the span of
-/// $\Phi_c$'s columns and of $N$, $R$, $\psi$, each split into its piston-channel and
-/// tilt-channel parts ($2r + 12$ dimensions at most). $L$ maps $W$ and its complement (within
+/// the identity plus a rank-15 term in the span of $N$ (3), $R_2$ (2), $R_{34}$ (9), $\psi$ (1).
+/// Let $W$ be the span of $\Phi_c$'s columns and of $N$, $R_2$, $R_{34}$, $\psi$, each split into
+/// its piston-channel and tilt-channel parts ($2r + 30$ dimensions at most). $L$ maps $W$ and its complement (within
 /// each kind) to themselves, and on the complement it is the scalar $c\,g\,t_k$. So the
 /// singular values of $L$ and of $S = (I + L)^{-1}$ are those of a $(\dim W)^2$ matrix plus two
 /// scalars: exact, at $O(n_a r \dim W)$ per frequency instead of $O(n_a^3)$.
@@ -562,19 +564,20 @@ pub struct GlobalLoop {
     gains: crate::controller::LoopGains,
     /// Orthonormal basis of W in the channel basis (na x w).
     w: Mat<f64>,
-    /// N, R, psi in the channel basis (na x 3, na x 2, na x 1).
+    /// N, R2, R34, psi in the channel basis (na x 3, na x 2, na x 9, na x 1).
     null: Mat<f64>,
     radial2: Mat<f64>,
+    radial34: Mat<f64>,
     focus: Mat<f64>,
     /// Whether each kind has channels outside W.
     complement: [bool; 2],
-    /// Per kind k (piston, tilt rows): `[W N R psi]_k^T W_k` ((w + 6) x w),
-    /// `[W N R psi]_k^T Phi_k` ((w + 6) x r) and `Phi_k^T W_k` (r x w), so that a plant needs
-    /// no product with the n_a rows.
+    /// Per kind k (piston, tilt rows): `[W V]_k^T W_k` ((w + 15) x w), `[W V]_k^T Phi_k`
+    /// ((w + 15) x r) and `Phi_k^T W_k` (r x w), with `V = [N R2 R34 psi]`, so that a plant
+    /// needs no product with the n_a rows.
     cw: [Mat<f64>; 2],
     cphi: [Mat<f64>; 2],
     phiw: [Mat<f64>; 2],
-    /// `W^T [N R psi]` (w x 6).
+    /// `W^T V` (w x 15).
     wv: Mat<f64>,
 }
 
@@ -620,6 +623,7 @@ impl GlobalLoop {
             .map(|j| real(&(0..na).map(|i| nsp[(i, j)]).collect::<Vec<_>>()))
             .collect();
         let r2_cols: Vec<Vec<f64>> = controls.radial2().iter().map(|v| real(v)).collect();
+        let r34_cols: Vec<Vec<f64>> = controls.radial34().iter().map(|v| real(v)).collect();
         let focus_col = real(controls.focus());
         let as_mat = |cols: &[Vec<f64>]| Mat::from_fn(na, cols.len(), |i, j| cols[j][i]);
         // W: the kind-split shapes and controller modes.
@@ -644,6 +648,7 @@ impl GlobalLoop {
         for v in null_cols
             .iter()
             .chain(&r2_cols)
+            .chain(&r34_cols)
             .chain(std::iter::once(&focus_col))
         {
             cols.push(split(v, 0));
@@ -669,18 +674,18 @@ impl GlobalLoop {
         let complement = [dim_kind(0) < n, dim_kind(1) < 2 * n];
         let null = as_mat(&null_cols);
         let radial2 = as_mat(&r2_cols);
+        let radial34 = as_mat(&r34_cols);
         let focus = as_mat(std::slice::from_ref(&focus_col));
         let wdim = w.ncols();
-        let nv = null.ncols() + radial2.ncols() + focus.ncols();
-        let vmat = Mat::from_fn(na, nv, |i, j| {
-            if j < null.ncols() {
-                null[(i, j)]
-            } else if j < null.ncols() + radial2.ncols() {
-                radial2[(i, j - null.ncols())]
-            } else {
-                focus[(i, 0)]
-            }
-        });
+        // V = [N R2 R34 psi].
+        let v_cols: Vec<&Vec<f64>> = null_cols
+            .iter()
+            .chain(&r2_cols)
+            .chain(&r34_cols)
+            .chain(std::iter::once(&focus_col))
+            .collect();
+        let nv = v_cols.len();
+        let vmat = Mat::from_fn(na, nv, |i, j| v_cols[j][i]);
         let cmat = Mat::from_fn(na, wdim + nv, |i, j| {
             if j < wdim {
                 w[(i, j)]
@@ -700,6 +705,7 @@ impl GlobalLoop {
             w,
             null,
             radial2,
+            radial34,
             focus,
             complement,
             cw,
@@ -754,7 +760,7 @@ impl GlobalLoop {
                 a[0] * x[0][(i, j)] + a[1] * x[1][(i, j)]
             })
         };
-        // [W N R psi]^T T W, summed over the images: the diagonal part plus the coupling
+        // [W V]^T T W, summed over the images: the diagonal part plus the coupling
         // through the modes, from the per-kind projections.
         let mut ctw = Mat::<c64>::zeros(rows, wdim);
         // The complement's scalar per kind, summed over the same images.
@@ -777,7 +783,11 @@ impl GlobalLoop {
         }
         // W^T T W and the low-rank pieces the gains act through: (W^T B, B^T T W).
         let wtw = Mat::from_fn(wdim, wdim, |i, j| ctw[(i, j)]);
-        let (n0, n1) = (self.null.ncols(), self.radial2.ncols());
+        let (n0, n1, n2) = (
+            self.null.ncols(),
+            self.radial2.ncols(),
+            self.radial34.ncols(),
+        );
         let piece = |c0: usize, nc: usize| -> (Mat<c64>, Mat<c64>) {
             (
                 Mat::from_fn(wdim, nc, |i, j| c64::new(self.wv[(i, c0 + j)], 0.0)),
@@ -787,7 +797,8 @@ impl GlobalLoop {
         let pieces = [
             piece(0, n0),
             piece(n0, n1),
-            piece(n0 + n1, self.focus.ncols()),
+            piece(n0 + n1, n2),
+            piece(n0 + n1 + n2, self.focus.ncols()),
         ];
         PlantOnW {
             frequency: f,
@@ -807,10 +818,10 @@ impl GlobalLoop {
         let z = cis(TAU * p.frequency / self.rate);
         let c = c64::new(1.0, 0.0) / (z - c64::new(1.0, 0.0));
         let mut gtw = faer::Scale(c64::new(g, 0.0)) * &p.wtw;
-        for ((wb, btw), coef) in p
-            .pieces
-            .iter()
-            .zip([-g, gains.radial2 - g, gains.focus - g])
+        for ((wb, btw), coef) in
+            p.pieces
+                .iter()
+                .zip([-g, gains.radial2 - g, gains.radial34 - g, gains.focus - g])
         {
             gtw += faer::Scale(c64::new(coef, 0.0)) * (wb * btw);
         }
@@ -866,15 +877,16 @@ impl GlobalLoop {
 pub struct PlantOnW {
     frequency: f64,
     wtw: Mat<c64>,
-    /// (W^T B, B^T T W) for B = N, R, psi.
-    pieces: [(Mat<c64>, Mat<c64>); 3],
+    /// (W^T B, B^T T W) for B = N, R2, R34, psi.
+    pieces: [(Mat<c64>, Mat<c64>); 4],
     t_kind: [c64; 2],
 }
 
 /// The highest global-loop bandwidth meeting the seed paper's criteria, and the loop there.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct BandwidthLimit {
-    /// Bandwidth of most modes (Hz); radial degree 2 gets `radial2_ratio` of it.
+    /// Bandwidth of radial degrees >= 5 (Hz); radial degrees 3-4 get `radial34_ratio` of it,
+    /// radial degree 2 `radial2_ratio`.
     pub bandwidth_hz: f64,
     /// Peak sensitivity over the grid at that bandwidth.
     pub peak_sensitivity: f64,
@@ -886,10 +898,11 @@ pub struct BandwidthLimit {
     pub limited_by: String,
 }
 
-/// Bisects the global-loop bandwidth (most modes; radial degree 2 at `radial2_ratio` of it,
-/// focus-mode as in `base`) for the highest one with the sensitivity below `max_sensitivity`
-/// on every point of `plants` and the principal loop gain below `max_loop_gain` on those at or
-/// above `band_start_hz`, between 0.01 Hz and `upper_hz` (below half the loop rate).
+/// Bisects the global-loop bandwidth (radial degrees >= 5; radial degrees 3-4 at
+/// `radial34_ratio` of it, radial degree 2 at `radial2_ratio`, focus-mode as in `base`) for
+/// the highest one with the sensitivity below `max_sensitivity` on every point of `plants` and
+/// the principal loop gain below `max_loop_gain` on those at or above `band_start_hz`, between
+/// 0.01 Hz and `upper_hz` (below half the loop rate).
 ///
 /// # Errors
 /// From the controller gains and the singular values.
@@ -898,6 +911,7 @@ pub fn highest_bandwidth(
     gl: &GlobalLoop,
     plants: &[PlantOnW],
     base: &crate::controller::ControllerParams,
+    radial34_ratio: f64,
     radial2_ratio: f64,
     band_start_hz: f64,
     max_sensitivity: f64,
@@ -907,6 +921,7 @@ pub fn highest_bandwidth(
     let eval = |b: f64| -> Result<(f64, f64, f64), M1Error> {
         let params = crate::controller::ControllerParams {
             bandwidth: b,
+            bandwidth_radial34: radial34_ratio * b,
             bandwidth_radial2: radial2_ratio * b,
             ..*base
         };
@@ -1615,13 +1630,16 @@ mod tests {
         let geometry =
             Geometry::new(&layout, GeometryParams::for_layout(&layout)).expect("geometry");
         let controls = ControlModes::new(geometry).expect("controls");
+        // Four distinct gains: 2 Hz on radial degrees >= 5, 1 Hz on 3-4, 0.75 Hz on 2, 0.1 Hz
+        // on focus-mode.
         let params = ControllerParams {
             bandwidth: 2.0,
             ..ControllerParams::default()
         };
         let gl = GlobalLoop::new(&fm, &controls, &params).expect("loop");
         let gains = params.gains().expect("gains");
-        // Dense G in actuator space.
+        assert!(gains.rest > gains.radial34 && gains.radial34 > gains.radial2);
+        // Dense G in actuator space: g P plus (g_group - g) V V^T per group.
         let nsp = controls.null_space();
         let mut g = Mat::<f64>::identity(na, na) * faer::Scale(gains.rest);
         let mut add = |v: &[f64], coef: f64| {
@@ -1637,6 +1655,9 @@ mod tests {
         }
         for v in controls.radial2() {
             add(v, gains.radial2 - gains.rest);
+        }
+        for v in controls.radial34() {
+            add(v, gains.radial34 - gains.rest);
         }
         add(controls.focus(), gains.focus - gains.rest);
         for f in [0.3, 2.0, 9.1, 25.0] {
@@ -1710,7 +1731,13 @@ mod tests {
         let geometry =
             Geometry::new(&layout, GeometryParams::for_layout(&layout)).expect("geometry");
         let controls = ControlModes::new(geometry).expect("controls");
-        let params = ControllerParams::default();
+        // The loop this documents (README): 1 Hz on every mode outside radial degree 2 and
+        // focus-mode, astigmatism at 0.75 Hz, focus-mode at 0.1 Hz.
+        let params = ControllerParams {
+            bandwidth: 1.0,
+            bandwidth_radial34: 1.0,
+            ..ControllerParams::default()
+        };
         let gl = GlobalLoop::new(&fm, &controls, &params).expect("loop");
         let at_mode = gl.at(&fm, 8.95).expect("8.95 Hz");
         assert!(at_mode.loop_gain_max > 1.4, "{at_mode:?}");
@@ -1722,8 +1749,8 @@ mod tests {
         let plants: Vec<PlantOnW> = (0..40)
             .map(|k| gl.plant(&fm, 5.0 + 0.125 * f64::from(k), 3))
             .collect();
-        let limit =
-            highest_bandwidth(&gl, &plants, &params, 0.75, 5.0, 2.0, 0.25, 2.0).expect("search");
+        let limit = highest_bandwidth(&gl, &plants, &params, 1.0, 0.75, 5.0, 2.0, 0.25, 2.0)
+            .expect("search");
         assert!(
             limit.bandwidth_hz > 0.05 && limit.bandwidth_hz < 1.0,
             "{limit:?}"

@@ -30,7 +30,8 @@ use fmu::{
 };
 use m1::controller::{
     ControlModes, ControllerParams, ControllerState, DEFAULT_BANDWIDTH, DEFAULT_BANDWIDTH_FOCUS,
-    DEFAULT_BANDWIDTH_RADIAL2, DEFAULT_FOCUS_GAIN, DEFAULT_RATE, LoopGains, Scratch,
+    DEFAULT_BANDWIDTH_RADIAL2, DEFAULT_BANDWIDTH_RADIAL34, DEFAULT_FOCUS_GAIN, DEFAULT_RATE,
+    LoopGains, Scratch,
 };
 use m1::geometry::{DEFAULT_LEFF, Geometry, GeometryParams};
 use m1::layout::Layout;
@@ -39,19 +40,26 @@ const DOC: &str = "<h2>Model</h2>\
 <p>At each sample instant t<sub>k</sub> = t<sub>0</sub> + k / <code>rate</code> (k &ge; 1) the \
 command is updated by a discrete integrator in a modal decomposition:</p>\
 <p><code>u<sub>k+1</sub> = u<sub>k</sub> &minus; G P B<sub>0</sub> (y &minus; y_ref)</code>, \
-<code>G = g (P &minus; &psi;<sub>f</sub>&psi;<sub>f</sub><sup>T</sup> &minus; R R<sup>T</sup>) + \
-g<sub>2</sub> R R<sup>T</sup> + &Gamma; g<sub>f</sub> &psi;<sub>f</sub>&psi;<sub>f</sub><sup>T</sup></code></p>\
+<code>G = g (P &minus; &psi;<sub>f</sub>&psi;<sub>f</sub><sup>T</sup> &minus; R<sub>2</sub> \
+R<sub>2</sub><sup>T</sup> &minus; R<sub>34</sub> R<sub>34</sub><sup>T</sup>) + g<sub>34</sub> \
+R<sub>34</sub> R<sub>34</sub><sup>T</sup> + g<sub>2</sub> R<sub>2</sub> R<sub>2</sub><sup>T</sup> + \
+&Gamma; g<sub>f</sub> &psi;<sub>f</sub>&psi;<sub>f</sub><sup>T</sup></code></p>\
 <p>B<sub>0</sub> is the least-squares reconstructor of the A-matrix (the model of the sensors, \
 with <code>leff</code>) with global piston, tip and tilt projected out (P), computed by a sparse \
-block-Cholesky factorisation. The mode groups are orthogonal: focus-mode &psi;<sub>f</sub> (the \
-least observable mode of A, almost exactly Z4), the radial-degree-2 group R (the span of Z4, Z5, \
-Z6 projected on the segments' piston/tip/tilt, without global piston/tip/tilt and without its \
-direction closest to focus-mode: astigmatism), and every other mode. Each group's loop on a \
-perfect plant is exactly a first-order discrete integrator with gain <code>g = 1 &minus; \
-exp(&minus;2&pi; f<sub>bw</sub> / rate)</code> (the pole of the continuous loop with bandwidth \
-f<sub>bw</sub>): <code>bandwidth</code> for most modes, <code>bandwidth_radial2</code> for \
-astigmatism, <code>bandwidth_focus</code> times the modal gain &Gamma; = <code>focus_gain</code> \
-for focus-mode. The calculated parameters <code>loop_gain*</code> report the gains per sample.</p>\
+block-Cholesky factorisation. The four mode groups are orthogonal: focus-mode &psi;<sub>f</sub> \
+(the least observable mode of A, almost exactly Z4), the radial-degree-2 group R<sub>2</sub> \
+(the span of Z4, Z5, Z6 projected on the segments' piston/tip/tilt, without global \
+piston/tip/tilt and without its direction closest to focus-mode: astigmatism), the \
+radial-degree-3-4 group R<sub>34</sub> (the span of Z7 to Z15 projected the same way, without \
+global piston/tip/tilt, the whole radial-degree-2 span and focus-mode: nine modes), and every \
+other mode (radial degrees 5 and up). Each group's loop on a perfect plant is exactly a \
+first-order discrete integrator with gain <code>g = 1 &minus; exp(&minus;2&pi; f<sub>bw</sub> / \
+rate)</code> (the pole of the continuous loop with bandwidth f<sub>bw</sub>): \
+<code>bandwidth</code> (1.5 Hz) for radial degrees 5 and up, <code>bandwidth_radial34</code> \
+(1 Hz) for radial degrees 3-4, <code>bandwidth_radial2</code> (0.75 Hz) for astigmatism, \
+<code>bandwidth_focus</code> (0.1 Hz) times the modal gain &Gamma; = <code>focus_gain</code> for \
+focus-mode (the seed paper's baseline tuning). The calculated parameters <code>loop_gain*</code> \
+report the gains per sample.</p>\
 <p><b>Sign convention</b>: the reading of a displacement z is A z; the loop drives the mirror to \
 the state whose readings equal <code>y_ref</code> (u &larr; u &minus; g B (y &minus; y_ref)). \
 The command never contains global piston, tip or tilt.</p>\
@@ -72,12 +80,14 @@ struct Vars {
     rate: RealVar,
     bandwidth: RealVar,
     bandwidth_radial2: RealVar,
+    bandwidth_radial34: RealVar,
     bandwidth_focus: RealVar,
     focus_gain: RealVar,
     leff: RealVar,
     enabled: BoolVar,
     loop_gain: RealVar,
     loop_gain_radial2: RealVar,
+    loop_gain_radial34: RealVar,
     loop_gain_focus: RealVar,
 }
 
@@ -169,19 +179,21 @@ fn table(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
         &mut b,
         "bandwidth",
         DEFAULT_BANDWIDTH,
-        "Closed-loop bandwidth of every mode outside radial degree 2 and focus-mode (< rate / 2)",
+        "Closed-loop bandwidth of the modes of radial degrees >= 5 (every mode outside the \
+         radial-degree-2 to 4 groups and focus-mode) (< rate / 2)",
     );
     let bandwidth_radial2 = hz(
         &mut b,
         "bandwidth_radial2",
         DEFAULT_BANDWIDTH_RADIAL2,
-        "Closed-loop bandwidth of the radial-degree-2 modes without focus-mode (astigmatism)",
+        "Closed-loop bandwidth of the radial-degree-2 modes without focus-mode (astigmatism) \
+         (< rate / 2)",
     );
     let bandwidth_focus = hz(
         &mut b,
         "bandwidth_focus",
         DEFAULT_BANDWIDTH_FOCUS,
-        "Closed-loop bandwidth of focus-mode (before the modal gain focus_gain)",
+        "Closed-loop bandwidth of focus-mode (before the modal gain focus_gain) (< rate / 2)",
     );
     let focus_gain = b.add_real(
         T::real("focus_gain")
@@ -216,7 +228,7 @@ fn table(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
     let loop_gain = calc(
         &mut b,
         "loop_gain",
-        "Integrator gain per sample of most modes, 1 - exp(-2 pi bandwidth / rate)",
+        "Integrator gain per sample of radial degrees >= 5, 1 - exp(-2 pi bandwidth / rate)",
     );
     let loop_gain_radial2 = calc(
         &mut b,
@@ -227,6 +239,20 @@ fn table(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
         &mut b,
         "loop_gain_focus",
         "Integrator gain per sample of focus-mode, focus_gain x (1 - exp(-2 pi bandwidth_focus / rate))",
+    );
+    // Declared last: the value references follow the declaration order per type, so those of
+    // the Reals declared before are unchanged.
+    let bandwidth_radial34 = hz(
+        &mut b,
+        "bandwidth_radial34",
+        DEFAULT_BANDWIDTH_RADIAL34,
+        "Closed-loop bandwidth of the modes of radial degrees 3-4 (Z7 to Z15, without radial \
+         degree 2 and focus-mode) (< rate / 2)",
+    );
+    let loop_gain_radial34 = calc(
+        &mut b,
+        "loop_gain_radial34",
+        "Integrator gain per sample of the radial-degree-3-4 group",
     );
     let table = b.build()?;
     Ok((
@@ -241,12 +267,14 @@ fn table(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
             rate,
             bandwidth,
             bandwidth_radial2,
+            bandwidth_radial34,
             bandwidth_focus,
             focus_gain,
             leff,
             enabled,
             loop_gain,
             loop_gain_radial2,
+            loop_gain_radial34,
             loop_gain_focus,
         },
     ))
@@ -258,6 +286,7 @@ impl GlobalControllerModel {
         ControllerParams {
             rate: v.scalar(x.rate),
             bandwidth: v.scalar(x.bandwidth),
+            bandwidth_radial34: v.scalar(x.bandwidth_radial34),
             bandwidth_radial2: v.scalar(x.bandwidth_radial2),
             bandwidth_focus: v.scalar(x.bandwidth_focus),
             focus_gain: v.scalar(x.focus_gain),
@@ -293,8 +322,9 @@ impl Model for GlobalControllerModel {
         model_identifier: "global_controller",
         model_name: "M1 global edge-sensor controller",
         description: "Global control loop of a segmented mirror: sparse reconstructor with global \
-            piston/tip/tilt projected out, modal discrete integrators (focus-mode and radial \
-            degree 2 slower) sampled at 20 Hz, command held between samples",
+            piston/tip/tilt projected out, modal discrete integrators (radial degrees >= 5 at \
+            1.5 Hz, 3-4 at 1 Hz, 2 at 0.75 Hz, focus-mode at 0.1 Hz) sampled at 20 Hz, command \
+            held between samples",
         documentation: DOC,
         default_stop_time: 2.0,
         default_step: 1e-3,
@@ -329,6 +359,7 @@ impl Model for GlobalControllerModel {
             ControllerState::new(na, start_time, params.rate).map_err(wiring::model_error)?;
         v.real_mut(self.vars.loop_gain)[0] = gains.rest;
         v.real_mut(self.vars.loop_gain_radial2)[0] = gains.radial2;
+        v.real_mut(self.vars.loop_gain_radial34)[0] = gains.radial34;
         v.real_mut(self.vars.loop_gain_focus)[0] = gains.focus;
         v.real_mut(self.vars.u_cmd).copy_from_slice(&state.u);
         self.scratch = Some(modes.scratch());
@@ -382,5 +413,50 @@ mod tests {
             assert_eq!(u.dependencies, Dependencies::None);
             assert_eq!(t.by_name("y").expect("y").len, layout.n_sensors());
         }
+    }
+
+    /// `bandwidth_radial34` and `loop_gain_radial34` are the last Reals: the value references of
+    /// the Reals declared before are those they had without them. The start values are the
+    /// seed paper's baseline and the new bandwidth reaches its calculated gain.
+    #[test]
+    fn the_radial34_bandwidth_is_appended_and_sets_its_gain() {
+        let (t, mut m) = GlobalControllerModel::new("keck").expect("model");
+        let layout = Layout::preset("keck").expect("layout");
+        let (na, ns) = (layout.n_actuators(), layout.n_sensors());
+        let vr = |n: &str| t.by_name(n).expect(n).vr as usize;
+        assert_eq!((vr("y"), vr("y_ref"), vr("u_cmd")), (0, ns, 2 * ns));
+        let scalars = [
+            "rate",
+            "bandwidth",
+            "bandwidth_radial2",
+            "bandwidth_focus",
+            "focus_gain",
+            "leff",
+            "loop_gain",
+            "loop_gain_radial2",
+            "loop_gain_focus",
+            "bandwidth_radial34",
+            "loop_gain_radial34",
+        ];
+        for (k, name) in scalars.iter().enumerate() {
+            assert_eq!(vr(name), 2 * ns + na + k, "{name}");
+        }
+        let mut v = t.initial_values();
+        assert_eq!(v.reals[vr("bandwidth")], 1.5);
+        assert_eq!(v.reals[vr("bandwidth_radial34")], 1.0);
+        assert_eq!(v.reals[vr("bandwidth_radial2")], 0.75);
+        assert_eq!(v.reals[vr("bandwidth_focus")], 0.1);
+        v.reals[vr("bandwidth_radial34")] = 0.5;
+        m.initialize(&mut v, 0.0).expect("initialize");
+        let g = |f: f64| 1.0 - (-std::f64::consts::TAU * f / 20.0).exp();
+        for (name, f) in [
+            ("loop_gain", 1.5),
+            ("loop_gain_radial34", 0.5),
+            ("loop_gain_radial2", 0.75),
+            ("loop_gain_focus", 0.1),
+        ] {
+            assert!((v.reals[vr(name)] - g(f)).abs() < 1e-15, "{name}");
+        }
+        assert_eq!(m.control_modes().expect("modes").radial34().len(), 9);
     }
 }
