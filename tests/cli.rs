@@ -720,3 +720,70 @@ fn csi_rejects_bad_input() {
         assert!(!err.contains("panicked"), "{args:?}: {err}");
     }
 }
+
+/// `m1cs system --structure`: the mirror FMU's `structure` is bound only off the default (a
+/// default system has no String binding), a preset by name and a `.npz` path made absolute;
+/// an unknown name is refused naming the presets.
+#[test]
+fn system_binds_the_structure_off_the_default() {
+    let dir = std::env::temp_dir().join(format!("m1cs-cli-structure-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let fmus = fmu_dir();
+    let bound = |extra: &[&str]| -> Option<String> {
+        let ssp = dir.join("s.ssp");
+        let ssp_s = ssp.to_str().unwrap();
+        let mut args = vec![
+            "system",
+            "--layout",
+            "keck",
+            "--fmu-dir",
+            &fmus,
+            "-o",
+            ssp_s,
+        ];
+        args.extend_from_slice(extra);
+        let (ok, _, err) = m1cs(&args);
+        assert!(ok, "{args:?}: {err}");
+        let s = cosim::ssp::read(&ssp).unwrap();
+        let mirror = s
+            .system
+            .components
+            .iter()
+            .find(|c| c.name == "mirror")
+            .unwrap();
+        mirror
+            .parameters
+            .iter()
+            .find(|(n, _)| n == "structure")
+            .map(|(_, v)| match v {
+                cosim::system::Value::String(x) => x.clone(),
+                other => panic!("structure bound as {other:?}"),
+            })
+    };
+    assert_eq!(bound(&[]), None);
+    assert_eq!(bound(&["--structure", "tmt"]), None);
+    assert_eq!(
+        bound(&["--structure", "soft-cell"]).as_deref(),
+        Some("soft-cell")
+    );
+    let npz = dir.join("modes.npz");
+    std::fs::write(&npz, b"not checked here").unwrap();
+    let got = bound(&["--structure", npz.to_str().unwrap()]).unwrap();
+    assert!(
+        std::path::Path::new(&got).is_absolute() && got.ends_with("modes.npz"),
+        "{got}"
+    );
+    let (ok, _, err) = m1cs(&[
+        "system",
+        "--layout",
+        "keck",
+        "--structure",
+        "stiff",
+        "-o",
+        "x.ssp",
+    ]);
+    assert!(
+        !ok && err.contains("stiff") && err.contains("soft-cell"),
+        "{err}"
+    );
+}

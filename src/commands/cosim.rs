@@ -221,20 +221,23 @@ pub fn standard_system(a: &SystemArgs, closed: bool) -> Result<System, String> {
         );
     }
     s = s.component(mirror, fmu(a, file)?);
+    // The structure is bound only where it differs from the FMUs' default, so a default system
+    // has no String binding (some SSP importers, e.g. fmpy's container FMU, take none).
     let structure = structure_parameter(&a.structure)?;
-    match a.cell {
-        Cell::Coupled => {
-            s = s
-                .parameter(mirror, "n_modes", Value::Integer(a.structure_modes))
-                .parameter(mirror, "structure", Value::String(structure));
-        }
+    let structure = (structure != m1::structure::DEFAULT_STRUCTURE).then_some(structure);
+    let cell_fmu = match a.cell {
+        Cell::Coupled => Some(mirror),
         Cell::Split => {
-            s = s
-                .component("structure", fmu(a, "structure")?)
-                .parameter("structure", "n_modes", Value::Integer(a.structure_modes))
-                .parameter("structure", "structure", Value::String(structure));
+            s = s.component("structure", fmu(a, "structure")?);
+            Some("structure")
         }
-        Cell::Rigid => {}
+        Cell::Rigid => None,
+    };
+    if let Some(c) = cell_fmu {
+        s = s.parameter(c, "n_modes", Value::Integer(a.structure_modes));
+        if let Some(name) = structure {
+            s = s.parameter(c, "structure", Value::String(name));
+        }
     }
     s = s
         .component("sensors", fmu(a, "edge_sensors")?)
