@@ -229,7 +229,7 @@ pub fn wind(a: &WindArgs) -> Result<(), String> {
                 "bandwidth_radial2_hz": group_bandwidths(*bw).1,
                 "open_loop_rms_surface_nm": nm(*open),
                 "closed_loop_rms_surface_nm": nm(s.rms),
-                "closed_loop_focus_mode_coefficient_nm": nm(s.focus),
+                "closed_loop_focus_mode_nm": nm(s.focus),
                 "closed_loop_rms_without_focus_nm": nm(s.without_focus),
                 "focus_share_of_residual_variance": focus_share(s),
                 "rejection_ratio": s.rms / open,

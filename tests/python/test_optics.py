@@ -202,3 +202,25 @@ def test_fmu_state_and_serialisation_reproduce_the_outputs():
     s.freeFMUState(restored)
     s.terminate()
     s.freeInstance()
+
+
+@pytest.mark.parametrize("lay", ["keck", "tmt"])
+def test_focus_mode_is_a_surface_figure(lay):
+    """focus_mode is the rms surface of the focus-mode component (rms^2 = rms without
+    focus-mode^2 + focus_mode^2), signed as its actuator-space coefficient, which is reported
+    as focus_mode_coefficient = focus_mode / focus_rms_per_unit."""
+    path = fmu_path(lay, "optics")
+    n = len(layout(path)["segments"])
+    rng = np.random.default_rng(14)
+    z = rng.normal(0.0, 20e-9, 3 * n)
+    start = {f"z[{k + 1}]": float(v) for k, v in enumerate(z)}
+    start["pssn_rate"] = 0.0
+    r = simulate_fmu(str(path), stop_time=0.002, output_interval=1e-3, start_values=start,
+                     output=OUT + ["focus_mode_coefficient", "focus_rms_per_unit"])
+    rms, wo, fm = r["rms_surface"][-1], r["rms_surface_without_focus"][-1], r["focus_mode"][-1]
+    coef, unit = r["focus_mode_coefficient"][-1], r["focus_rms_per_unit"][-1]
+    assert fm != 0.0
+    assert abs(rms**2 - wo**2 - fm**2) <= 1e-10 * rms**2
+    assert abs(fm - coef * unit) <= 1e-12 * abs(fm)
+    # The coefficient is an actuator-space amplitude: much larger than the surface it makes.
+    assert unit < 0.5, unit

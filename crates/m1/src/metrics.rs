@@ -41,6 +41,11 @@
 //!   least-squares fit of `r` by the residual `F` of `f`: $c = \langle r, F \rangle /
 //!   \|F\|^2$. So `z = c f` gives `c`, and `z = c f` plus any global piston/tip/tilt too. As a
 //!   surface, `c` units of focus-mode have the rms `c * focus_rms_per_unit()`.
+//! - **`focus_rms`** (m, surface): that rms, $c \sqrt{\|F\|^2 / (N A)}$, signed as `c`: the
+//!   focus-mode's share of the surface, $\text{rms}^2 = \text{rms\_without\_focus}^2 +
+//!   \text{focus\_rms}^2$ (the residual is orthogonal to $F$). This is the figure the seed
+//!   paper quotes as "focus-mode amplitude, nm rms"; `focus` is an actuator-space coefficient,
+//!   about 40 times larger on TMT (1476 actuators).
 //! - **`rms_without_focus`** (m, surface): $\sqrt{\|r - cF\|^2 / (N A)}$.
 //!
 //! Every residual is accumulated directly (not as a difference of squares), so a pure global
@@ -139,8 +144,15 @@ fn check_len(z: &[f64], na: usize) -> Result<(), M1Error> {
 pub struct SurfaceMetrics {
     /// Area-weighted rms surface error with the global piston/tip/tilt removed (m).
     pub rms: f64,
-    /// Focus-mode amplitude: coefficient of the unit-norm focus-mode vector (m).
+    /// Focus-mode coefficient: the amplitude `c` of the unit-norm focus-mode vector over the
+    /// actuators in `z` (m of actuator displacement, not a surface figure: one unit is
+    /// [`MirrorMetrics::focus_rms_per_unit`] of rms surface).
     pub focus: f64,
+    /// Focus-mode as a surface: `c` times the rms surface of the unit vector (m), signed as
+    /// `c`. `|focus_rms|` is the rms surface of the focus-mode component, so
+    /// `rms^2 = rms_without_focus^2 + focus_rms^2`; the seed paper's "focus-mode amplitude
+    /// (nm rms)" is its rms over time.
+    pub focus_rms: f64,
     /// Rms surface error with global piston/tip/tilt and focus-mode removed (m).
     pub rms_without_focus: f64,
     /// The removed global plane `[P, Tx, Ty]`: piston at the aperture centroid (m) and slopes
@@ -383,6 +395,7 @@ impl MirrorMetrics {
         Ok(SurfaceMetrics {
             rms: (rr / area).sqrt(),
             focus: c,
+            focus_rms: c * (self.focus_norm2 / area).sqrt(),
             rms_without_focus: (qq / area).sqrt(),
             global_ptt: [beta[0], beta[1], beta[2]],
         })

@@ -356,6 +356,30 @@ fn metrics_are_linear_and_scale() {
     let lhs = r1.rms.powi(2);
     let rhs = r1.rms_without_focus.powi(2) + (r1.focus * m.focus_rms_per_unit()).powi(2);
     assert!((lhs / rhs - 1.0).abs() < 1e-10);
+    // The same with the surface figure itself, signed as the coefficient.
+    let rhs = r1.rms_without_focus.powi(2) + r1.focus_rms.powi(2);
+    assert!((lhs / rhs - 1.0).abs() < 1e-10);
+    assert_eq!(r1.focus_rms.signum(), r1.focus.signum());
+}
+
+#[test]
+fn issue_14_focus_rms_is_the_surface_of_the_focus_component() {
+    // Independent reference: the rms surface of c f (global plane removed) is evaluated as a
+    // whole mirror state, and must equal |focus_rms| of c f plus anything orthogonal.
+    let (_, m) = keck();
+    let f = m.focus_mode().to_vec();
+    for c in [3e-9, -7e-9] {
+        let z: Vec<f64> = f.iter().map(|x| c * x).collect();
+        let r = m.evaluate(&z).unwrap();
+        assert!(
+            (r.focus_rms / (c.signum() * r.rms) - 1.0).abs() < 1e-12,
+            "{r:?}"
+        );
+        // The coefficient is an actuator-space amplitude, larger than the surface by
+        // 1 / focus_rms_per_unit (sqrt(na / 3) for a smooth mode, about 8 on Keck's 108).
+        let ratio = r.focus / r.focus_rms;
+        assert!(ratio > 3.0 && ratio < 12.0, "coefficient / surface {ratio}");
+    }
 }
 
 #[test]

@@ -8,6 +8,7 @@
 //! | `focus_mode` | output | 1 | m |
 //! | `rms_surface_without_focus` | output | 1 | m |
 //! | `pssn` | output | 1 | 1 |
+//! | `focus_mode_coefficient` | output | 1 | m |
 //!
 //! with na = 3 x the number of segments of the packaged layout (actuator k of segment i at
 //! index 3 i + k).
@@ -55,6 +56,7 @@ struct Vars {
     focus_mode: RealVar,
     rms_surface_without_focus: RealVar,
     pssn: RealVar,
+    focus_mode_coefficient: RealVar,
     metrics_rate: RealVar,
     pssn_rate: RealVar,
     wavelength: RealVar,
@@ -134,11 +136,17 @@ moment I = 5&radic;3/16 a<sup>4</sup> about any in-plane axis through its centre
 over the aperture after removing the least-squares global plane (piston, tip, tilt) over the \
 aperture: sqrt(&sum;<sub>i</sub> A r<sub>p,i</sub><sup>2</sup> + I (r<sub>x,i</sub><sup>2</sup> \
 + r<sub>y,i</sub><sup>2</sup>) / (N A)).</li>\
-<li><code>focus_mode</code> (m): amplitude c of the focus-mode f, the least observable mode of \
-the edge-sensor interaction matrix A, as a vector over the actuators of unit Euclidean norm: \
-z = c f gives c (with any global piston/tip/tilt added too). It is the least-squares \
-coefficient of the residual surface of f in the residual surface of z. One unit of c is a \
-surface rms of <code>focus_rms_per_unit</code>.</li>\
+<li><code>focus_mode</code> (m, surface): the rms surface of the focus-mode component of the \
+residual, signed as its coefficient c (below): c &times; <code>focus_rms_per_unit</code>. So \
+<code>rms_surface</code><sup>2</sup> = <code>rms_surface_without_focus</code><sup>2</sup> + \
+<code>focus_mode</code><sup>2</sup>, and its rms over time is the focus-mode amplitude in nm rms \
+as the seed paper quotes it.</li>\
+<li><code>focus_mode_coefficient</code> (m): the coefficient c of the focus-mode f, the least \
+observable mode of the edge-sensor interaction matrix A, as a vector over the actuators of unit \
+Euclidean norm: z = c f gives c (with any global piston/tip/tilt added too). It is the \
+least-squares coefficient of the residual surface of f in the residual surface of z: an \
+actuator-space amplitude, not a surface figure (about 40 times <code>focus_mode</code> on \
+TMT).</li>\
 <li><code>rms_surface_without_focus</code> (m): the rms surface with global piston/tip/tilt \
 and c f removed.</li>\
 <li><code>pssn</code> (1): the normalised point-source sensitivity (Seo et al.) of the residual \
@@ -218,7 +226,8 @@ fn table(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
         &mut b,
         "focus_mode",
         "m",
-        "Focus-mode amplitude: coefficient of the unit-norm focus-mode vector over the actuators",
+        "Focus-mode as rms surface: the rms of its component of the surface, signed as its \
+         coefficient (rms_surface^2 = rms_surface_without_focus^2 + focus_mode^2)",
     );
     let rms_surface_without_focus = out(
         &mut b,
@@ -231,6 +240,13 @@ fn table(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
         "pssn",
         "1",
         "Normalised point-source sensitivity of the residual surface (0: not computed)",
+    );
+    let focus_mode_coefficient = out(
+        &mut b,
+        "focus_mode_coefficient",
+        "m",
+        "Focus-mode coefficient: amplitude of the unit-norm focus-mode vector over the \
+         actuators (actuator space; focus_mode = focus_mode_coefficient * focus_rms_per_unit)",
     );
     let metrics_rate = b.add_real(
         T::real("metrics_rate")
@@ -294,7 +310,7 @@ fn table(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
         T::real("focus_rms_per_unit")
             .calculated_parameter()
             .unit("1")
-            .describe("Rms surface (m) of a unit focus_mode amplitude (m)"),
+            .describe("Rms surface (m) of a unit focus_mode_coefficient (m)"),
     );
     let pssn_grid_spacing = b.add_real(
         T::real("pssn_grid_spacing")
@@ -313,6 +329,7 @@ fn table(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
             focus_mode,
             rms_surface_without_focus,
             pssn,
+            focus_mode_coefficient,
             metrics_rate,
             pssn_rate,
             wavelength,
@@ -388,7 +405,8 @@ impl Optics {
             .evaluate(v.real(self.vars.z))
             .map_err(model_error)?;
         v.real_mut(self.vars.rms_surface)[0] = m.rms;
-        v.real_mut(self.vars.focus_mode)[0] = m.focus;
+        v.real_mut(self.vars.focus_mode)[0] = m.focus_rms;
+        v.real_mut(self.vars.focus_mode_coefficient)[0] = m.focus;
         v.real_mut(self.vars.rms_surface_without_focus)[0] = m.rms_without_focus;
         Ok(())
     }
@@ -538,6 +556,7 @@ mod tests {
                 "focus_mode",
                 "rms_surface_without_focus",
                 "pssn",
+                "focus_mode_coefficient",
             ] {
                 assert_eq!(t.by_name(name).unwrap().dependencies, Dependencies::None);
             }
