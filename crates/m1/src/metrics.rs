@@ -45,7 +45,7 @@
 //!   focus-mode's share of the surface, $\text{rms}^2 = \text{rms\_without\_focus}^2 +
 //!   \text{focus\_rms}^2$ (the residual is orthogonal to $F$). This is the figure the seed
 //!   paper quotes as "focus-mode amplitude, nm rms"; `focus` is an actuator-space coefficient,
-//!   about 40 times larger on TMT (1476 actuators).
+//!   38 times larger on TMT (1476 actuators), 10 times on Keck.
 //! - **`rms_without_focus`** (m, surface): $\sqrt{\|r - cF\|^2 / (N A)}$.
 //!
 //! Every residual is accumulated directly (not as a difference of squares), so a pure global
@@ -395,7 +395,7 @@ impl MirrorMetrics {
         Ok(SurfaceMetrics {
             rms: (rr / area).sqrt(),
             focus: c,
-            focus_rms: c * (self.focus_norm2 / area).sqrt(),
+            focus_rms: c * self.focus_rms_per_unit(),
             rms_without_focus: (qq / area).sqrt(),
             global_ptt: [beta[0], beta[1], beta[2]],
         })

@@ -145,8 +145,8 @@ as the seed paper quotes it.</li>\
 observable mode of the edge-sensor interaction matrix A, as a vector over the actuators of unit \
 Euclidean norm: z = c f gives c (with any global piston/tip/tilt added too). It is the \
 least-squares coefficient of the residual surface of f in the residual surface of z: an \
-actuator-space amplitude, not a surface figure (about 40 times <code>focus_mode</code> on \
-TMT).</li>\
+actuator-space amplitude, not a surface figure (38 times <code>focus_mode</code> on TMT, \
+10 times on Keck).</li>\
 <li><code>rms_surface_without_focus</code> (m): the rms surface with global piston/tip/tilt \
 and c f removed.</li>\
 <li><code>pssn</code> (1): the normalised point-source sensitivity (Seo et al.) of the residual \
