@@ -359,7 +359,8 @@ fn run_and_system_on_keck() {
 }
 
 /// `m1cs coupling`: the split voice coil is bounded at the servo period and diverges at two
-/// periods; only Gauss-Seidel at the servo period is accurate to 1 %; a step that is not a multiple of the
+/// periods; the split piezo (4.3 N/um stacks) stays bounded but is far off (over 15 %); only
+/// Gauss-Seidel at the servo period is accurate to 1 %; a step that is not a multiple of the
 /// servo period is an error naming it; the plot is written.
 #[test]
 fn coupling_needs_the_servo_period() {
@@ -388,7 +389,9 @@ fn coupling_needs_the_servo_period() {
     for order in ["gauss-seidel", "jacobi"] {
         assert_eq!(find("voicecoil", order, 0.0002)["stable"], true);
         assert_eq!(find("voicecoil", order, 0.0004)["stable"], false);
-        assert_eq!(find("piezo", order, 0.0002)["stable"], false);
+        let piezo = find("piezo", order, 0.0002);
+        assert_eq!(piezo["stable"], true);
+        assert!(piezo["relative_error"].as_f64().unwrap() > 0.15, "{piezo}");
     }
     // Gauss-Seidel at the servo period follows the coupled solver (0.1 % apart); Jacobi's
     // lagged cell displacement is 2 % off; nothing else is accurate to 1 %.
@@ -459,8 +462,7 @@ fn wind_sweep_on_keck() {
 /// a fraction below 1; bad ranges are named.
 #[test]
 fn vibration_curves_on_keck() {
-    // On the soft-cell preset: there the hard actuator passes the cell's modes near 29.6 Hz
-    // (the default structure's hard actuator is not yet tuned to the motor tones, issue 14).
+    // On the soft-cell preset, whose cell modes the assertions describe.
     let v = json(&[
         "vibration",
         "--layout",
@@ -500,6 +502,72 @@ fn vibration_curves_on_keck() {
         "2",
     ]);
     assert!(!ok && err.contains("--fmin"), "{err}");
+}
+
+/// Issue 14 acceptance, the loops on the defaults with 300 structure modes (`m1cs csi --layout
+/// tmt --modes 300`): the servo criterion (sigma_max(S) < 2 below 15 Hz, all segments) met at
+/// the nominal gains; the global loop at the baseline bandwidths with peak sensitivity under 2
+/// and principal loop gain at most 1/4 from 8 Hz up, all segments; the highest bandwidth at
+/// least the nominal 1.5 Hz; the Zernike bases converge (degrees 7 and 8 within 1 %) and more
+/// segments never lower the peak.
+#[test]
+fn issue_14_csi_on_tmt_with_300_modes_meets_the_criteria() {
+    let v = json(&["csi", "--layout", "tmt", "--modes", "300", "--json"]);
+    let f = |x: &serde_json::Value| x.as_f64().unwrap_or_else(|| panic!("{x}: {v}"));
+    let servo = &v["highest_gain"];
+    assert_eq!(servo["meets_criterion"], true, "{servo}");
+    assert!(f(&servo["gain_factor"]) >= 1.0, "{servo}");
+    assert!(f(&v["sweep"]["all_segments"]["peak_sensitivity"]) < 2.0);
+    let g = &v["global"];
+    assert_eq!(g["meets_sensitivity"], true);
+    assert_eq!(g["meets_loop_gain"], true);
+    let all = &g["all_segments"];
+    assert!(f(&all["peak_sensitivity"]) < 2.0, "{all}");
+    assert!(f(&all["high_frequency_loop_gain"]) <= 0.25, "{all}");
+    assert!(f(&all["high_frequency_loop_gain_hz"]) >= 8.0, "{all}");
+    assert!(f(&g["highest_bandwidth"]["bandwidth_hz"]) >= 1.5, "{g}");
+    let peaks = |k: &str| -> Vec<f64> {
+        v["sweep"][k]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|c| f(&c["peak_sensitivity"]))
+            .collect()
+    };
+    let z = peaks("zernike");
+    assert!(z.len() >= 9, "{z:?}");
+    assert!((z[8] / z[7] - 1.0).abs() < 0.01, "{z:?}");
+    let seg = peaks("segments");
+    assert!(seg.windows(2).all(|w| w[1] >= w[0] - 1e-9), "{seg:?}");
+}
+
+/// Issue 14 acceptance, seed paper Figure 13 on the defaults (`m1cs vibration --layout tmt`):
+/// the hard actuator responds at least 2.5x the soft one and the undamped hard one at least 3x
+/// the damped one somewhere in 29.4-29.8 Hz; the three variants are within 20 % below 3 Hz.
+#[test]
+fn issue_14_vibration_on_tmt_reproduces_figure_13() {
+    let v = json(&[
+        "vibration",
+        "--layout",
+        "tmt",
+        "--fmin",
+        "1",
+        "--fmax",
+        "32",
+        "--step",
+        "0.25",
+        "--pssn-every",
+        "1000",
+        "--json",
+    ]);
+    let r = |k: &str| v[k].as_f64().unwrap_or_else(|| panic!("{k}: {v}"));
+    assert!(r("ratio_hard_over_soft_max_29_4_to_29_8_hz") >= 2.5, "{v}");
+    assert!(
+        r("ratio_undamped_over_damped_max_29_4_to_29_8_hz") >= 3.0,
+        "{v}"
+    );
+    let spread = r("variant_spread_below_3_hz");
+    assert!((0.0..0.2).contains(&spread), "{spread}");
 }
 
 /// `m1cs report` on Keck (without the co-simulation runs): one page with a section, numbers

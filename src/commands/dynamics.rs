@@ -372,12 +372,13 @@ pub fn vibration(a: &VibrationArgs) -> Result<(), String> {
         let k = (0..c.1.len()).fold(0, |b, k| if c.1[k] > c.1[b] { k } else { b });
         (freqs[k], c.1[k])
     };
-    let near = |c: &(&str, Vec<f64>, Vec<(f64, f64)>)| {
+    // The largest ratio of two variants' responses at one frequency of a band.
+    let ratio_over = |i: usize, j: usize, band: std::ops::RangeInclusive<f64>| {
         freqs
             .iter()
-            .zip(&c.1)
-            .filter(|(f, _)| (29.4..=29.8).contains(*f))
-            .map(|(_, v)| *v)
+            .enumerate()
+            .filter(|(_, f)| band.contains(*f))
+            .map(|(k, _)| curves[i].1[k] / curves[j].1[k])
             .fold(f64::NAN, f64::max)
     };
     let motor_pssn = |c: &(&str, Vec<f64>, Vec<(f64, f64)>)| {
@@ -387,7 +388,15 @@ pub fn vibration(a: &VibrationArgs) -> Result<(), String> {
     };
     let ratio =
         |i: usize, j: usize| motor.map_or(f64::NAN, |k| at(&curves[i], k) / at(&curves[j], k));
-    let ratio_band = |i: usize, j: usize| near(&curves[i]) / near(&curves[j]);
+    let ratio_band = |i: usize, j: usize| ratio_over(i, j, 29.4..=29.8);
+    // How far apart the three variants are at low frequency: the largest ratio of any two
+    // below 3 Hz, less one (NaN when the grid has no point there).
+    let spread_low = (0..3)
+        .flat_map(|i| (0..3).map(move |j| (i, j)))
+        .filter(|(i, j)| i != j)
+        .map(|(i, j)| ratio_over(i, j, 0.0..=3.0))
+        .fold(f64::NAN, f64::max)
+        - 1.0;
     if a.json {
         let out = json!({
             "layout": a.layout,
@@ -411,6 +420,7 @@ pub fn vibration(a: &VibrationArgs) -> Result<(), String> {
             "ratio_undamped_over_damped_at_29_6_hz": ratio(1, 2),
             "ratio_hard_over_soft_max_29_4_to_29_8_hz": ratio_band(1, 0),
             "ratio_undamped_over_damped_max_29_4_to_29_8_hz": ratio_band(1, 2),
+            "variant_spread_below_3_hz": spread_low,
         });
         println!("{out}");
     } else {
@@ -437,11 +447,13 @@ pub fn vibration(a: &VibrationArgs) -> Result<(), String> {
             );
         }
         println!(
-            "at 29.6 Hz: hard/soft {:.2}, undamped/damped {:.2} (max over 29.4-29.8 Hz: {:.2}, {:.2})",
+            "at 29.6 Hz: hard/soft {:.2}, undamped/damped {:.2} (largest over 29.4-29.8 Hz: {:.2}, {:.2}); \
+             below 3 Hz the variants are within {:.1} %",
             ratio(1, 0),
             ratio(1, 2),
             ratio_band(1, 0),
-            ratio_band(1, 2)
+            ratio_band(1, 2),
+            100.0 * spread_low
         );
     }
     if let Some(dir) = &a.plot {

@@ -217,7 +217,10 @@ mod tests {
     /// bounded at the servo period, where Gauss-Seidel holds each actuator force over the
     /// servo period exactly as the coupled solver does (0.1 % apart) and Jacobi's lagged cell
     /// displacement shows (2.1 %); it diverges at two servo periods in either order. The split
-    /// piezo system diverges even at the servo period.
+    /// piezo system (4.3 N/um stacks) stays bounded at one and two servo periods but is far off:
+    /// 24 % (Gauss-Seidel) and 21 % (Jacobi) after 1 s at the servo period, 62 % and 53 % at two,
+    /// a transient of its lightly damped stack modes that takes tens of seconds to fade (3 %
+    /// after 30 s).
     #[test]
     fn the_split_exchange_needs_the_servo_period_or_diverges() {
         let cell = keck_cell();
@@ -245,8 +248,14 @@ mod tests {
             }
             let coarse = run(&vc, 4e-4, order);
             assert!(!coarse.stable && coarse.reached < 0.9, "{coarse:?}");
-            let piezo = run(&SegmentModel::piezo(), 2e-4, order);
-            assert!(!piezo.stable && piezo.reached < 0.5, "{piezo:?}");
+            let piezo = SegmentModel::piezo();
+            let fine = run(&piezo, 2e-4, order);
+            assert!(fine.stable && fine.relative_error > 0.15, "{fine:?}");
+            let coarse = run(&piezo, 4e-4, order);
+            assert!(
+                coarse.stable && coarse.relative_error > 2.0 * fine.relative_error,
+                "{coarse:?}"
+            );
         }
     }
 

@@ -1433,10 +1433,27 @@ mod tests {
     }
 
     /// The Zernike ||S||_inf converges to the all-segment one as the degree grows (Keck, 30
-    /// modes, coarse grid). No bound from above is tested: S_B is not a compression of S.
+    /// modes of the `soft-cell` preset, coarse grid): measured 3.82 at 11 Hz for all segments,
+    /// degree 6 reaches 3.14 (18 % off: with the whiffletree the tilt channels' peak needs finer
+    /// patterns than before, 4 % off at degree 6 without it), degree 9 (55 of the 108 channel
+    /// patterns) 3.59 (6 %). No bound from above is tested: S_B is not a compression of S.
     #[test]
     fn zernike_peak_converges_to_all_segments() {
-        let (lp, _) = keck(30, SegmentModel::voice_coil());
+        let layout = Layout::keck();
+        let geometry = Geometry::new(&layout, GeometryParams::for_layout(&layout)).unwrap();
+        let cell = CellModel::new(&layout, &CellParams::soft_cell())
+            .unwrap()
+            .modes()
+            .unwrap();
+        let fm = FrequencyModel::new(
+            layout.n_segments(),
+            SegmentModel::voice_coil(),
+            cell,
+            30,
+            0.02,
+        )
+        .unwrap();
+        let lp = ActuatorLoop::new(fm, &layout, &geometry, 9, &[1, 36]).unwrap();
         let grid = log_grid(1.0, 300.0, 60);
         let sw = sweep(&lp, &grid, 4, 1.2).unwrap();
         let all = sw.all_segments.peak_sensitivity;
@@ -1447,9 +1464,10 @@ mod tests {
             .map(|c| (c.peak_sensitivity - all).abs() / all)
             .collect();
         eprintln!("all {all}, zernike relative errors {errs:?}");
-        let last = *errs.last().unwrap();
-        assert!(last < 0.05, "{errs:?}");
-        assert!(last <= errs[0] + 1e-12, "{errs:?}");
+        assert_eq!(errs.len(), 10);
+        let last = errs[9];
+        assert!(last < 0.08, "{errs:?}");
+        assert!(last < errs[6] && errs[6] < errs[0], "{errs:?}");
     }
 
     /// The plant agrees with the closed-loop frequency model: with the servo closed, the drive

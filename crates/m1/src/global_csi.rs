@@ -999,8 +999,9 @@ mod tests {
 
     /// The loop-gain band starts at 8 Hz by default: on a rigid base the bare 1.5 Hz
     /// integrator (the default bandwidth of radial degrees >= 5, with the hold and the servo)
-    /// is itself at the limit of 1/4 at 5 Hz (0.245), and well under it from 8 Hz (0.166) to
-    /// the Nyquist frequency, so the criterion measures the structure.
+    /// is above the limit of 1/4 at 5 Hz (0.273), and under it from 8 Hz (0.210) to the
+    /// Nyquist frequency (0.203), so the criterion measures the structure. (The segment as
+    /// first built, setpoint weight 0.4: 0.245 and 0.166.)
     #[test]
     fn the_default_band_starts_above_the_bare_integrator() {
         let c = GlobalCriteria::default();
@@ -1009,9 +1010,9 @@ mod tests {
         let limit = c.max_loop_gain / c.allowance;
         let g = keck(0, 0);
         let at = |f: f64| g.point(f).unwrap().0.loop_gain;
-        assert!(at(5.0) > 0.95 * limit, "{}", at(5.0));
+        assert!(at(5.0) > limit, "{}", at(5.0));
         for f in [8.0, 8.5, 9.0, 9.5, 9.99] {
-            assert!(at(f) < 0.7 * limit, "{f} Hz: {}", at(f));
+            assert!(at(f) < 0.9 * limit, "{f} Hz: {}", at(f));
         }
         let sw = global_sweep(&g, &crate::csi::log_grid(0.05, 9.99, 40), &c).unwrap();
         assert!(

@@ -106,12 +106,12 @@ fn soft_cell_preset_keeps_the_first_cells_modes() {
 
 /// The all-segment servo sensitivity peak below 15 Hz and the global loop's principal gain
 /// from 8 Hz up (1 Hz on every mode but radial degree 2 and focus-mode) on TMT, 60 modes.
-fn loops(p: &CellParams) -> (f64, f64) {
+fn loops(p: &CellParams, segment: &SegmentModel) -> (f64, f64) {
     let layout = Layout::tmt();
     let n = layout.n_segments();
     let cell = modes(&layout, p);
     let geometry = Geometry::new(&layout, GeometryParams::for_layout(&layout)).unwrap();
-    let fm = FrequencyModel::new(n, SegmentModel::voice_coil(), cell.clone(), 60, 0.02).unwrap();
+    let fm = FrequencyModel::new(n, segment.clone(), cell.clone(), 60, 0.02).unwrap();
     let lp = ActuatorLoop::new(fm, &layout, &geometry, 2, &[1]).unwrap();
     let servo = log_grid(1.0, 15.0, 400)
         .into_iter()
@@ -123,7 +123,7 @@ fn loops(p: &CellParams) -> (f64, f64) {
         bandwidth_focus: 0.1,
         ..ControllerParams::default()
     };
-    let fm = FrequencyModel::new(n, SegmentModel::voice_coil(), cell, 60, 0.02).unwrap();
+    let fm = FrequencyModel::new(n, segment.clone(), cell, 60, 0.02).unwrap();
     let gl = GlobalCsi::new(fm, &layout, &geometry, params, 4, 3).unwrap();
     let global = (0..=40)
         .map(|k| 8.0 + 0.05 * f64::from(k))
@@ -134,7 +134,7 @@ fn loops(p: &CellParams) -> (f64, f64) {
 
 #[test]
 fn issue_14_tmt_preset_meets_the_servo_criterion_and_the_global_loop_gain() {
-    let (servo, global) = loops(&CellParams::tmt());
+    let (servo, global) = loops(&CellParams::tmt(), &SegmentModel::voice_coil());
     // Seed paper, section 3.2: sigma_max(S) < 2 below 15 Hz with all segments.
     assert!(servo < 2.0, "servo peak {servo}");
     // Principal loop gain under 1/4 near the structural resonances.
@@ -144,11 +144,22 @@ fn issue_14_tmt_preset_meets_the_servo_criterion_and_the_global_loop_gain() {
 #[test]
 fn issue_14_soft_cell_preset_reproduces_its_figures() {
     // The first cell's figures (issue 14): peak sensitivity 3.6 at 10.5 Hz, loop gain 1.63 at
-    // 8.95 Hz, within 2 %.
-    let (servo, global) = loops(&CellParams::soft_cell());
+    // 8.95 Hz, within 2 %, with the segment they were measured with.
+    let (servo, global) = loops(
+        &CellParams::soft_cell(),
+        &SegmentModel::voice_coil_without_whiffletree(),
+    );
     assert!((servo / 3.6 - 1.0).abs() < 0.02, "servo peak {servo}");
     assert!(
         (global / 1.63 - 1.0).abs() < 0.02,
+        "global loop gain {global}"
+    );
+    // With today's segment (the whiffletree's 40 Hz mode in the servo loop, setpoint weight
+    // 0.8) the same cell is worse on both counts: 4.01 and 2.27 (README).
+    let (servo, global) = loops(&CellParams::soft_cell(), &SegmentModel::voice_coil());
+    assert!((servo / 4.01 - 1.0).abs() < 0.02, "servo peak {servo}");
+    assert!(
+        (global / 2.27 - 1.0).abs() < 0.02,
         "global loop gain {global}"
     );
 }

@@ -70,6 +70,8 @@ pub struct ParamVars {
     actuator_radius: RealVar,
     support_piston_frequency: RealVar,
     support_tilt_frequency: RealVar,
+    support_mass: RealVar,
+    whiffletree_frequency: RealVar,
     support_damping_ratio: RealVar,
     actuator_mass: RealVar,
     servo_rate: RealVar,
@@ -79,8 +81,10 @@ pub struct ParamVars {
     derivative_cutoff: RealVar,
     integrator_leak: RealVar,
     setpoint_weight: RealVar,
+    servo_feedforward: RealVar,
     static_stiffness_piston: RealVar,
     static_stiffness_tilt: RealVar,
+    whiffletree_stiffness: RealVar,
     drive: DriveVars,
 }
 
@@ -111,12 +115,18 @@ pub type Piezo = Segments<PiezoVariant>;
 
 const DOC_COMMON: &str = "<h2>Model</h2><p>Every segment is a rigid mirror on three identical \
 actuators. Each actuator chain is cell &rarr; actuator (drive, stiffness) &rarr; actuator node \
-(mass <code>actuator_mass</code>) &rarr; segment support (stiffness from the clamped-node modes \
-<code>support_piston_frequency</code> and <code>support_tilt_frequency</code>) &rarr; mirror. In \
-the orthonormal actuator basis each segment splits exactly into one piston and two tilt channels \
-(effective mirror masses m/3 and I/(1.5 r<sub>a</sub><sup>2</sup>)). The encoder servo is a \
-discrete PID on the actuator stroke at <code>servo_rate</code> with a leaky integrator \
-(<code>integrator_leak</code>; 0 = pure integrator) and a filtered derivative on the measurement. \
+(mass <code>actuator_mass</code>) &rarr; whiffletree (the support module's moving frame, \
+<code>support_mass</code> of the carried <code>segment_mass</code>, a third at each actuator; \
+its stiffness puts the lowest mode of the assembly with the actuators locked, tip/tilt, at \
+<code>whiffletree_frequency</code>) &rarr; the glass's flexures (stiffness from the modes with \
+the whiffletree clamped, <code>support_piston_frequency</code> and \
+<code>support_tilt_frequency</code>) &rarr; mirror. In the orthonormal actuator basis each \
+segment splits exactly into one piston and two tilt channels (effective glass masses \
+(m &minus; m<sub>w</sub>)/3 and (I &minus; m<sub>w</sub> r<sub>a</sub><sup>2</sup>/2)/(1.5 \
+r<sub>a</sub><sup>2</sup>)). The encoder servo is a discrete PID on the actuator stroke at \
+<code>servo_rate</code> with a leaky integrator (<code>integrator_leak</code>; 0 = pure \
+integrator), a filtered derivative on the measurement and a command feedforward \
+(<code>servo_feedforward</code>: 1 for the piezo, whose free extension follows the command). \
 The continuous dynamics are discretised exactly (zero-order hold, matrix exponential) and the \
 communication step applies the exact multi-tick map, so results do not depend on the \
 communication step. Steps need not be multiples of the servo period: the servo samples at its \
@@ -182,7 +192,7 @@ impl Variant for PiezoVariant {
         model_identifier: "segments_piezo",
         model_name: "M1 segments on piezo actuators",
         description: "Every segment of a segmented primary mirror on three hard piezo actuators \
-            (slow 5 kHz-sampled integral servo, optional LR-shunt damping), with the \
+            (command feedforward with a slow integral correction sampled at 5 kHz, optional LR-shunt damping), with the \
             segment-support flexibility",
         documentation: DOC_COMMON,
         default_stop_time: 1.0,
@@ -197,7 +207,7 @@ impl Variant for PiezoVariant {
                     T::real("piezo_stiffness")
                         .parameter()
                         .unit("N/m")
-                        .start(1.5e8)
+                        .start(m1::segment::PIEZO_STIFFNESS)
                         .positive()
                         .describe("Open-circuit stiffness of each piezo stack"),
                 ),
@@ -209,7 +219,10 @@ impl Variant for PiezoVariant {
                         .unit("1")
                         .start(0.01)
                         .non_negative()
-                        .describe("Structural damping ratio of the actuator node on the stack"),
+                        .describe(
+                            "Structural damping ratio of the stack, on the segment's piston mode \
+                             (c = 2 zeta sqrt(K (actuator_mass + segment_mass / 3)))",
+                        ),
                 ),
             ),
             shunt_enabled: Some(
@@ -310,7 +323,7 @@ pub fn declare_params<V: Variant>(b: &mut T) -> ParamVars {
         "kg",
         seg.mass,
         true,
-        "Mass carried by the three actuators of a segment",
+        "Mass carried by the three actuators of a segment (glass and support module)",
     );
     let segment_inertia = p(
         b,
@@ -334,7 +347,7 @@ pub fn declare_params<V: Variant>(b: &mut T) -> ParamVars {
         "Hz",
         seg.support_piston_frequency,
         true,
-        "Piston mode of the segment support with the actuator nodes clamped",
+        "Piston mode of the glass on its flexures with the whiffletree clamped",
     );
     let support_tilt_frequency = p(
         b,
@@ -342,7 +355,24 @@ pub fn declare_params<V: Variant>(b: &mut T) -> ParamVars {
         "Hz",
         seg.support_tilt_frequency,
         true,
-        "Tip/tilt mode of the segment support with the actuator nodes clamped",
+        "Tip/tilt mode of the glass on its flexures with the whiffletree clamped",
+    );
+    let support_mass = p(
+        b,
+        "support_mass",
+        "kg",
+        seg.support_mass,
+        false,
+        "Moving frame and whiffletrees between actuators and glass, part of segment_mass \
+         (0: no whiffletree, the glass's flexures on the actuator node)",
+    );
+    let whiffletree_frequency = p(
+        b,
+        "whiffletree_frequency",
+        "Hz",
+        seg.whiffletree_frequency,
+        true,
+        "Lowest mode of the assembly with the actuators locked (tip/tilt on the whiffletrees)",
     );
     let support_damping_ratio = p(
         b,
@@ -416,6 +446,14 @@ pub fn declare_params<V: Variant>(b: &mut T) -> ParamVars {
             .check(fmu::Check::Range(0.0, 1.0))
             .describe("Weight of the command in the proportional term (1: plain PID)"),
     );
+    let servo_feedforward = p(
+        b,
+        "servo_feedforward",
+        ukp,
+        servo.feedforward,
+        false,
+        "Command feedforward of the encoder servo (drive per metre of command)",
+    );
     let drive = V::declare(b);
     let calc = |b: &mut T, name: &str, desc: &str| {
         b.add_real(
@@ -435,12 +473,20 @@ pub fn declare_params<V: Variant>(b: &mut T) -> ParamVars {
         "static_stiffness_tilt",
         "Analytic static stiffness at the mirror per actuator, tilt load pattern",
     );
+    let whiffletree_stiffness = calc(
+        b,
+        "whiffletree_stiffness",
+        "Stiffness of the whiffletree per actuator (from whiffletree_frequency; infinite when \
+         support_mass is 0)",
+    );
     ParamVars {
         segment_mass,
         segment_inertia,
         actuator_radius,
         support_piston_frequency,
         support_tilt_frequency,
+        support_mass,
+        whiffletree_frequency,
         support_damping_ratio,
         actuator_mass,
         servo_rate,
@@ -450,8 +496,10 @@ pub fn declare_params<V: Variant>(b: &mut T) -> ParamVars {
         derivative_cutoff,
         integrator_leak,
         setpoint_weight,
+        servo_feedforward,
         static_stiffness_piston,
         static_stiffness_tilt,
+        whiffletree_stiffness,
         drive,
     }
 }
@@ -541,6 +589,7 @@ impl ParamVars {
             derivative_cutoff: s(x.derivative_cutoff),
             integrator_leak: s(x.integrator_leak),
             setpoint_weight: s(x.setpoint_weight),
+            feedforward: s(x.servo_feedforward),
         };
         SegmentModel {
             segment: SegmentParams {
@@ -549,6 +598,8 @@ impl ParamVars {
                 actuator_radius: s(x.actuator_radius),
                 support_piston_frequency: s(x.support_piston_frequency),
                 support_tilt_frequency: s(x.support_tilt_frequency),
+                support_mass: s(x.support_mass),
+                whiffletree_frequency: s(x.whiffletree_frequency),
                 support_damping_ratio: s(x.support_damping_ratio),
             },
             actuator: V::actuator(v, &x.drive, servo, s(x.actuator_mass)),
@@ -559,6 +610,7 @@ impl ParamVars {
     pub fn write_calculated(&self, v: &mut Values, model: &SegmentModel) {
         v.real_mut(self.static_stiffness_piston)[0] = model.static_stiffness(Channel::Piston);
         v.real_mut(self.static_stiffness_tilt)[0] = model.static_stiffness(Channel::Tilt);
+        v.real_mut(self.whiffletree_stiffness)[0] = model.whiffletree_stiffness();
     }
 }
 
