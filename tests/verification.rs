@@ -133,13 +133,13 @@ fn variants() -> [Variant; 3] {
             fmu: "mirror_piezo",
             shunt: false,
             model: SegmentModel::piezo(),
-            tol: [1e-3, 1e-2, 1e-2],
+            tol: [5e-4, 5e-4, 1e-3],
         },
         Variant {
             fmu: "mirror_piezo",
             shunt: true,
             model: SegmentModel::piezo_damped_default(),
-            tol: [1e-3, 1e-2, 1e-2],
+            tol: [5e-4, 5e-4, 1e-3],
         },
     ]
 }
@@ -188,17 +188,19 @@ fn step_and_tones(layout: &Layout) {
             assert!(e < tol, "{name} {what}: relative rms difference {e}");
         }
         if v.shunt {
-            // At the shunt's tuning (85 Hz) the damping shows: the FMU with its shunt follows
-            // the damped model and not the undamped one, so the flag reaches the physics.
-            let tone85 = |mono: &Variant| {
+            // At the shunt's tuning (the segments' piston modes on the stacks) the damping
+            // shows: the FMU with its shunt follows the damped model and not the undamped one,
+            // so the flag reaches the physics.
+            let f = m1::segment::SHUNT_FREQUENCY;
+            let tuned = |mono: &Variant| {
                 compare_models(layout, &v, mono, 2000, move |t| {
-                    (vec![0.0; na], 1e-6 * (TAU * 85.0 * t).sin())
+                    (vec![0.0; na], 1e-6 * (TAU * f * t).sin())
                 })
             };
-            let same = tone85(&v);
-            let undamped = tone85(&variants()[1]);
+            let same = tuned(&v);
+            let undamped = tuned(&variants()[1]);
             eprintln!(
-                "{} {name} at 85 Hz: {same:.2e} against the damped model, {undamped:.2e} against the undamped",
+                "{} {name} at {f} Hz: {same:.2e} against the damped model, {undamped:.2e} against the undamped",
                 layout.name
             );
             assert!(same < 2e-2 && undamped > 5.0 * same, "{same} vs {undamped}");
@@ -206,9 +208,9 @@ fn step_and_tones(layout: &Layout) {
     }
 }
 
-/// Keck: the voice-coil mirror FMU matches the exact model within 2e-5; the piezo's, with and
-/// without its shunt (two coupled sub-steps per servo period by default: its stack rings at
-/// 1.4 kHz), within 0.4 %.
+/// Keck: the voice-coil mirror FMU matches the exact model within 1e-4 (measured 8.6e-6 at
+/// most); the piezo's, with and without its shunt (two coupled sub-steps per servo period by
+/// default), within 1e-3 (measured 1.4e-4 at most).
 #[test]
 fn mirror_fmus_follow_the_monolithic_model() {
     step_and_tones(&Layout::keck());
