@@ -504,6 +504,104 @@ fn vibration_curves_on_keck() {
     assert!(!ok && err.contains("--fmin"), "{err}");
 }
 
+/// rms of a CSV column over `[from, to)` s.
+fn window_rms(csv: &str, column: &str, from: f64, to: f64) -> f64 {
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let c = header.iter().position(|h| *h == column).unwrap();
+    let (mut sum, mut n) = (0.0, 0usize);
+    for l in lines {
+        let v: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
+        if (from..to).contains(&v[0]) {
+            sum += v[c] * v[c];
+            n += 1;
+        }
+    }
+    (sum / n as f64).sqrt()
+}
+
+/// Issue 14 item 4: `--cell quasi-static` (the mirror FMU's quasi-static plant, seed paper
+/// section 4.1) gives the coupled plant's open-loop wind response on Keck within 1 % (measured
+/// 0.03 %), the closed loop within 15 % (5 %: what it drops lies above a few Hz), and refuses
+/// the vibration scenario.
+#[test]
+fn quasi_static_cell_follows_the_coupled_one_in_wind() {
+    let run = |cell: &str| {
+        let dir = std::env::temp_dir().join(format!("m1cs-qs-{cell}-{}", std::process::id()));
+        let v = json(&[
+            "run",
+            "--layout",
+            "keck",
+            "--cell",
+            cell,
+            "--fmu-dir",
+            &fmu_dir(),
+            "--out",
+            dir.to_str().unwrap(),
+            "--json",
+        ]);
+        std::fs::remove_dir_all(&dir).ok();
+        let r = v["runs"].as_array().unwrap().clone();
+        (
+            r[0]["rms_surface_m"].as_f64().unwrap(),
+            r[1]["rms_surface_m"].as_f64().unwrap(),
+        )
+    };
+    let (qo, qc) = run("quasi-static");
+    let (co, cc) = run("coupled");
+    eprintln!("keck open {co:.3e} / {qo:.3e}, closed {cc:.3e} / {qc:.3e}");
+    assert!((qo / co - 1.0).abs() < 0.01, "open loop {qo} vs {co}");
+    assert!((qc / cc - 1.0).abs() < 0.15, "closed loop {qc} vs {cc}");
+    let (ok, _, err) = m1cs(&[
+        "run",
+        "--layout",
+        "keck",
+        "--cell",
+        "quasi-static",
+        "--scenario",
+        "vibration",
+        "--fmu-dir",
+        &fmu_dir(),
+    ]);
+    assert!(!ok && err.contains("--cell coupled"), "{err}");
+}
+
+/// Issue 14 acceptance, the main job on its defaults (TMT, 1 m/s wind, the seed paper's
+/// Figure 12 case) over 20 s: the closed loop at most half the open loop's rms surface and at
+/// most a quarter without focus-mode (paper: 39 -> 15 nm, 6 nm without focus-mode), and no
+/// growth (the last quarter's rms of the rms surface at most 1.2x the quarter before).
+#[test]
+fn issue_14_main_job_rejects_the_wind_without_growth() {
+    let dir = std::env::temp_dir().join(format!("m1cs-main-job-{}", std::process::id()));
+    let v = json(&[
+        "run",
+        "--duration",
+        "20",
+        "--fmu-dir",
+        &fmu_dir(),
+        "--out",
+        dir.to_str().unwrap(),
+        "--json",
+    ]);
+    let runs = v["runs"].as_array().unwrap();
+    let get = |i: usize, k: &str| runs[i][k].as_f64().unwrap_or_else(|| panic!("{k}: {v}"));
+    assert_eq!(runs[0]["run"], "open loop");
+    let (open, closed) = (get(0, "rms_surface_m"), get(1, "rms_surface_m"));
+    assert!(closed <= 0.5 * open, "{closed} vs {open}");
+    let (open, closed) = (
+        get(0, "rms_surface_without_focus_m"),
+        get(1, "rms_surface_without_focus_m"),
+    );
+    assert!(closed <= 0.25 * open, "{closed} vs {open}");
+    let csv = std::fs::read_to_string(dir.join("closed_loop.csv")).unwrap();
+    let (third, last) = (
+        window_rms(&csv, "optics.rms_surface", 10.0, 15.0),
+        window_rms(&csv, "optics.rms_surface", 15.0, 20.1),
+    );
+    assert!(last <= 1.2 * third, "{last} vs {third}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// Issue 14 acceptance, the loops on the defaults with 300 structure modes (`m1cs csi --layout
 /// tmt --modes 300`): the servo criterion (sigma_max(S) < 2 below 15 Hz, all segments) met at
 /// the nominal gains; the global loop at the baseline bandwidths with peak sensitivity under 2

@@ -224,7 +224,7 @@ fn tmt_mirror_fmus_follow_the_monolithic_model() {
     step_and_tones(&Layout::tmt());
 }
 
-/// The standard Keck wind system (wind at 5 m/s, voice-coil mirror with 30 modes, ideal edge
+/// The standard Keck wind system (wind at 1 m/s, voice-coil mirror with 30 modes, ideal edge
 /// sensors, the global loop at 20 Hz with the default bandwidths) run by the master
 /// (`m1cs run`, 10 s, Gauss-Seidel, 1 ms) against the monolithic model run with the same
 /// schedule (`m1::monolithic::wind_run`: the exact state-space mirror, the controller's own
@@ -261,6 +261,8 @@ fn wind_run_follows_the_monolithic_model(name: &str, modes: usize, duration: f64
             &modes_arg,
             "--duration",
             &duration_arg,
+            "--wind-speed",
+            "1",
             "--fmu-dir",
             &fmu_dir,
             "--out",
@@ -291,13 +293,14 @@ fn wind_run_follows_the_monolithic_model(name: &str, modes: usize, duration: f64
     let layout = Layout::preset(name).unwrap();
     let geometry = Geometry::new(&layout, GeometryParams::for_layout(&layout)).unwrap();
     let metrics = MirrorMetrics::new(&geometry).unwrap();
-    // The wind FMU's defaults at 5 m/s.
-    let speed = 5.0;
+    // The wind FMU's defaults at the speed of the run above.
+    let speed = 1.0;
+    let cp = m1::wind::DEFAULT_PRESSURE_COEFFICIENT;
     let wind = WindParams {
         speed,
         direction: 0.0,
         screen: ScreenParams {
-            pressure_rms: pressure_rms_from_cp(0.1, m1::wind::DEFAULT_AIR_DENSITY, speed),
+            pressure_rms: pressure_rms_from_cp(cp, m1::wind::DEFAULT_AIR_DENSITY, speed),
             outer_scales: [(5.0, 0.75), (30.0, 0.25), (60.0, 0.0)]
                 .map(|(outer_scale, fraction)| OuterScale {
                     outer_scale,

@@ -43,6 +43,11 @@ pub enum Cell {
     Split,
     /// The segments FMU alone: the cell does not move.
     Rigid,
+    /// The mirror FMU's quasi-static plant (`quasi_static`): the structure's static response
+    /// and each segment reduced to its low-frequency stiffness and servo integrator (seed
+    /// paper, section 4.1). For wind: it follows the coupled plant within 2 % at 1 Hz and
+    /// ignores everything faster.
+    QuasiStatic,
 }
 
 /// What defines a standard system.
@@ -60,8 +65,8 @@ pub struct SystemArgs {
     /// Where the packaged FMUs are (`cargo xtask package` writes them).
     #[arg(long, default_value = "target/fmu")]
     pub fmu_dir: PathBuf,
-    /// Mean wind speed (m/s).
-    #[arg(long, default_value_t = 5.0)]
+    /// Mean wind speed across M1 (m/s); the default is the seed paper's Figure 12 case.
+    #[arg(long, default_value_t = 1.0)]
     pub wind_speed: f64,
     /// Global-loop bandwidth on the modes of radial degrees >= 5 (every mode outside the three
     /// groups below) (Hz).
@@ -202,8 +207,8 @@ pub fn standard_system(a: &SystemArgs, closed: bool) -> Result<System, String> {
         }
     };
     let (mirror, file) = match (a.cell, a.actuator) {
-        (Cell::Coupled, Variant::Voicecoil) => ("mirror", "mirror_voicecoil"),
-        (Cell::Coupled, _) => ("mirror", "mirror_piezo"),
+        (Cell::Coupled | Cell::QuasiStatic, Variant::Voicecoil) => ("mirror", "mirror_voicecoil"),
+        (Cell::Coupled | Cell::QuasiStatic, _) => ("mirror", "mirror_piezo"),
         (_, Variant::Voicecoil) => ("segments", "segments_voicecoil"),
         (_, _) => ("segments", "segments_piezo"),
     };
@@ -215,9 +220,11 @@ pub fn standard_system(a: &SystemArgs, closed: bool) -> Result<System, String> {
             .parameter("wind", "wind_speed", Value::Real(a.wind_speed)),
         Scenario::Vibration => s.component("pier", fmu(a, "pier_vibration")?),
     };
-    if a.cell == Cell::Rigid && a.scenario == Scenario::Vibration {
+    if matches!(a.cell, Cell::Rigid | Cell::QuasiStatic) && a.scenario == Scenario::Vibration {
         return Err(
-            "--scenario vibration acts through the structure: use --cell coupled or split".into(),
+            "--scenario vibration acts through the structure's dynamics: use --cell coupled or \
+             split"
+                .into(),
         );
     }
     s = s.component(mirror, fmu(a, file)?);
@@ -225,8 +232,11 @@ pub fn standard_system(a: &SystemArgs, closed: bool) -> Result<System, String> {
     // has no String binding (some SSP importers, e.g. fmpy's container FMU, take none).
     let structure = structure_parameter(&a.structure)?;
     let structure = (structure != m1::structure::DEFAULT_STRUCTURE).then_some(structure);
+    if a.cell == Cell::QuasiStatic {
+        s = s.parameter(mirror, "quasi_static", Value::Boolean(true));
+    }
     let cell_fmu = match a.cell {
-        Cell::Coupled => Some(mirror),
+        Cell::Coupled | Cell::QuasiStatic => Some(mirror),
         Cell::Split => {
             s = s.component("structure", fmu(a, "structure")?);
             Some("structure")
@@ -265,7 +275,7 @@ pub fn standard_system(a: &SystemArgs, closed: bool) -> Result<System, String> {
     if a.actuator == Variant::PiezoDamped {
         s = s.parameter(mirror, "shunt_enabled", Value::Boolean(true));
     }
-    let pier_target = if a.cell == Cell::Coupled {
+    let pier_target = if matches!(a.cell, Cell::Coupled | Cell::QuasiStatic) {
         "mirror.pier_z"
     } else {
         "structure.pier_z"

@@ -26,7 +26,7 @@ pub struct WindArgs {
     #[arg(long, default_value = "target/fmu")]
     pub fmu_dir: PathBuf,
     /// Mean wind speeds (m/s), comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "2,5,10")]
+    #[arg(long, value_delimiter = ',', default_value = "0.5,1,2")]
     pub speeds: Vec<f64>,
     /// Global-loop bandwidths on the modes of radial degrees >= 5 (Hz), comma-separated; radial
     /// degrees 3-4 and 2 get the baseline's ratios of each (1 / 1.5 and 0.75 / 1.5, from m1's
@@ -36,7 +36,8 @@ pub struct WindArgs {
     /// Global-loop bandwidth on focus-mode (Hz).
     #[arg(long, default_value_t = m1::controller::DEFAULT_BANDWIDTH_FOCUS)]
     pub focus_bandwidth: f64,
-    /// Mirror cell: `coupled` (the mirror FMU) or `rigid` (no structure).
+    /// Mirror cell: `coupled` (the mirror FMU), `quasi-static` (its quasi-static plant) or
+    /// `rigid` (no structure).
     #[arg(long, value_enum, default_value = "coupled")]
     pub cell: Cell,
     /// Structure modes retained.
@@ -154,7 +155,7 @@ pub fn wind(a: &WindArgs) -> Result<(), String> {
         "optics.focus_mode",
         "optics.rms_surface_without_focus",
     ];
-    let mirror = if a.cell == Cell::Coupled {
+    let mirror = if matches!(a.cell, Cell::Coupled | Cell::QuasiStatic) {
         "mirror.z"
     } else {
         "segments.z"

@@ -304,6 +304,10 @@ impl Values {
     pub fn boolean(&self, v: BoolVar) -> bool {
         self.booleans[v.slot]
     }
+    /// A Boolean, mutable.
+    pub fn boolean_mut(&mut self, v: BoolVar) -> &mut bool {
+        &mut self.booleans[v.slot]
+    }
     /// A String.
     pub fn string(&self, v: StrVar) -> &str {
         self.strings[v.slot].to_str().unwrap_or("")

@@ -23,6 +23,7 @@ pub mod quasistatic;
 pub mod reconstructor;
 pub mod segment;
 pub mod sensors;
+pub mod static_mirror;
 pub mod structure;
 pub mod vibration;
 pub mod wind;

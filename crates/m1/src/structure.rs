@@ -1184,6 +1184,38 @@ impl ModalSolver {
         Ok(())
     }
 
+    /// The quasi-static structure: every retained mode at its static deflection under `f_cell`
+    /// and `pier_z` (no inertia), the output written as after a step. With a static
+    /// correction (the built-in FE model's exact solve, or an imported compliance) the output
+    /// is the exact static response; without one, the retained modes' static sum.
+    ///
+    /// # Errors
+    /// A wrong length of `f_cell`.
+    pub fn settle(&mut self, f_cell: &[f64], pier_z: f64) -> Result<(), M1Error> {
+        if f_cell.len() != self.na {
+            return Err(M1Error::SizeMismatch {
+                what: "f_cell",
+                expected: self.na,
+                found: f_cell.len(),
+            });
+        }
+        let n = self.n;
+        self.u.fill(0.0);
+        for (row, &f) in self.phi.chunks_exact(n).zip(f_cell) {
+            if f != 0.0 {
+                for (u, p) in self.u.iter_mut().zip(row) {
+                    *u += p * f;
+                }
+            }
+        }
+        for j in 0..n {
+            self.q[j] = self.inv_w2[j] * (self.u[j] + self.b_pier[j] * pier_z);
+            self.v[j] = 0.0;
+        }
+        self.write_output(f_cell, pier_z);
+        Ok(())
+    }
+
     /// `z = Phi (q - Omega^-2 u) + G f + g_p p` (or `Phi q` without static correction), with
     /// `u` the modal force of `f`, `p` (of each input that has a static correction).
     fn write_output(&mut self, f: &[f64], p: f64) {

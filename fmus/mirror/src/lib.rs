@@ -1,6 +1,8 @@
 //! Model wiring of the mirror FMUs: every segment of one actuator variant and the telescope
 //! structure, solved together at every servo sample ([`m1::mirror::CoupledMirror`]). The
-//! parameters are those of the segments FMU of the same variant plus those of the structure FMU.
+//! parameters are those of the segments FMU of the same variant plus those of the structure FMU,
+//! and `quasi_static`, which swaps in the quasi-static plant for wind studies
+//! ([`m1::static_mirror::QuasiStaticMirror`]).
 //!
 //! | variable | causality | size | unit |
 //! |---|---|---|---|
@@ -24,11 +26,12 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use fmu::{
-    Dependencies, FmuError, IntVar, Model, ModelInfo, RealVar, StrVar, TableBuilder as T, Values,
-    VariableTable,
+    BoolVar, Dependencies, FmuError, IntVar, Model, ModelInfo, RealVar, StrVar, TableBuilder as T,
+    Values, VariableTable,
 };
 use m1::layout::Layout;
 use m1::mirror::CoupledMirror;
+use m1::static_mirror::QuasiStaticMirror;
 use segments::{ParamVars, PiezoVariant, Variant, VoiceCoilVariant};
 use structure_model::{CellVars, declare_cell_params};
 
@@ -64,7 +67,14 @@ destabilises the loop (measured on Keck with every mode: Gauss-Seidel exchange d
 0.5 ms for the voice coil, and for the piezo at every step tried down to 0.1 ms).</p>\
 <p><b>Communication step.</b> Any positive multiple of the servo period (default 0.2 ms at \
 5 kHz); results do not depend on it. No output depends directly on the inputs. The FMU starts \
-at rest, undeformed.</p>";
+at rest, undeformed.</p>\
+<p><b>Quasi-static, for wind</b> (<code>quasi_static</code> = true; seed paper, section 4.1): \
+the structure without inertia (its exact static response to the actuator forces and the pier) \
+and each segment chain reduced to its low-frequency behaviour: the static equilibrium of the \
+chain and the servo's proportional and leaky integral action, one state per channel, \
+integrated exactly over each step. It follows the dynamic plant within 0.2 % for a 0.2 Hz \
+load and 2 % at 1 Hz (Keck), ignores everything faster (cell modes, servo and support \
+resonances: not for vibration or CSI) and accepts any positive step.</p>";
 
 impl MirrorVariant for VoiceCoilVariant {
     const MIRROR_INFO: ModelInfo = ModelInfo {
@@ -108,6 +118,14 @@ struct Vars {
     substeps: IntVar,
     segments: ParamVars,
     cell: CellVars,
+    quasi_static: BoolVar,
+}
+
+/// The solver behind a mirror FMU.
+#[derive(Clone, Serialize, Deserialize)]
+enum Solver {
+    Coupled(CoupledMirror),
+    QuasiStatic(QuasiStaticMirror),
 }
 
 /// The mirror FMU of one actuator variant.
@@ -118,7 +136,7 @@ pub struct Mirror<V: MirrorVariant> {
     layout: String,
     n_segments: usize,
     resource_dir: Option<PathBuf>,
-    mirror: Option<CoupledMirror>,
+    mirror: Option<Solver>,
     z: Vec<f64>,
     #[serde(skip)]
     _v: PhantomData<V>,
@@ -208,6 +226,16 @@ fn table<V: MirrorVariant>(layout: &Layout) -> Result<(VariableTable, Vars), Fmu
     );
     let segments = segments::declare_params::<V>(&mut b);
     let cell = declare_cell_params(&mut b, DEFAULT_MODES);
+    let quasi_static = b.add_boolean(
+        T::boolean("quasi_static")
+            .parameter()
+            .start_bool(false)
+            .describe(
+                "Quasi-static plant for wind studies: static structure, each segment chain \
+                 reduced to its low-frequency stiffness and servo integrator (any step; nothing \
+                 faster than about 1 Hz is modelled)",
+            ),
+    );
     let table = b.build()?;
     Ok((
         table,
@@ -223,26 +251,45 @@ fn table<V: MirrorVariant>(layout: &Layout) -> Result<(VariableTable, Vars), Fmu
             substeps,
             segments,
             cell,
+            quasi_static,
         },
     ))
 }
 
 impl<V: MirrorVariant> Mirror<V> {
     fn write_outputs(&mut self, v: &mut Values) -> Result<(), FmuError> {
-        let Some(m) = &self.mirror else {
-            return Err(FmuError::Model("the mirror is not initialised".into()));
+        let (z_cell, f_cell) = match &self.mirror {
+            Some(Solver::Coupled(m)) => {
+                m.mirror(&mut self.z);
+                (m.cell_displacement(), m.cell_force())
+            }
+            Some(Solver::QuasiStatic(m)) => {
+                m.mirror(&mut self.z);
+                (m.cell_displacement(), m.cell_force())
+            }
+            None => return Err(FmuError::Model("the mirror is not initialised".into())),
         };
-        m.mirror(&mut self.z);
+        v.real_mut(self.vars.z_cell).copy_from_slice(z_cell);
+        v.real_mut(self.vars.f_cell).copy_from_slice(f_cell);
         v.real_mut(self.vars.z).copy_from_slice(&self.z);
-        v.real_mut(self.vars.z_cell)
-            .copy_from_slice(m.cell_displacement());
-        v.real_mut(self.vars.f_cell).copy_from_slice(m.cell_force());
         Ok(())
     }
 
-    /// The coupled solver, once initialised (for in-process use and tests).
+    /// The coupled solver, once initialised and unless `quasi_static` is set (for in-process
+    /// use and tests).
     pub fn solver(&self) -> Option<&CoupledMirror> {
-        self.mirror.as_ref()
+        match &self.mirror {
+            Some(Solver::Coupled(m)) => Some(m),
+            _ => None,
+        }
+    }
+
+    /// The quasi-static solver, once initialised with `quasi_static` set.
+    pub fn quasi_static_solver(&self) -> Option<&QuasiStaticMirror> {
+        match &self.mirror {
+            Some(Solver::QuasiStatic(m)) => Some(m),
+            _ => None,
+        }
     }
 }
 
@@ -284,18 +331,26 @@ impl<V: MirrorVariant> Model for Mirror<V> {
         )?;
         let (n_modes, damping) = self.vars.cell.modes_and_damping(v);
         let substeps = u32::try_from(v.integer(self.vars.substeps)).unwrap_or(0);
-        let mirror = CoupledMirror::new(
-            self.n_segments,
-            model.clone(),
-            cell,
-            n_modes,
-            damping,
-            substeps,
-        )
-        .map_err(wiring::model_error)?;
+        let solver = if v.boolean(self.vars.quasi_static) {
+            let m = QuasiStaticMirror::new(self.n_segments, model.clone(), cell, n_modes)
+                .map_err(wiring::model_error)?;
+            self.vars.cell.write_calculated(v, m.structure());
+            Solver::QuasiStatic(m)
+        } else {
+            let m = CoupledMirror::new(
+                self.n_segments,
+                model.clone(),
+                cell,
+                n_modes,
+                damping,
+                substeps,
+            )
+            .map_err(wiring::model_error)?;
+            self.vars.cell.write_calculated(v, m.structure());
+            Solver::Coupled(m)
+        };
         self.vars.segments.write_calculated(v, &model);
-        self.vars.cell.write_calculated(v, mirror.structure());
-        self.mirror = Some(mirror);
+        self.mirror = Some(solver);
         self.write_outputs(v)
     }
 
@@ -306,15 +361,16 @@ impl<V: MirrorVariant> Model for Mirror<V> {
 
     fn do_step(&mut self, _t: f64, h: f64, v: &mut Values) -> Result<(), FmuError> {
         let vars = self.vars;
-        let Some(m) = &mut self.mirror else {
-            return Err(FmuError::Model("the mirror is not initialised".into()));
-        };
-        m.advance(
-            h,
+        let (u, f, p) = (
             v.real(vars.u_cmd),
             v.real(vars.f_wind),
             v.scalar(vars.pier_z),
-        )
+        );
+        match &mut self.mirror {
+            Some(Solver::Coupled(m)) => m.advance(h, u, f, p),
+            Some(Solver::QuasiStatic(m)) => m.advance(h, u, f, p),
+            None => return Err(FmuError::Model("the mirror is not initialised".into())),
+        }
         .map_err(wiring::model_error)?;
         self.write_outputs(v)
     }
@@ -361,5 +417,34 @@ mod tests {
             e.contains("communicationStepSize") && e.contains("servo"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn quasi_static_settles_on_the_static_stiffness_at_any_step() {
+        let (t, mut m) = VoiceCoil::new("keck").expect("keck");
+        let mut v = t.initial_values();
+        *v.boolean_mut(m.vars.quasi_static) = true;
+        m.initialize(&mut v, 0.0).expect("init");
+        assert!(m.solver().is_none());
+        // A uniform push on every actuator (piston pattern) of 1 N: once the integrators have
+        // settled, the glass moves with the cell plus 1 / static stiffness.
+        v.real_mut(m.vars.f_wind).fill(1.0);
+        for k in 0..200 {
+            m.do_step(f64::from(k) * 0.07, 0.07, &mut v)
+                .expect("a 70 ms step");
+        }
+        let model = m
+            .quasi_static_solver()
+            .expect("quasi-static")
+            .model()
+            .clone();
+        let want = 1.0 / model.static_stiffness(m1::segment::Channel::Piston);
+        let (z, zc) = (v.real(m.vars.z), v.real(m.vars.z_cell));
+        for j in 0..z.len() {
+            let rel = z[j] - zc[j];
+            assert!((rel / want - 1.0).abs() < 1e-6, "{j}: {rel} vs {want}");
+        }
+        assert!(v.real(m.vars.f_cell).iter().all(|&f| f == 1.0));
+        assert!(zc.iter().all(|&c| c > 0.0));
     }
 }
