@@ -1,26 +1,36 @@
-"""Parameter sweep of the closed global loop on a rigid cell, wind speed x control bandwidth,
-with fmpy on Dask.
+"""Parameter sweep of the closed global loop on the default plant, wind speed x control
+bandwidth, with fmpy on Dask.
 
-The system is the one `m1cs system --cell rigid` wires (see src/commands/cosim.rs):
+The plant is the default one of `m1cs run`: the mirror FMU (`mirror_voicecoil`, or
+`mirror_piezo`, with `shunt_enabled` for the piezo-damped variant), the segments and the
+telescope structure solved together at every servo sample, on the structure's default preset
+(tmt, the FMU parameter `structure`'s default) with `--structure-modes` structure modes. The
+system is the one `m1cs system` wires with its default `--cell coupled` (see `standard_system`
+in src/commands/cosim.rs):
 
-    wind.f_wind -> segments.f_wind       segments.z -> sensors.z -> controller.y
-    controller.u_cmd -> segments.u_cmd   segments.z -> optics.z
+    wind.f_wind -> mirror.f_wind       mirror.z -> sensors.z -> controller.y
+    controller.u_cmd -> mirror.u_cmd   mirror.z -> optics.z
 
-with wind at 100 Hz, the global controller at 20 Hz, optics at 1 kHz and the segments and edge
-sensors at every base step (1 ms by default). It is stepped here by an explicit Python loop over
-fmpy FMU2Slave instances with the master algorithm of `m1cs run` (crates/cosim/src/system.rs):
-each component steps over its own multiple of the base step, the connections start at the
-components' initial outputs, and in Gauss-Seidel order (the default, as `m1cs run`'s) every due
-component takes its inputs from the newest outputs (components in the order above), in Jacobi
-order from the outputs of the communication point. Values move in bulk: one fmi2SetReal, one fmi2DoStep and one
-fmi2GetReal per component and step, on numpy arrays of value references and values allocated
-once per run. The results equal those of `m1cs run --layout LAYOUT --cell rigid --step STEP
---order ORDER --bandwidth B --bandwidth-radial34 B34 --bandwidth-radial2 B2` bit for bit.
+with wind at 100 Hz, the global controller at 20 Hz, optics at 1 kHz and the mirror and edge
+sensors at every base step (1 ms by default; the mirror FMU takes any multiple of its 0.2 ms
+servo period). `--cell rigid` sweeps the segments FMU alone instead (`segments_voicecoil` or
+`segments_piezo`, the cell does not move), as `m1cs run --cell rigid`. The system is stepped
+here by an explicit Python loop over fmpy FMU2Slave instances with the master algorithm of
+`m1cs run` (crates/cosim/src/system.rs): each component steps over its own multiple of the base
+step, the connections start at the components' initial outputs, and in Gauss-Seidel order (the
+default, as `m1cs run`'s) every due component takes its inputs from the newest outputs
+(components in the order above), in Jacobi order from the outputs of the communication point.
+Values move in bulk: one fmi2SetReal, one fmi2DoStep and one fmi2GetReal per component and
+step, on numpy arrays of value references and values allocated once per run. The optics'
+outputs equal those of `m1cs run --layout LAYOUT --cell CELL --structure-modes N [--structure
+NAME] --step STEP --order ORDER --bandwidth B --bandwidth-radial34 B34 --bandwidth-radial2 B2`
+bit for bit.
 
 A sweep's bandwidth B is the global loop's on the modes of radial degrees >= 5; radial degrees
 3-4 and 2 get the seed paper's baseline ratios of it (B34 = B x 1 / 1.5, B2 = B x 0.75 / 1.5, the
 ratios of m1::controller's default bandwidths, as `m1cs wind` sweeps), focus-mode its own
-`--focus-bandwidth`.
+`--focus-bandwidth`. The default wind speeds, 0.5, 1 and 2 m/s, bracket the seed paper's
+Figure 12 case (1 m/s, `m1cs run`'s default).
 
 Following fmpy's parameter-variation example, every Dask worker extracts each FMU once (into its
 own local directory, by a worker plugin), instantiates it once, and runs each sweep point on that
@@ -32,7 +42,7 @@ and the mean PSSN, as `m1cs run` summarises its runs.
 
 Usage (after `cargo xtask package keck`):
 
-    python examples/dask_sweep.py --speeds 2,5,10 --bandwidths 0.5,1,2 --duration 2 --workers 2
+    python examples/dask_sweep.py --speeds 0.5,1,2 --bandwidths 0.5,1,2 --duration 2 --workers 2
 
 writes OUT/sweep.csv and OUT/sweep.json (one row per point) and prints the table. `--workers 0`
 runs the points in this process, without Dask (for debugging).
@@ -53,23 +63,14 @@ import numpy as np
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
-# Components in stepping order: (instance name, FMU file without .fmu, rate in Hz or None for
-# every base step). The segments' FMU name depends on the actuator variant.
-COMPONENTS = [
-    ("wind", "wind", 100.0),
-    ("segments", None, None),
-    ("sensors", "edge_sensors", None),
-    ("controller", "global_controller", 20.0),
-    ("optics", "optics", 1000.0),
-]
-# (from component, output signal, to component, input signal): whole arrays by base name.
-CONNECTIONS = [
-    ("wind", "f_wind", "segments", "f_wind"),
-    ("controller", "u_cmd", "segments", "u_cmd"),
-    ("segments", "z", "sensors", "z"),
-    ("sensors", "y", "controller", "y"),
-    ("segments", "z", "optics", "z"),
-]
+# Mirror-cell models (as `m1cs run --cell`): the instance name of the plant, which is also the
+# prefix of its FMU's file name (FMU_DIR/LAYOUT/PREFIX_VARIANT.fmu).
+CELLS = {
+    "coupled": "mirror",  # the mirror FMU: segments and structure in one solve (the default)
+    "rigid": "segments",  # the segments FMU alone: the cell does not move
+}
+DEFAULT_CELL = "coupled"
+DEFAULT_STRUCTURE_MODES = 60  # `m1cs run --structure-modes`'s default
 ORDERS = ("jacobi", "gauss-seidel")
 # m1::controller's default bandwidths (Hz), the seed paper's baseline tuning: radial degrees
 # >= 5, radial degrees 3-4, radial degree 2 (astigmatism) and focus-mode.
@@ -78,27 +79,68 @@ DEFAULT_BANDWIDTH_RADIAL34 = 1.0
 DEFAULT_BANDWIDTH_RADIAL2 = 0.75
 DEFAULT_BANDWIDTH_FOCUS = 0.1
 METRICS = ["rms_surface", "focus_mode", "rms_surface_without_focus", "pssn"]
+# Actuator variant: (suffix of the plant's FMU, parameters of the plant).
 ACTUATORS = {
-    "voicecoil": ("segments_voicecoil", {}),
-    "piezo": ("segments_piezo", {}),
-    "piezo-damped": ("segments_piezo", {"shunt_enabled": True}),
+    "voicecoil": ("voicecoil", {}),
+    "piezo": ("piezo", {}),
+    "piezo-damped": ("piezo", {"shunt_enabled": True}),
 }
 # Columns of the output table.
 COLUMNS = ["wind_speed", "bandwidth", "bandwidth_radial34", "bandwidth_radial2", "rms_surface_m",
            "focus_mode_m", "rms_surface_without_focus_m", "pssn", "wall_s", "worker"]
 
 
-def fmu_files(fmu_dir, layout, actuator="voicecoil"):
+def components(cell=DEFAULT_CELL):
+    """Components in stepping order: (instance name, FMU file without .fmu or None for the
+    plant's, rate in Hz or None for every base step), as `standard_system` orders them."""
+    if cell not in CELLS:
+        raise ValueError(f"cell {cell!r}: expected one of {tuple(CELLS)}")
+    return [
+        ("wind", "wind", 100.0),
+        (CELLS[cell], None, None),
+        ("sensors", "edge_sensors", None),
+        ("controller", "global_controller", 20.0),
+        ("optics", "optics", 1000.0),
+    ]
+
+
+def connections(cell=DEFAULT_CELL):
+    """(from component, output signal, to component, input signal): whole arrays by base
+    name."""
+    plant = components(cell)[1][0]
+    return [
+        ("wind", "f_wind", plant, "f_wind"),
+        ("controller", "u_cmd", plant, "u_cmd"),
+        (plant, "z", "sensors", "z"),
+        ("sensors", "y", "controller", "y"),
+        (plant, "z", "optics", "z"),
+    ]
+
+
+def fmu_files(fmu_dir, layout, actuator="voicecoil", cell=DEFAULT_CELL):
     """The FMU file of each component, checked to exist."""
-    seg = ACTUATORS[actuator][0]
-    files = {name: pathlib.Path(fmu_dir) / layout / f"{fmu or seg}.fmu"
-             for name, fmu, _ in COMPONENTS}
+    comps = components(cell)
+    plant = f"{CELLS[cell]}_{ACTUATORS[actuator][0]}"
+    files = {name: pathlib.Path(fmu_dir) / layout / f"{fmu or plant}.fmu"
+             for name, fmu, _ in comps}
     missing = [str(p) for p in files.values() if not p.is_file()]
     if missing:
         raise FileNotFoundError(
             f"missing FMU(s): {', '.join(missing)}; run `cargo xtask package {layout}` first "
             f"(or pass --fmu-dir)")
     return {k: str(v) for k, v in files.items()}
+
+
+def structure_parameter(name):
+    """The value of the mirror FMU's `structure` parameter for `--structure NAME`: a preset's
+    name as given, a `.npz` path made absolute (as `m1cs run` does, so the FMU finds it)."""
+    name = name.strip()
+    if name.lower().endswith(".npz"):
+        path = pathlib.Path(name)
+        if not path.is_file():
+            raise FileNotFoundError(f"--structure {name}: no such file")
+        return str(path.resolve())
+    return name
 
 
 class FmuSet:
@@ -177,12 +219,16 @@ def group_bandwidths(bandwidth):
 def simulate_point(fmus, wind_speed, bandwidth, duration, step,
                    focus_bandwidth=DEFAULT_BANDWIDTH_FOCUS, seed=1, actuator="voicecoil",
                    order="gauss-seidel", series=False, bandwidth_radial34=None,
-                   bandwidth_radial2=None):
+                   bandwidth_radial2=None, cell=DEFAULT_CELL,
+                   structure_modes=DEFAULT_STRUCTURE_MODES, structure=None):
     """Runs the closed loop for one (wind speed, bandwidth) on the instances of `fmus` (an
-    FmuSet) and returns the row of metrics (SI units); with `series`, the row also holds
-    row["series"]: "time" and the optics outputs after each optics step (arrays, by name).
-    `bandwidth` acts on radial degrees >= 5; `bandwidth_radial34` and `bandwidth_radial2`
-    default to the baseline's ratios of it (`group_bandwidths`)."""
+    FmuSet of `fmu_files` for the same actuator and cell) and returns the row of metrics (SI
+    units); with `series`, the row also holds row["series"]: "time" and the optics outputs
+    after each optics step (arrays, by name). `bandwidth` acts on radial degrees >= 5;
+    `bandwidth_radial34` and `bandwidth_radial2` default to the baseline's ratios of it
+    (`group_bandwidths`). On the coupled cell, the mirror FMU gets `n_modes` =
+    `structure_modes` and, when `structure` is given, the String parameter `structure` (else
+    the FMU's default preset, tmt)."""
     if not (duration > 0 and step > 0 and duration >= step):
         raise ValueError(f"duration {duration} and step {step} must be positive, "
                          f"the duration at least one step")
@@ -194,12 +240,27 @@ def simulate_point(fmus, wind_speed, bandwidth, duration, step,
         raise ValueError("wind speed and bandwidths must be positive")
     if order not in ORDERS:
         raise ValueError(f"order {order!r}: expected one of {ORDERS}")
+    comps_def, conns = components(cell), connections(cell)
+    plant = CELLS[cell]
+    if set(fmus.files) != {name for name, _, _ in comps_def}:
+        raise ValueError(f"the FMUs {sorted(fmus.files)} are not those of the {cell} cell: "
+                         f"pass fmu_files(..., cell={cell!r})")
+    plant_parameters = {}
+    if cell == "coupled":
+        if not (isinstance(structure_modes, int) and structure_modes > 0):
+            raise ValueError(f"structure_modes {structure_modes!r}: expected a positive integer")
+        plant_parameters["n_modes"] = structure_modes
+        if structure is not None:
+            plant_parameters["structure"] = structure_parameter(structure)
+    elif structure is not None:
+        raise ValueError(f"structure {structure!r}: the {cell} cell has no structure")
+    plant_parameters.update(ACTUATORS[actuator][1])
     wall0 = time.perf_counter()
     reuse = fmus.runs
     fmus.runs += 1
     parameters = {
         "wind": {"wind_speed": wind_speed, "seed": seed},
-        "segments": dict(ACTUATORS[actuator][1]),
+        plant: plant_parameters,
         "sensors": {"seed": seed},
         "controller": {"enabled": True, "bandwidth": bandwidth,
                        "bandwidth_radial34": bandwidth_radial34,
@@ -208,18 +269,18 @@ def simulate_point(fmus, wind_speed, bandwidth, duration, step,
         "optics": {},
     }
     slaves, variables = {}, {}
-    for name, _, _ in COMPONENTS:
+    for name, _, _ in comps_def:
         s, var = fmus.slave(name)
         s.setupExperiment(startTime=0.0, stopTime=duration)
         for p, value in parameters[name].items():
             _set_parameter(s, var, p, value)
         s.enterInitializationMode()
         slaves[name], variables[name] = s, var
-    for name, _, _ in COMPONENTS:
+    for name, _, _ in comps_def:
         slaves[name].exitInitializationMode()
 
     # Output slots: every connected or recorded output, concatenated in one array.
-    out_vrs = {name: [] for name, _, _ in COMPONENTS}
+    out_vrs = {name: [] for name, _, _ in comps_def}
     slot = {}
 
     def output_slot(comp, signal):
@@ -229,9 +290,9 @@ def simulate_point(fmus, wind_speed, bandwidth, duration, step,
             out_vrs[comp].append(vrs)
         return slot[(comp, signal)]
 
-    in_vrs = {name: [] for name, _, _ in COMPONENTS}
-    in_src = {name: [] for name, _, _ in COMPONENTS}
-    for a, out, b, inp in CONNECTIONS:
+    in_vrs = {name: [] for name, _, _ in comps_def}
+    in_src = {name: [] for name, _, _ in comps_def}
+    for a, out, b, inp in conns:
         local, n = output_slot(a, out)
         vrs = _signal(variables[b], inp)
         if len(vrs) != n:
@@ -240,7 +301,7 @@ def simulate_point(fmus, wind_speed, bandwidth, duration, step,
         in_src[b].append((a, local, n))
     metric_slots = [output_slot("optics", m)[0] for m in METRICS]
     offset, total = {}, 0
-    for name, _, _ in COMPONENTS:
+    for name, _, _ in comps_def:
         offset[name] = total
         total += sum(len(a) for a in out_vrs[name])
     outputs = np.zeros(total)
@@ -249,7 +310,7 @@ def simulate_point(fmus, wind_speed, bandwidth, duration, step,
         pass
 
     comps = []
-    for name, _, rate in COMPONENTS:
+    for name, _, rate in comps_def:
         r = Running()
         r.name, r.fmu = name, slaves[name]
         r.every = 1 if rate is None else max(1, int(round((1.0 / rate) / step)))
@@ -403,18 +464,34 @@ def parse_args(argv=None):
     p.add_argument("--layout", default="keck", help="mirror layout (keck, tmt, elt)")
     p.add_argument("--fmu-dir", default=str(ROOT / "target" / "fmu"),
                    help="where `cargo xtask package` wrote the FMUs (FMU_DIR/LAYOUT/*.fmu)")
-    p.add_argument("--speeds", type=_floats, default=[2.0, 5.0, 10.0],
-                   help="wind speeds (m/s), comma-separated")
+    p.add_argument("--speeds", type=_floats, default=[0.5, 1.0, 2.0],
+                   help="wind speeds (m/s), comma-separated (1 m/s: the seed paper's Figure 12 "
+                        "case, `m1cs run`'s default)")
     p.add_argument("--bandwidths", type=_floats, default=[0.5, 1.0, 2.0],
                    help="global-loop bandwidths on radial degrees >= 5 (Hz), comma-separated; "
                         "radial degrees 3-4 get 1/1.5 of each, radial degree 2 0.75/1.5 (the "
                         "baseline's ratios, as `m1cs wind`)")
     p.add_argument("--focus-bandwidth", type=float, default=DEFAULT_BANDWIDTH_FOCUS,
                    help="focus-mode bandwidth (Hz)")
-    p.add_argument("--actuator", choices=sorted(ACTUATORS), default="voicecoil")
+    p.add_argument("--actuator", choices=sorted(ACTUATORS), default="voicecoil",
+                   help="actuator variant: the plant FMU is mirror_voicecoil or mirror_piezo "
+                        "(piezo-damped: with shunt_enabled), segments_* with --cell rigid")
+    p.add_argument("--cell", choices=tuple(CELLS), default=DEFAULT_CELL,
+                   help="mirror-cell model, as `m1cs run --cell`: coupled (the default plant, "
+                        "the mirror FMU: segments and structure solved together) or rigid (the "
+                        "segments FMU alone, the cell does not move)")
+    p.add_argument("--structure-modes", type=int, default=DEFAULT_STRUCTURE_MODES,
+                   help="structure modes retained by the mirror FMU (its n_modes; the rest "
+                        "enter as a static correction), as `m1cs run --structure-modes`")
+    p.add_argument("--structure", default=argparse.SUPPRESS, metavar="NAME",
+                   help="structure under the segments, the mirror FMU's String parameter "
+                        "`structure`: a preset of the built-in cell (tmt, soft-cell) or the path "
+                        "of a .npz modal model; set only when given (default: the FMU's own "
+                        "default, the tmt preset)")
     p.add_argument("--duration", type=float, default=2.0, help="simulated time per point (s)")
     p.add_argument("--step", type=float, default=1e-3,
-                   help="base communication step (s); the rigid cell is stable at 1 ms")
+                   help="base communication step (s): a multiple of the 0.2 ms servo period "
+                        "of the mirror and segments FMUs")
     p.add_argument("--seed", type=int, default=1, help="seed of the wind screens and sensors")
     p.add_argument("--order", choices=ORDERS, default="gauss-seidel",
                    help="stepping order, as `m1cs run --order`")
@@ -423,10 +500,15 @@ def parse_args(argv=None):
     p.add_argument("--out", default="results/dask_sweep",
                    help="folder for sweep.csv and sweep.json")
     a = p.parse_args(argv)
+    a.structure = getattr(a, "structure", None)
     if a.workers < 0:
         p.error("--workers must be 0 or more")
     if not (a.duration > 0 and a.step > 0 and a.duration >= a.step):
         p.error("--duration and --step must be positive, the duration at least one step")
+    if a.structure_modes <= 0:
+        p.error("--structure-modes must be positive")
+    if a.structure is not None and a.cell != "coupled":
+        p.error(f"--structure acts on the coupled cell's mirror FMU, not on --cell {a.cell}")
     return a
 
 
@@ -442,12 +524,14 @@ def print_table(rows, file=sys.stdout):
 def main(argv=None):
     """Runs the sweep; returns the rows (one per point, speeds outer, bandwidths inner)."""
     a = parse_args(argv)
-    files = fmu_files(a.fmu_dir, a.layout, a.actuator)
+    files = fmu_files(a.fmu_dir, a.layout, a.actuator, a.cell)
+    structure = None if a.structure is None else structure_parameter(a.structure)
     points = list(itertools.product(a.speeds, a.bandwidths))
     t0 = time.perf_counter()
     rows = run_sweep(files, points, a.workers, duration=a.duration, step=a.step,
                      focus_bandwidth=a.focus_bandwidth, seed=a.seed, actuator=a.actuator,
-                     order=a.order)
+                     order=a.order, cell=a.cell, structure_modes=a.structure_modes,
+                     structure=structure)
     wall = time.perf_counter() - t0
     out = pathlib.Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -456,11 +540,15 @@ def main(argv=None):
         w.writeheader()
         for r in rows:
             w.writerow({k: repr(r[k]) if isinstance(r[k], float) else r[k] for k in COLUMNS})
-    summary = {"layout": a.layout, "actuator": a.actuator, "duration_s": a.duration,
-               "step_s": a.step, "order": a.order, "focus_bandwidth_hz": a.focus_bandwidth,
-               "seed": a.seed, "workers": a.workers, "wall_s": wall, "rows": rows}
+    summary = {"layout": a.layout, "actuator": a.actuator, "cell": a.cell,
+               "structure": a.structure, "structure_modes": a.structure_modes,
+               "duration_s": a.duration, "step_s": a.step, "order": a.order,
+               "focus_bandwidth_hz": a.focus_bandwidth, "seed": a.seed, "workers": a.workers,
+               "wall_s": wall, "rows": rows}
     (out / "sweep.json").write_text(json.dumps(summary, indent=1))
-    print(f"{a.layout}, {a.actuator}, rigid cell, closed loop, {a.duration} s per point "
+    plant = (f"coupled cell (mirror FMU, structure {a.structure or 'tmt'}, "
+             f"{a.structure_modes} modes)" if a.cell == "coupled" else "rigid cell")
+    print(f"{a.layout}, {a.actuator}, {plant}, closed loop, {a.duration} s per point "
           f"(statistics over the second half), {len(rows)} points on "
           f"{a.workers or 'no'} Dask worker(s) in {wall:.1f} s:")
     print_table(rows)

@@ -143,6 +143,8 @@ pub struct QuasiStaticMirror {
     integrator: Vec<f64>,
     z_mirror: Vec<f64>,
     f_cell: Vec<f64>,
+    /// The pier displacement of the last static solve.
+    pier: f64,
 }
 
 impl QuasiStaticMirror {
@@ -181,6 +183,7 @@ impl QuasiStaticMirror {
             integrator: vec![0.0; na],
             z_mirror: vec![0.0; na],
             f_cell: vec![0.0; na],
+            pier: 0.0,
         };
         m.reset();
         Ok(m)
@@ -235,9 +238,13 @@ impl QuasiStaticMirror {
                 reason: "must be finite and > 0",
             });
         }
-        // The chain carries the wind force to the cell.
-        self.f_cell.copy_from_slice(f_wind);
-        self.structure.settle(&self.f_cell, pier_z)?;
+        // The chain carries the wind force to the cell; the static solve is redone only when
+        // the loads change (a wind source updates more slowly than the mirror steps).
+        if self.f_cell != f_wind || self.pier != pier_z {
+            self.f_cell.copy_from_slice(f_wind);
+            self.pier = pier_z;
+            self.structure.settle(&self.f_cell, pier_z)?;
+        }
         let decay = self.fits.map(|c| {
             let e = (c.a * h).exp();
             (e, if c.a == 0.0 { h } else { (e - 1.0) / c.a })
@@ -286,6 +293,7 @@ impl QuasiStaticMirror {
         self.integrator.fill(0.0);
         self.z_mirror.fill(0.0);
         self.f_cell.fill(0.0);
+        self.pier = 0.0;
         let zeros = vec![0.0; self.f_cell.len()];
         // Cannot fail: the length is the structure's.
         let _ = self.structure.settle(&zeros, 0.0);
