@@ -124,9 +124,12 @@ def test_workers_reproduce_an_in_process_run(sweep):
             assert mine[k] == pytest.approx(theirs[k], rel=1e-12, abs=0.0), (theirs, k)
 
 
-@pytest.mark.parametrize("cell, order", [("coupled", "jacobi"), ("coupled", "gauss-seidel"),
-                                         ("rigid", "gauss-seidel")])
-def test_python_loop_equals_the_rust_master(tmp_path, cell, order):
+@pytest.mark.parametrize("cell, order, structure", [
+    ("coupled", "jacobi", None), ("coupled", "gauss-seidel", None),
+    ("rigid", "gauss-seidel", None),
+    # Issue 14: the fmpy agreement on the other structure preset too.
+    ("coupled", "gauss-seidel", "soft-cell")])
+def test_python_loop_equals_the_rust_master(tmp_path, cell, order, structure):
     m1cs = ROOT / "target" / "release" / "m1cs"
     if not m1cs.exists():
         pytest.fail(f"{m1cs} is missing: run `cargo build --release` first")
@@ -137,6 +140,8 @@ def test_python_loop_equals_the_rust_master(tmp_path, cell, order):
     # The coupled cell is m1cs run's default: pass no --cell (nor --structure-modes or
     # --structure), so that the script's defaults are checked against m1cs run's.
     cell_args = [] if cell == "coupled" else ["--cell", cell]
+    if structure is not None:
+        cell_args += ["--structure", structure]
     out = tmp_path / order
     subprocess.run([str(m1cs), "run", "--layout", "keck", "--fmu-dir", str(FMU_DIR), *cell_args,
                     "--order", order, "--step", str(STEP), "--duration", str(duration),
@@ -151,7 +156,7 @@ def test_python_loop_equals_the_rust_master(tmp_path, cell, order):
     fmus = m.FmuSet(m.fmu_files(FMU_DIR, "keck", cell=cell))
     try:
         mine = m.simulate_point(fmus, speed, bandwidth, duration, STEP, order=order,
-                                series=True, cell=cell)["series"]
+                                series=True, cell=cell, structure=structure)["series"]
     finally:
         fmus.close()
     assert np.allclose(mine["time"], theirs["time"], rtol=0, atol=1e-12)

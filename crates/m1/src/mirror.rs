@@ -834,8 +834,12 @@ mod tests {
     use crate::structure::{CellModel, CellParams};
 
     fn keck(model: SegmentModel, n_modes: usize) -> (CoupledMirror, CellModel) {
+        keck_on(model, n_modes, &CellParams::soft_cell())
+    }
+
+    fn keck_on(model: SegmentModel, n_modes: usize, p: &CellParams) -> (CoupledMirror, CellModel) {
         let layout = Layout::keck();
-        let cell = CellModel::new(&layout, &CellParams::soft_cell()).expect("cell");
+        let cell = CellModel::new(&layout, p).expect("cell");
         let modes = cell.modes().expect("modes");
         let m = CoupledMirror::new(layout.n_segments(), model, modes, n_modes, 0.02, 1)
             .expect("mirror");
@@ -991,34 +995,36 @@ mod tests {
     }
 
     /// The coupled solve gives the same answer (to rounding) for any split of time into
-    /// communication steps, and refuses a step off the servo grid.
+    /// communication steps, on both structure presets, and refuses a step off the servo grid.
     #[test]
     fn results_do_not_depend_on_the_communication_step() {
-        let (mut a, _) = keck(SegmentModel::voice_coil(), 50);
-        let mut b = a.clone();
-        let na = a.n_actuators();
-        let fw = wind(na);
-        let u = vec![2e-8; na];
-        for _ in 0..10 {
-            a.advance(1e-3, &u, &fw, 1e-9).expect("1 ms");
-        }
-        for _ in 0..50 {
-            b.advance(2e-4, &u, &fw, 1e-9).expect("0.2 ms");
-        }
-        // Equal to rounding: the free part takes one 5-tick map against five 1-tick maps.
-        for (x, y) in [
-            (a.cell_displacement(), b.cell_displacement()),
-            (a.cell_force(), b.cell_force()),
-        ] {
-            let scale = y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            for (p, q) in x.iter().zip(y) {
-                assert!((p - q).abs() <= 1e-12 * scale, "{p} vs {q}");
+        for p in [CellParams::soft_cell(), CellParams::tmt()] {
+            let (mut a, _) = keck_on(SegmentModel::voice_coil(), 50, &p);
+            let mut b = a.clone();
+            let na = a.n_actuators();
+            let fw = wind(na);
+            let u = vec![2e-8; na];
+            for _ in 0..10 {
+                a.advance(1e-3, &u, &fw, 1e-9).expect("1 ms");
             }
+            for _ in 0..50 {
+                b.advance(2e-4, &u, &fw, 1e-9).expect("0.2 ms");
+            }
+            // Equal to rounding: the free part takes one 5-tick map against five 1-tick maps.
+            for (x, y) in [
+                (a.cell_displacement(), b.cell_displacement()),
+                (a.cell_force(), b.cell_force()),
+            ] {
+                let scale = y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+                for (p, q) in x.iter().zip(y) {
+                    assert!((p - q).abs() <= 1e-12 * scale, "{p} vs {q}");
+                }
+            }
+            let e = a
+                .advance(3e-4, &u, &fw, 0.0)
+                .expect_err("off grid")
+                .to_string();
+            assert!(e.contains("communicationStepSize"), "{e}");
         }
-        let e = a
-            .advance(3e-4, &u, &fw, 0.0)
-            .expect_err("off grid")
-            .to_string();
-        assert!(e.contains("communicationStepSize"), "{e}");
     }
 }
