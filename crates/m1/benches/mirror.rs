@@ -1,11 +1,14 @@
 //! The coupled mirror (`m1::mirror::CoupledMirror`): one 1 ms communication step (5 servo
 //! periods, each with its coupled solve) of the TMT and Keck mirrors on the built-in cell, for
-//! several numbers of retained modes and both actuator kinds. Wind forces change every step.
+//! several numbers of retained modes and both actuator kinds; and the quasi-static mirror
+//! (`m1::static_mirror`) on TMT, with the wind changing every step and every tenth step.
+//! Wind forces change every step unless said.
 #![allow(clippy::expect_used, clippy::unwrap_used, clippy::panic)]
 use criterion::{Criterion, criterion_group, criterion_main};
 use m1::layout::Layout;
 use m1::mirror::CoupledMirror;
 use m1::segment::SegmentModel;
+use m1::static_mirror::QuasiStaticMirror;
 use m1::structure::{CellModel, CellParams};
 use std::hint::black_box;
 
@@ -41,6 +44,29 @@ fn bench(c: &mut Criterion) {
                 });
             }
         }
+    }
+    let layout = Layout::tmt();
+    let cell = CellModel::new(&layout, &CellParams::default())
+        .and_then(|c| c.modes())
+        .unwrap_or_else(|e| panic!("tmt: {e}"));
+    let na = layout.n_actuators();
+    let mut m = QuasiStaticMirror::new(layout.n_segments(), SegmentModel::voice_coil(), cell, 60)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let u = vec![0.0; na];
+    let mut f: Vec<f64> = (0..na).map(|i| (i % 7) as f64).collect();
+    for every in [1u64, 10] {
+        let mut k = 0u64;
+        g.bench_function(format!("tmt/quasi_static/wind_every_{every}"), |b| {
+            b.iter(|| {
+                k += 1;
+                if k % every == 0 {
+                    f[(k as usize) % na] += 0.1;
+                }
+                m.advance(1e-3, &u, &f, 0.0)
+                    .unwrap_or_else(|e| panic!("{e}"));
+                black_box(m.cell_displacement()[0])
+            })
+        });
     }
     g.finish();
 }

@@ -35,3 +35,18 @@ pub enum M1Error {
     #[error("numerical failure: {0}")]
     Numerical(String),
 }
+
+/// `Ok` when every named slice has length `expected`, else the first mismatch.
+pub(crate) fn check_lengths(
+    expected: usize,
+    slices: &[(&'static str, &[f64])],
+) -> Result<(), M1Error> {
+    match slices.iter().find(|(_, a)| a.len() != expected) {
+        Some((what, a)) => Err(M1Error::SizeMismatch {
+            what,
+            expected,
+            found: a.len(),
+        }),
+        None => Ok(()),
+    }
+}

@@ -414,15 +414,7 @@ impl CoupledMirror {
         pier_z: f64,
     ) -> Result<(), M1Error> {
         let ticks = self.ticks_in(h)?;
-        for (what, a) in [("u_cmd", u_cmd), ("f_wind", f_wind)] {
-            if a.len() != self.na {
-                return Err(M1Error::SizeMismatch {
-                    what,
-                    expected: self.na,
-                    found: a.len(),
-                });
-            }
-        }
+        crate::error::check_lengths(self.na, &[("u_cmd", u_cmd), ("f_wind", f_wind)])?;
         // The free part over the whole step at once (its inputs, projected on the channels,
         // are then read back for the modes).
         self.free.advance(h, u_cmd, &self.zeros, f_wind)?;

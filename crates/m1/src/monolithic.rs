@@ -1221,15 +1221,7 @@ impl StateSpaceMirror {
         pier_z: f64,
     ) -> Result<(), M1Error> {
         let na = 3 * self.n_segments;
-        for (what, a) in [("u_cmd", u_cmd), ("f_wind", f_wind)] {
-            if a.len() != na {
-                return Err(M1Error::SizeMismatch {
-                    what,
-                    expected: na,
-                    found: a.len(),
-                });
-            }
-        }
+        crate::error::check_lengths(na, &[("u_cmd", u_cmd), ("f_wind", f_wind)])?;
         let k = whole_periods(h, self.ts, "step")?;
         let step = match self.step.take() {
             Some(s) if s.0 == k => s,

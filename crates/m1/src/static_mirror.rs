@@ -222,15 +222,7 @@ impl QuasiStaticMirror {
         pier_z: f64,
     ) -> Result<(), M1Error> {
         let na = 3 * self.n_segments;
-        for (what, a) in [("u_cmd", u_cmd), ("f_wind", f_wind)] {
-            if a.len() != na {
-                return Err(M1Error::SizeMismatch {
-                    what,
-                    expected: na,
-                    found: a.len(),
-                });
-            }
-        }
+        crate::error::check_lengths(na, &[("u_cmd", u_cmd), ("f_wind", f_wind)])?;
         if !(h.is_finite() && h > 0.0) {
             return Err(M1Error::InvalidParameter {
                 name: "communication step",

@@ -1164,15 +1164,7 @@ impl ModalSolver {
             self.h = h;
         }
         let n = self.n;
-        // Modal force of f_cell, u = Phi^T f (rows of Phi are contiguous); the pier adds b_p p.
-        self.u.fill(0.0);
-        for (row, &f) in self.phi.chunks_exact(n).zip(f_cell) {
-            if f != 0.0 {
-                for (u, p) in self.u.iter_mut().zip(row) {
-                    *u += p * f;
-                }
-            }
-        }
+        self.modal_force(f_cell);
         for j in 0..n {
             let (a, b) = (&self.ad[j], &self.bd[j]);
             let (q, v) = (self.q[j], self.v[j]);
@@ -1199,21 +1191,26 @@ impl ModalSolver {
                 found: f_cell.len(),
             });
         }
-        let n = self.n;
+        self.modal_force(f_cell);
+        for j in 0..self.n {
+            self.q[j] = self.inv_w2[j] * (self.u[j] + self.b_pier[j] * pier_z);
+            self.v[j] = 0.0;
+        }
+        self.write_output(f_cell, pier_z);
+        Ok(())
+    }
+
+    /// The modal force of `f_cell` into `u`: `u = Phi^T f` (rows of Phi are contiguous; the
+    /// pier's part is added by the callers).
+    fn modal_force(&mut self, f_cell: &[f64]) {
         self.u.fill(0.0);
-        for (row, &f) in self.phi.chunks_exact(n).zip(f_cell) {
+        for (row, &f) in self.phi.chunks_exact(self.n).zip(f_cell) {
             if f != 0.0 {
                 for (u, p) in self.u.iter_mut().zip(row) {
                     *u += p * f;
                 }
             }
         }
-        for j in 0..n {
-            self.q[j] = self.inv_w2[j] * (self.u[j] + self.b_pier[j] * pier_z);
-            self.v[j] = 0.0;
-        }
-        self.write_output(f_cell, pier_z);
-        Ok(())
     }
 
     /// `z = Phi (q - Omega^-2 u) + G f + g_p p` (or `Phi q` without static correction), with

@@ -8,6 +8,13 @@ use m1::segment::SegmentModel;
 use m1::static_mirror::QuasiStaticMirror;
 use m1::structure::{CellModel, CellParams};
 
+fn keck_tmt_cell() -> m1::structure::ModalModel {
+    CellModel::new(&Layout::keck(), &CellParams::tmt())
+        .unwrap()
+        .modes()
+        .unwrap()
+}
+
 /// Relative rms difference over the second half of a run of `seconds` at 1 ms, the inputs
 /// given per time by `inputs` (command, wind force, pier).
 fn compare(
@@ -15,12 +22,8 @@ fn compare(
     seconds: f64,
     inputs: impl Fn(f64) -> (Vec<f64>, Vec<f64>, f64),
 ) -> (f64, f64) {
-    let layout = Layout::keck();
-    let n = layout.n_segments();
-    let cell = CellModel::new(&layout, &CellParams::tmt())
-        .unwrap()
-        .modes()
-        .unwrap();
+    let n = Layout::keck().n_segments();
+    let cell = keck_tmt_cell();
     let mut dynamic = CoupledMirror::new(n, model.clone(), cell.clone(), 30, 0.02, 1).unwrap();
     let mut quasi = QuasiStaticMirror::new(n, model.clone(), cell, 30).unwrap();
     let h = 1e-3;
@@ -95,12 +98,8 @@ fn issue_14_quasi_static_mirror_follows_the_dynamic_one_below_1_hz() {
 
 #[test]
 fn bad_inputs_are_errors() {
-    let layout = Layout::keck();
-    let n = layout.n_segments();
-    let cell = CellModel::new(&layout, &CellParams::tmt())
-        .unwrap()
-        .modes()
-        .unwrap();
+    let n = Layout::keck().n_segments();
+    let cell = keck_tmt_cell();
     let mut m = QuasiStaticMirror::new(n, SegmentModel::voice_coil(), cell.clone(), 10).unwrap();
     let e = m
         .advance(1e-3, &[0.0; 3], &vec![0.0; 3 * n], 0.0)
