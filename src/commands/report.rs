@@ -183,8 +183,9 @@ const ANALYSES: &[Analysis] = &[
     },
     Analysis {
         title: "The closed-loop scenario (the main job)",
-        what: "Wind at 5 m/s, voice-coil actuators, 1 Hz global loop, focus-mode at 0.1 Hz: open \
-               and closed loop by the included master.",
+        what: "Wind at 1 m/s (the seed paper's Figure 12 case), voice-coil actuators, the \
+               baseline global loop (1.5 / 1 / 0.75 Hz by radial degree, focus-mode at 0.1 Hz): \
+               open and closed loop by the included master.",
         args: &["run"],
         plot: Plot::Out("run"),
         cosim: true,

@@ -39,9 +39,9 @@ use structure_model::{CellVars, declare_cell_params};
 pub trait MirrorVariant: Variant {
     /// Static facts of the FMU.
     const MIRROR_INFO: ModelInfo;
-    /// Default coupled sub-steps per servo period: the stiff piezo stack needs two to stay
-    /// within 1 % of the exact coupling at a 30 Hz pier tone (Keck: 1.5 % with one, 0.36 % with
-    /// two); the voice coil is within 2e-5 with one.
+    /// Default coupled sub-steps per servo period: the first, 150 N/um piezo stacks needed two
+    /// to stay within 1 % of the exact coupling at a 30 Hz pier tone (Keck: 1.5 % with one,
+    /// 0.36 % with two), kept for the piezo; the voice coil is within 2e-5 with one.
     const COUPLING_SUBSTEPS: i32;
 }
 
@@ -55,7 +55,7 @@ consistent by one r&times;r linear solve (r retained modes; the matrix is invert
 servo's drive and the pier input are held over the period; <code>coupling_substeps</code> \
 solves the coupling that many times per period (default 1 for the voice coil, 2 for the stiff \
 piezo; measured on Keck against the exact discretisation at a 30 Hz pier tone: voice coil \
-2e-5, piezo 0.4 %).</p>\
+9e-6, piezo 1.4e-4).</p>\
 <p><b>Retained modes only.</b> Unlike the structure FMU, no static correction is added for the \
 truncated modes: that instantaneous, dense compliance cannot lag a servo period against the \
 stiff actuators (it diverges) and solving it implicitly would cost O(na<sup>2</sup>) per period. \
