@@ -28,7 +28,7 @@ bit for bit.
 
 A sweep's bandwidth B is the global loop's on the modes of radial degrees >= 5; radial degrees
 3-4 and 2 get the seed paper's baseline ratios of it (B34 = B x 1 / 1.5, B2 = B x 0.75 / 1.5, the
-ratios of m1::controller's default bandwidths, as `m1cs wind` sweeps), focus-mode its own
+ratios of m1::control::controller's default bandwidths, as `m1cs wind` sweeps), focus-mode its own
 `--focus-bandwidth`. The default wind speeds, 0.5, 1 and 2 m/s, bracket the seed paper's
 Figure 12 case (1 m/s, `m1cs run`'s default).
 
@@ -72,7 +72,7 @@ CELLS = {
 DEFAULT_CELL = "coupled"
 DEFAULT_STRUCTURE_MODES = 60  # `m1cs run --structure-modes`'s default
 ORDERS = ("jacobi", "gauss-seidel")
-# m1::controller's default bandwidths (Hz), the seed paper's baseline tuning: radial degrees
+# m1::control::controller's default bandwidths (Hz), the seed paper's baseline tuning: radial degrees
 # >= 5, radial degrees 3-4, radial degree 2 (astigmatism) and focus-mode.
 DEFAULT_BANDWIDTH = 1.5
 DEFAULT_BANDWIDTH_RADIAL34 = 1.0

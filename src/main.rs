@@ -4,8 +4,8 @@ use clap::{Parser, Subcommand, ValueEnum};
 use std::process::ExitCode;
 
 use fmu::{Model, Values, VariableTable};
-use m1::layout::Layout;
-use m1::segment::{Channel, SegmentModel};
+use m1::aperture::layout::Layout;
+use m1::plant::segment::{Channel, SegmentModel};
 
 mod commands;
 mod plot;
@@ -257,7 +257,7 @@ fn demo_one<M: Model>(layout: &str, act: Actuator) -> Result<DemoResult, String>
         Actuator::Voicecoil => SegmentModel::voice_coil(),
         Actuator::Piezo => SegmentModel::piezo(),
         Actuator::PiezoDamped => SegmentModel {
-            actuator: m1::segment::ActuatorParams::piezo_damped(),
+            actuator: m1::plant::segment::ActuatorParams::piezo_damped(),
             ..SegmentModel::piezo()
         },
     };

@@ -24,7 +24,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Once;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use m1::layout::Layout;
+use m1::aperture::layout::Layout;
 use plotters::coord::ReverseCoordTranslate;
 use plotters::coord::ranged1d::ValueFormatter;
 use plotters::coord::types::RangedCoordf64;

@@ -1,6 +1,6 @@
 //! The co-simulation against the monolithic model (issue 6, item 2), on Keck: the packaged
 //! mirror FMUs stepped through the importer with 1 ms communication steps, against
-//! `m1::monolithic::StateSpaceMirror` (the exact discretisation of the same coupled plant) with
+//! `m1::plant::monolithic::StateSpaceMirror` (the exact discretisation of the same coupled plant) with
 //! the same held inputs. Needs the packaged FMUs (`cargo xtask package`).
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
@@ -8,10 +8,10 @@ use std::f64::consts::TAU;
 use std::path::PathBuf;
 
 use cosim::{Fmu, Instance};
-use m1::layout::Layout;
-use m1::monolithic::StateSpaceMirror;
-use m1::segment::SegmentModel;
-use m1::structure::{CellModel, StructurePreset};
+use m1::aperture::layout::Layout;
+use m1::plant::monolithic::StateSpaceMirror;
+use m1::plant::segment::SegmentModel;
+use m1::plant::structure::{CellModel, StructurePreset};
 
 const MODES: i32 = 30;
 const STEP: f64 = 1e-3;
@@ -153,8 +153,11 @@ fn variants() -> [Variant; 3] {
 /// actuator commanded in proportion to its y), and pier tones at 5 and 30 Hz, from rest over
 /// 2 s, for every actuator variant on `layout`.
 fn step_and_tones(layout: &Layout, preset: StructurePreset) {
-    let geo = m1::geometry::Geometry::new(layout, m1::geometry::GeometryParams::for_layout(layout))
-        .expect("geometry");
+    let geo = m1::aperture::geometry::Geometry::new(
+        layout,
+        m1::aperture::geometry::GeometryParams::for_layout(layout),
+    )
+    .expect("geometry");
     let y: Vec<f64> = geo
         .segments
         .iter()
@@ -197,7 +200,7 @@ fn step_and_tones(layout: &Layout, preset: StructurePreset) {
             // At the shunt's tuning (the segments' piston modes on the stacks) the damping
             // shows: the FMU with its shunt follows the damped model and not the undamped one,
             // so the flag reaches the physics.
-            let f = m1::segment::SHUNT_FREQUENCY;
+            let f = m1::plant::segment::SHUNT_FREQUENCY;
             let tuned = |mono: &Variant| {
                 compare_models(layout, preset, &v, mono, 2000, move |t| {
                     (vec![0.0; na], 1e-6 * (TAU * f * t).sin())
@@ -239,7 +242,7 @@ fn tmt_mirror_fmus_follow_the_monolithic_model() {
 /// The standard Keck wind system (wind at 1 m/s, voice-coil mirror with 30 modes, ideal edge
 /// sensors, the global loop at 20 Hz with the default bandwidths) run by the master
 /// (`m1cs run`, 10 s, Gauss-Seidel, 1 ms) against the monolithic model run with the same
-/// schedule (`m1::monolithic::wind_run`: the exact state-space mirror, the controller's own
+/// schedule (`m1::plant::monolithic::wind_run`: the exact state-space mirror, the controller's own
 /// sample law, the same wind tables): the recorded rms surface (global piston/tip/tilt removed)
 /// agrees within 1 % rms over the run, open and closed loop.
 #[test]
@@ -267,10 +270,10 @@ fn wind_run_follows_the_monolithic_model(
     modes: usize,
     duration: f64,
 ) {
-    use m1::controller::{ControlModes, ControllerParams};
-    use m1::geometry::{Geometry, GeometryParams};
-    use m1::metrics::MirrorMetrics;
-    use m1::wind::{OuterScale, ScreenParams, WindLoads, WindParams, pressure_rms_from_cp};
+    use m1::aperture::geometry::{Geometry, GeometryParams};
+    use m1::control::controller::{ControlModes, ControllerParams};
+    use m1::loads::wind::{OuterScale, ScreenParams, WindLoads, WindParams, pressure_rms_from_cp};
+    use m1::optics::metrics::MirrorMetrics;
     let dir = std::env::temp_dir().join(format!(
         "m1cs-verify-wind-{name}-{}-{}",
         preset.name(),
@@ -324,12 +327,12 @@ fn wind_run_follows_the_monolithic_model(
     let metrics = MirrorMetrics::new(&geometry).unwrap();
     // The wind FMU's defaults at the speed of the run above.
     let speed = 1.0;
-    let cp = m1::wind::DEFAULT_PRESSURE_COEFFICIENT;
+    let cp = m1::loads::wind::DEFAULT_PRESSURE_COEFFICIENT;
     let wind = WindParams {
         speed,
         direction: 0.0,
         screen: ScreenParams {
-            pressure_rms: pressure_rms_from_cp(cp, m1::wind::DEFAULT_AIR_DENSITY, speed),
+            pressure_rms: pressure_rms_from_cp(cp, m1::loads::wind::DEFAULT_AIR_DENSITY, speed),
             outer_scales: [(5.0, 0.75), (30.0, 0.25), (60.0, 0.0)]
                 .map(|(outer_scale, fraction)| OuterScale {
                     outer_scale,
@@ -354,9 +357,10 @@ fn wind_run_follows_the_monolithic_model(
     ] {
         mono.reset();
         let co = read(file);
-        let mine =
-            m1::monolithic::wind_run(&mut mono, &metrics, &loads, 0.01, control, STEP, duration)
-                .unwrap();
+        let mine = m1::plant::monolithic::wind_run(
+            &mut mono, &metrics, &loads, 0.01, control, STEP, duration,
+        )
+        .unwrap();
         let (mut e2, mut r2, mut matched) = (0.0, 0.0, 0);
         for (t, v) in &co {
             let k = (t / STEP).round() as usize;

@@ -70,17 +70,17 @@ pub struct SystemArgs {
     pub wind_speed: f64,
     /// Global-loop bandwidth on the modes of radial degrees >= 5 (every mode outside the three
     /// groups below) (Hz).
-    #[arg(long, default_value_t = m1::controller::DEFAULT_BANDWIDTH)]
+    #[arg(long, default_value_t = m1::control::controller::DEFAULT_BANDWIDTH)]
     pub bandwidth: f64,
     /// Global-loop bandwidth on radial degrees 3-4 (Z7 to Z15, without radial degree 2 and
     /// focus-mode) (Hz).
-    #[arg(long, default_value_t = m1::controller::DEFAULT_BANDWIDTH_RADIAL34)]
+    #[arg(long, default_value_t = m1::control::controller::DEFAULT_BANDWIDTH_RADIAL34)]
     pub bandwidth_radial34: f64,
     /// Global-loop bandwidth on radial degree 2 without focus-mode (astigmatism) (Hz).
-    #[arg(long, default_value_t = m1::controller::DEFAULT_BANDWIDTH_RADIAL2)]
+    #[arg(long, default_value_t = m1::control::controller::DEFAULT_BANDWIDTH_RADIAL2)]
     pub bandwidth_radial2: f64,
     /// Global-loop bandwidth on focus-mode (Hz).
-    #[arg(long, default_value_t = m1::controller::DEFAULT_BANDWIDTH_FOCUS)]
+    #[arg(long, default_value_t = m1::control::controller::DEFAULT_BANDWIDTH_FOCUS)]
     pub focus_bandwidth: f64,
     /// Mirror cell: `coupled` (the mirror FMU, segments and structure in one solve), `split`
     /// (segments and structure FMUs exchanging f_cell and z_cell every step; short steps only)
@@ -90,7 +90,7 @@ pub struct SystemArgs {
     /// Structure modes retained (the rest enter as a static correction).
     #[arg(long, default_value_t = 60)]
     pub structure_modes: i32,
-    #[arg(long, default_value = m1::structure::DEFAULT_STRUCTURE, help = super::STRUCTURE_HELP)]
+    #[arg(long, default_value = m1::plant::structure::DEFAULT_STRUCTURE, help = super::STRUCTURE_HELP)]
     pub structure: String,
     /// Step every component at the base step (no multi-rate), as fmpy.ssp does.
     #[arg(long)]
@@ -231,7 +231,7 @@ pub fn standard_system(a: &SystemArgs, closed: bool) -> Result<System, String> {
     // The structure is bound only where it differs from the FMUs' default, so a default system
     // has no String binding (some SSP importers, e.g. fmpy's container FMU, take none).
     let structure = structure_parameter(&a.structure)?;
-    let structure = (structure != m1::structure::DEFAULT_STRUCTURE).then_some(structure);
+    let structure = (structure != m1::plant::structure::DEFAULT_STRUCTURE).then_some(structure);
     if a.cell == Cell::QuasiStatic {
         s = s.parameter(mirror, "quasi_static", Value::Boolean(true));
     }
@@ -298,9 +298,11 @@ pub fn standard_system(a: &SystemArgs, closed: bool) -> Result<System, String> {
 /// The value of the FMUs' `structure` parameter for `--structure NAME`: a preset's name, or a
 /// `.npz` path made absolute (checked to exist), so the system runs from any directory.
 fn structure_parameter(name: &str) -> Result<String, String> {
-    match m1::structure::StructureSource::parse(name).map_err(|e| format!("--structure: {e}"))? {
-        m1::structure::StructureSource::BuiltIn(_) => Ok(name.trim().to_string()),
-        m1::structure::StructureSource::File(path) => std::fs::canonicalize(&path)
+    match m1::plant::structure::StructureSource::parse(name)
+        .map_err(|e| format!("--structure: {e}"))?
+    {
+        m1::plant::structure::StructureSource::BuiltIn(_) => Ok(name.trim().to_string()),
+        m1::plant::structure::StructureSource::File(path) => std::fs::canonicalize(&path)
             .map(|p| p.display().to_string())
             .map_err(|e| format!("--structure {}: {e}", path.display())),
     }
@@ -674,7 +676,7 @@ pub(crate) fn split_off_z(r: &mut cosim::system::Results) -> Vec<Vec<f64>> {
 /// Amplitude spectrum of the mirror displacement, power-averaged over the actuators (nm).
 fn mirror_spectrum(z: &[Vec<f64>], dt: f64) -> Vec<(f64, f64)> {
     let signals: Vec<&[f64]> = z.iter().map(Vec::as_slice).collect();
-    m1::metrics::amplitude_spectrum(&signals, dt)
+    m1::optics::metrics::amplitude_spectrum(&signals, dt)
         .into_iter()
         .map(|(f, a)| (f, a * 1e9))
         .collect()
@@ -683,11 +685,11 @@ fn mirror_spectrum(z: &[Vec<f64>], dt: f64) -> Vec<(f64, f64)> {
 /// rms over time of the residual surface of each segment (global piston, tip and tilt removed),
 /// in nm, from actuator time series.
 pub(crate) fn segment_rms_map(
-    layout: &m1::layout::Layout,
+    layout: &m1::aperture::layout::Layout,
     z: &[Vec<f64>],
 ) -> Result<Vec<f64>, String> {
-    use m1::geometry::{Geometry, GeometryParams};
-    use m1::metrics::{MirrorMetrics, hexagon_area, hexagon_second_moment};
+    use m1::aperture::geometry::{Geometry, GeometryParams};
+    use m1::optics::metrics::{MirrorMetrics, hexagon_area, hexagon_second_moment};
     let g = Geometry::new(layout, GeometryParams::for_layout(layout)).map_err(|e| e.to_string())?;
     let m = MirrorMetrics::new(&g).map_err(|e| e.to_string())?;
     let n = layout.n_segments();
@@ -723,8 +725,8 @@ fn draw_z_plots(
         // The layout of the recorded mirror: the one asked for, else the preset of that size
         // (a user's .ssp).
         let Some(layout) = std::iter::once(a.system.layout.as_str())
-            .chain(m1::layout::Layout::PRESETS.iter().copied())
-            .filter_map(|name| m1::layout::Layout::preset(name).ok())
+            .chain(m1::aperture::layout::Layout::PRESETS.iter().copied())
+            .filter_map(|name| m1::aperture::layout::Layout::preset(name).ok())
             .find(|l| l.n_actuators() == z.len())
         else {
             continue;

@@ -1,24 +1,25 @@
 //! `m1cs csi`: control-structure interaction (the seed paper's Figure 11). (a) The actuator
 //! servo loop: the largest singular value of the servo's sensitivity on the flexible cell in
 //! Zernike bases of increasing radial degree, in segment bases and with all segments, and the
-//! highest servo gain meeting the sensitivity criterion ([`m1::csi`]). (b) The global
+//! highest servo gain meeting the sensitivity criterion ([`m1::analysis::csi`]). (b) The global
 //! edge-sensor loop: its principal loop gain and sensitivity in Zernike bases and with all
 //! segments against the paper's criteria (with the allowance for interaction-matrix
 //! uncertainty, set against the quasi-static Q), and the highest bandwidth meeting them
-//! ([`m1::global_csi`]).
+//! ([`m1::analysis::global_csi`]).
 
 use clap::{Args, ValueEnum};
 use serde_json::json;
 
-use m1::controller::ControllerParams;
-use m1::csi::{ActuatorLoop, BasisCurve, highest_gain, log_grid, sweep};
-use m1::geometry::{Geometry, GeometryParams};
-use m1::global_csi::{
+use m1::analysis::csi::{ActuatorLoop, BasisCurve, highest_gain, log_grid, sweep};
+use m1::analysis::global_csi::{
     GlobalCriteria, GlobalCsi, GlobalQuantity, GlobalSweep, SENSITIVITY_LABEL_FROM, global_sweep,
 };
-use m1::monolithic::FrequencyModel;
-use m1::quasistatic::{self, Case, Nominal, Perturbation, RobustnessParams};
-use m1::segment::SegmentModel;
+use m1::analysis::quasistatic::{self, Case, Perturbation, RobustnessParams};
+use m1::aperture::geometry::{Geometry, GeometryParams};
+use m1::control::controller::ControllerParams;
+use m1::control::nominal::Nominal;
+use m1::plant::monolithic::FrequencyModel;
+use m1::plant::segment::SegmentModel;
 
 use crate::plot;
 
@@ -60,7 +61,7 @@ pub struct CsiArgs {
     /// Retained structure modes.
     #[arg(long, default_value_t = 60)]
     pub modes: usize,
-    #[arg(long, default_value = m1::structure::DEFAULT_STRUCTURE, help = super::STRUCTURE_HELP)]
+    #[arg(long, default_value = m1::plant::structure::DEFAULT_STRUCTURE, help = super::STRUCTURE_HELP)]
     pub structure: String,
     /// Modal damping ratio of the structure.
     #[arg(long, default_value_t = 0.02)]
@@ -91,17 +92,17 @@ pub struct CsiArgs {
     pub gain_range: Vec<f64>,
     /// Global loop: bandwidth of the modes of radial degrees >= 5 (every mode outside the three
     /// groups below) (Hz).
-    #[arg(long, default_value_t = m1::controller::DEFAULT_BANDWIDTH)]
+    #[arg(long, default_value_t = m1::control::controller::DEFAULT_BANDWIDTH)]
     pub bandwidth: f64,
     /// Global loop: bandwidth of radial degrees 3-4 (Z7 to Z15, without radial degree 2 and
     /// focus-mode) (Hz).
-    #[arg(long, default_value_t = m1::controller::DEFAULT_BANDWIDTH_RADIAL34)]
+    #[arg(long, default_value_t = m1::control::controller::DEFAULT_BANDWIDTH_RADIAL34)]
     pub bandwidth_radial34: f64,
     /// Global loop: bandwidth of radial degree 2 without focus-mode (astigmatism) (Hz).
-    #[arg(long, default_value_t = m1::controller::DEFAULT_BANDWIDTH_RADIAL2)]
+    #[arg(long, default_value_t = m1::control::controller::DEFAULT_BANDWIDTH_RADIAL2)]
     pub bandwidth_radial2: f64,
     /// Global loop: bandwidth of focus-mode (Hz).
-    #[arg(long, default_value_t = m1::controller::DEFAULT_BANDWIDTH_FOCUS)]
+    #[arg(long, default_value_t = m1::control::controller::DEFAULT_BANDWIDTH_FOCUS)]
     pub bandwidth_focus: f64,
     /// Global loop: sample rate (Hz).
     #[arg(long, default_value_t = 20.0)]
@@ -131,7 +132,7 @@ pub struct CsiArgs {
     /// Global loop: the loop-gain criterion applies at and above this frequency (Hz): the
     /// structural resonances (below 8 Hz the bare integrator's own loop gain approaches the
     /// limit).
-    #[arg(long, default_value_t = m1::global_csi::DEFAULT_BAND_START_HZ)]
+    #[arg(long, default_value_t = m1::analysis::global_csi::DEFAULT_BAND_START_HZ)]
     pub loop_gain_from: f64,
     /// Realizations of 0.1 % sensor-gain errors whose worst sigma_max(Gamma Psi Q Psi^T) is
     /// set against the allowance (0 skips it).
@@ -266,7 +267,11 @@ pub fn csi(a: &CsiArgs) -> Result<(), String> {
     // Segment bases with as many vectors as each Zernike basis (rounded up to whole segments).
     // Then doubling (and all segments) while the basis stays within SEGMENT_VECTORS vectors.
     let mut counts: Vec<usize> = (0..=a.max_degree)
-        .map(|p| m1::zernike::modes_up_to_degree(p).div_ceil(3).clamp(1, n))
+        .map(|p| {
+            m1::aperture::zernike::modes_up_to_degree(p)
+                .div_ceil(3)
+                .clamp(1, n)
+        })
         .collect();
     let mut m = counts.last().copied().unwrap_or(1);
     while m < n && 3 * (2 * m).min(n) <= SEGMENT_VECTORS {
@@ -415,7 +420,7 @@ pub fn csi(a: &CsiArgs) -> Result<(), String> {
             println!(
                 "lowest peak over the valid factors scanned: {p:.3} (all segments) at factor \
                  {f:.3} (bandwidth {})",
-                bw(m1::csi::crossover(lp.model().model(), f))
+                bw(m1::analysis::csi::crossover(lp.model().model(), f))
             );
         }
     }
@@ -502,7 +507,7 @@ fn print_global(g: &GlobalSweep, q: Option<&QAllowance>) {
         (Some(l), Some(n)) => family(l, n),
         _ => "-".into(),
     };
-    let row = |name: String, c: &m1::global_csi::GlobalCurve| {
+    let row = |name: String, c: &m1::analysis::global_csi::GlobalCurve| {
         println!(
             "{:<14} {:>9} {:>10.4} {:>9.3} {:>9} {:>13.4} {:>9.3} {:>9}",
             name,
@@ -694,7 +699,7 @@ fn write_plots(
     dir: &str,
     name: &str,
     a: &CsiArgs,
-    sw: &m1::csi::CsiSweep,
+    sw: &m1::analysis::csi::CsiSweep,
     n: usize,
 ) -> Result<(), String> {
     std::fs::create_dir_all(dir).map_err(|e| format!("--plot {dir}: {e}"))?;

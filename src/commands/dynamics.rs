@@ -4,8 +4,8 @@
 use clap::Args;
 use serde_json::json;
 
-use m1::coupling::{Exchange, Excitation, Mirror, SplitRun, split_vs_coupled};
-use m1::segment::SegmentModel;
+use m1::analysis::coupling::{Exchange, Excitation, Mirror, SplitRun, split_vs_coupled};
+use m1::plant::segment::SegmentModel;
 
 use crate::plot;
 
@@ -18,7 +18,7 @@ pub struct CouplingArgs {
     /// Retained structure modes.
     #[arg(long, default_value_t = 30)]
     pub modes: usize,
-    #[arg(long, default_value = m1::structure::DEFAULT_STRUCTURE, help = super::STRUCTURE_HELP)]
+    #[arg(long, default_value = m1::plant::structure::DEFAULT_STRUCTURE, help = super::STRUCTURE_HELP)]
     pub structure: String,
     /// Modal damping ratio of the structure.
     #[arg(long, default_value_t = 0.02)]
@@ -218,7 +218,7 @@ pub struct VibrationArgs {
     /// Retained structure modes.
     #[arg(long, default_value_t = 60)]
     pub modes: usize,
-    #[arg(long, default_value = m1::structure::DEFAULT_STRUCTURE, help = super::STRUCTURE_HELP)]
+    #[arg(long, default_value = m1::plant::structure::DEFAULT_STRUCTURE, help = super::STRUCTURE_HELP)]
     pub structure: String,
     /// Modal damping ratio of the structure.
     #[arg(long, default_value_t = 0.02)]
@@ -253,7 +253,7 @@ const MOTOR_TONE_HZ: f64 = 29.6;
 
 /// Time-rms surface (global piston/tip/tilt removed) of the response `x` (complex, per metre of
 /// pier amplitude) relative to the pier's time-rms: `sqrt(S(Re x)^2 + S(Im x)^2)`.
-fn rms_ratio(metrics: &m1::metrics::MirrorMetrics, x: &[faer::c64]) -> Result<f64, String> {
+fn rms_ratio(metrics: &m1::optics::metrics::MirrorMetrics, x: &[faer::c64]) -> Result<f64, String> {
     let re: Vec<f64> = x.iter().map(|v| v.re).collect();
     let im: Vec<f64> = x.iter().map(|v| v.im).collect();
     let a = metrics.evaluate(&re).map_err(|e| e.to_string())?.rms;
@@ -265,8 +265,8 @@ fn rms_ratio(metrics: &m1::metrics::MirrorMetrics, x: &[faer::c64]) -> Result<f6
 /// quadratic in small errors, so its mean over a period is the mean of the deficits of the
 /// two quadrature patterns at amplitude sqrt(2) `pier_rms`.
 fn tone_pssn(
-    pssn: &m1::pssn::Pssn,
-    geometry: &m1::geometry::Geometry,
+    pssn: &m1::optics::pssn::Pssn,
+    geometry: &m1::aperture::geometry::Geometry,
     x: &[faer::c64],
     pier_rms: f64,
 ) -> Result<f64, String> {
@@ -277,7 +277,7 @@ fn tone_pssn(
             .iter()
             .map(|v| amp * if part == 0 { v.re } else { v.im })
             .collect();
-        let ptt = m1::metrics::actuators_to_ptt(geometry, &z).map_err(|e| e.to_string())?;
+        let ptt = m1::optics::metrics::actuators_to_ptt(geometry, &z).map_err(|e| e.to_string())?;
         deficit += 1.0 - pssn.pssn_ptt(&ptt).map_err(|e| e.to_string())?;
     }
     Ok(1.0 - 0.5 * deficit)
@@ -285,10 +285,10 @@ fn tone_pssn(
 
 /// Runs `m1cs vibration`.
 pub fn vibration(a: &VibrationArgs) -> Result<(), String> {
-    use m1::geometry::{Geometry, GeometryParams};
-    use m1::metrics::MirrorMetrics;
-    use m1::monolithic::FrequencyModel;
-    use m1::pssn::{Pssn, PssnParams};
+    use m1::aperture::geometry::{Geometry, GeometryParams};
+    use m1::optics::metrics::MirrorMetrics;
+    use m1::optics::pssn::{Pssn, PssnParams};
+    use m1::plant::monolithic::FrequencyModel;
     let layout = crate::load_layout(&a.layout)?;
     if !(a.fmin.is_finite() && a.fmin > 0.0 && a.fmax.is_finite() && a.fmax > a.fmin) {
         return Err(format!(

@@ -16,10 +16,10 @@ or the path of a .npz modal model (see examples/write_structure_npz.py)";
 /// Every mode of the structure `name` (a preset or a `.npz` path) under `layout`.
 pub fn structure_modes(
     name: &str,
-    layout: &m1::layout::Layout,
-) -> Result<m1::structure::ModalModel, String> {
-    let source =
-        m1::structure::StructureSource::parse(name).map_err(|e| format!("--structure: {e}"))?;
+    layout: &m1::aperture::layout::Layout,
+) -> Result<m1::plant::structure::ModalModel, String> {
+    let source = m1::plant::structure::StructureSource::parse(name)
+        .map_err(|e| format!("--structure: {e}"))?;
     source
         .modes(layout)
         .map_err(|e| format!("--structure {name} under {}: {e}", layout.name))

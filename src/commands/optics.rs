@@ -2,7 +2,7 @@
 //! the normalised point-source sensitivity of a random segment state (`pssn`).
 //!
 //! Segment states are `[p, tx, ty]` per segment, in layout order: piston `p` (m) and the surface
-//! slopes `tx = dz/dx`, `ty = dz/dy` (rad) about the segment centre (see `m1::zernike`).
+//! slopes `tx = dz/dx`, `ty = dz/dy` (rad) about the segment centre (see `m1::aperture::zernike`).
 //!
 //! # Random segment states
 //!
@@ -16,9 +16,9 @@
 
 use std::path::{Path, PathBuf};
 
-use m1::layout::Layout;
-use m1::pssn::{Pssn, PssnParams, pssn_small_error, r0_at_wavelength};
-use m1::zernike::{ZernikeBasis, hexagon_rule, noll_to_nm, zernike_xy};
+use m1::aperture::layout::Layout;
+use m1::aperture::zernike::{ZernikeBasis, hexagon_rule, noll_to_nm, zernike_xy};
+use m1::optics::pssn::{Pssn, PssnParams, pssn_small_error, r0_at_wavelength};
 
 /// Highest radial degree of the modes listed in the `zernike` summary.
 const TABLE_DEGREE: u32 = 4;
@@ -352,7 +352,7 @@ fn zernike_report(a: &ZernikeArgs) -> Result<ZernikeReport, String> {
     let table_degree = TABLE_DEGREE.min(basis.max_degree());
     let rule = hexagon_rule(layout.circumradius, 2 * table_degree);
     let table = (1..=basis.n_modes())
-        .take_while(|&j| m1::zernike::radial_degree(j) <= table_degree)
+        .take_while(|&j| m1::aperture::zernike::radial_degree(j) <= table_degree)
         .filter_map(|j| mode_stats(&basis, &layout, &rule, j))
         .collect();
     Ok(ZernikeReport {

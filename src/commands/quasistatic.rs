@@ -5,11 +5,12 @@
 use clap::Args;
 use serde_json::json;
 
-use m1::geometry::Geometry;
-use m1::interaction::{a_matrix, global_ptt, interaction_matrices};
-use m1::layout::Layout;
-use m1::quasistatic::{self, Case, Nominal, RobustnessParams, default_geometry, svd_summary};
-use m1::zernike::{ZernikeBasis, noll_to_nm};
+use m1::analysis::quasistatic::{self, Case, RobustnessParams, default_geometry, svd_summary};
+use m1::aperture::geometry::Geometry;
+use m1::aperture::layout::Layout;
+use m1::aperture::zernike::{ZernikeBasis, noll_to_nm};
+use m1::control::nominal::Nominal;
+use m1::sensing::interaction::{a_matrix, global_ptt, interaction_matrices};
 
 use crate::plot;
 
@@ -45,10 +46,10 @@ fn load(m: &MirrorArgs) -> Result<(Layout, Geometry), String> {
     Ok((layout, g))
 }
 
-/// Segment piston/tip/tilt of an actuator pattern ([`m1::metrics::actuators_to_ptt`]) with
+/// Segment piston/tip/tilt of an actuator pattern ([`m1::optics::metrics::actuators_to_ptt`]) with
 /// the error as CLI text.
 fn actuators_to_ptt(g: &Geometry, z: &[f64]) -> Result<Vec<[f64; 3]>, String> {
-    m1::metrics::actuators_to_ptt(g, z).map_err(|e| e.to_string())
+    m1::optics::metrics::actuators_to_ptt(g, z).map_err(|e| e.to_string())
 }
 
 fn unit(v: &mut [f64]) {
@@ -104,7 +105,7 @@ pub fn amatrix(a: &AmatrixArgs) -> Result<(), String> {
     // SVD of A itself: the near-null global piston/tip/tilt and the rank.
     let (raw, _) = svd_summary(&dense, 1e-9).map_err(|e| e.to_string())?;
     // SVD of A P (global PTT projected out): the observable modes.
-    let n = m1::reconstructor::orthonormalize(global_ptt(&g).as_ref());
+    let n = m1::control::reconstructor::orthonormalize(global_ptt(&g).as_ref());
     let ap = &dense - (&dense * &n) * n.transpose();
     let (obs, v) = svd_summary(&ap, 1e-9).map_err(|e| e.to_string())?;
     let r = obs.rank;
@@ -113,7 +114,7 @@ pub fn amatrix(a: &AmatrixArgs) -> Result<(), String> {
     // Focus-mode against Z4.
     let focus: Vec<f64> = (0..na).map(|i| v[(i, r - 1)]).collect();
     let z4 = basis.mode(4).ok_or("no Z4 in the basis")?;
-    let mut z4a = m1::metrics::ptt_to_actuators(&g, &z4).map_err(|e| e.to_string())?;
+    let mut z4a = m1::optics::metrics::ptt_to_actuators(&g, &z4).map_err(|e| e.to_string())?;
     for c in 0..3 {
         let d: f64 = (0..na).map(|i| n[(i, c)] * z4a[i]).sum();
         for (i, x) in z4a.iter_mut().enumerate() {

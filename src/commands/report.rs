@@ -26,7 +26,7 @@ pub struct ReportArgs {
     /// packaged FMUs.
     #[arg(long)]
     pub no_cosim: bool,
-    #[arg(long, default_value = m1::structure::DEFAULT_STRUCTURE, help = super::STRUCTURE_HELP)]
+    #[arg(long, default_value = m1::plant::structure::DEFAULT_STRUCTURE, help = super::STRUCTURE_HELP)]
     pub structure: String,
 }
 

@@ -34,7 +34,7 @@ pub struct WindArgs {
     #[arg(long, value_delimiter = ',', default_value = "0.25,0.5,1")]
     pub bandwidths: Vec<f64>,
     /// Global-loop bandwidth on focus-mode (Hz).
-    #[arg(long, default_value_t = m1::controller::DEFAULT_BANDWIDTH_FOCUS)]
+    #[arg(long, default_value_t = m1::control::controller::DEFAULT_BANDWIDTH_FOCUS)]
     pub focus_bandwidth: f64,
     /// Mirror cell: `coupled` (the mirror FMU), `quasi-static` (its quasi-static plant) or
     /// `rigid` (no structure).
@@ -43,7 +43,7 @@ pub struct WindArgs {
     /// Structure modes retained.
     #[arg(long, default_value_t = 60)]
     pub structure_modes: i32,
-    #[arg(long, default_value = m1::structure::DEFAULT_STRUCTURE, help = super::STRUCTURE_HELP)]
+    #[arg(long, default_value = m1::plant::structure::DEFAULT_STRUCTURE, help = super::STRUCTURE_HELP)]
     pub structure: String,
     /// Simulated duration of each run (s); statistics over its second half.
     #[arg(long, default_value_t = 5.0)]
@@ -72,7 +72,10 @@ struct Stats {
     map: Vec<f64>,
 }
 
-fn stats(layout: &m1::layout::Layout, o: &mut super::cosim::Outcome) -> Result<Stats, String> {
+fn stats(
+    layout: &m1::aperture::layout::Layout,
+    o: &mut super::cosim::Outcome,
+) -> Result<Stats, String> {
     let z = split_off_z(&mut o.results);
     let col = |n: &str| o.results.column(n).unwrap_or_else(|| vec![f64::NAN]);
     let rms = col("optics.rms_surface");
@@ -97,11 +100,11 @@ fn stats(layout: &m1::layout::Layout, o: &mut super::cosim::Outcome) -> Result<S
 }
 
 /// The bandwidths of radial degrees 3-4 and 2 for the bandwidth `bw` of radial degrees >= 5 in a
-/// sweep: the baseline's ratios to it ([`m1::controller::DEFAULT_BANDWIDTH_RADIAL34`] and
-/// [`m1::controller::DEFAULT_BANDWIDTH_RADIAL2`] over [`m1::controller::DEFAULT_BANDWIDTH`]), so
+/// sweep: the baseline's ratios to it ([`m1::control::controller::DEFAULT_BANDWIDTH_RADIAL34`] and
+/// [`m1::control::controller::DEFAULT_BANDWIDTH_RADIAL2`] over [`m1::control::controller::DEFAULT_BANDWIDTH`]), so
 /// the sweep scales the whole loop but focus-mode.
 fn group_bandwidths(bw: f64) -> (f64, f64) {
-    use m1::controller::{
+    use m1::control::controller::{
         DEFAULT_BANDWIDTH, DEFAULT_BANDWIDTH_RADIAL2, DEFAULT_BANDWIDTH_RADIAL34,
     };
     (

@@ -101,7 +101,7 @@ fn package(layouts: &[String]) -> Result<(), String> {
     }
     run(&mut build)?;
     let layouts: Vec<String> = if layouts.is_empty() {
-        m1::layout::Layout::PRESETS
+        m1::aperture::layout::Layout::PRESETS
             .iter()
             .map(|s| s.to_string())
             .collect()

@@ -6,14 +6,14 @@
 //! Zernike bases to degree 8 and all segments, 3 images each side).
 #![allow(clippy::expect_used, clippy::unwrap_used, clippy::panic)]
 use criterion::{Criterion, criterion_group, criterion_main};
-use m1::controller::ControllerParams;
-use m1::csi::ActuatorLoop;
-use m1::geometry::{Geometry, GeometryParams};
-use m1::global_csi::GlobalCsi;
-use m1::layout::Layout;
-use m1::monolithic::FrequencyModel;
-use m1::segment::SegmentModel;
-use m1::structure::{CellModel, CellParams};
+use m1::analysis::csi::ActuatorLoop;
+use m1::analysis::global_csi::GlobalCsi;
+use m1::aperture::geometry::{Geometry, GeometryParams};
+use m1::aperture::layout::Layout;
+use m1::control::controller::ControllerParams;
+use m1::plant::monolithic::FrequencyModel;
+use m1::plant::segment::SegmentModel;
+use m1::plant::structure::{CellModel, CellParams};
 use std::hint::black_box;
 
 fn bench(c: &mut Criterion) {

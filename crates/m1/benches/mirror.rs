@@ -1,15 +1,15 @@
-//! The coupled mirror (`m1::mirror::CoupledMirror`): one 1 ms communication step (5 servo
+//! The coupled mirror (`m1::plant::mirror::CoupledMirror`): one 1 ms communication step (5 servo
 //! periods, each with its coupled solve) of the TMT and Keck mirrors on the built-in cell, for
 //! several numbers of retained modes and both actuator kinds; and the quasi-static mirror
-//! (`m1::static_mirror`) on TMT, with the wind changing every step and every tenth step.
+//! (`m1::plant::static_mirror`) on TMT, with the wind changing every step and every tenth step.
 //! Wind forces change every step unless said.
 #![allow(clippy::expect_used, clippy::unwrap_used, clippy::panic)]
 use criterion::{Criterion, criterion_group, criterion_main};
-use m1::layout::Layout;
-use m1::mirror::CoupledMirror;
-use m1::segment::SegmentModel;
-use m1::static_mirror::QuasiStaticMirror;
-use m1::structure::{CellModel, CellParams};
+use m1::aperture::layout::Layout;
+use m1::plant::mirror::CoupledMirror;
+use m1::plant::segment::SegmentModel;
+use m1::plant::static_mirror::QuasiStaticMirror;
+use m1::plant::structure::{CellModel, CellParams};
 use std::hint::black_box;
 
 fn bench(c: &mut Criterion) {

@@ -1,32 +1,30 @@
-//! Physics of segmented primary mirrors, free of any FFI: mirror layouts, segment assemblies with
-//! their actuators and encoder servos, and (as the project grows) geometry, interaction matrices,
-//! control and optics. The FMI glue lives in the `fmu` crate; each FMU wires the two together.
+//! Physics of segmented primary mirrors, free of any FFI. The FMI glue lives in the `fmu` crate;
+//! each FMU wires the two together. Units are SI throughout (m, N, kg, s, rad) unless a name says
+//! otherwise.
 //!
-//! Units are SI throughout (m, N, kg, s, rad) unless a name says otherwise.
+//! The crate, by concern. Dependencies run down this list (a folder uses only those above it;
+//! `linalg` serves all):
+//!
+//! - [`aperture`]: segment layouts, the geometry built on them, Zernike bases on the aperture.
+//! - [`sensing`]: interaction matrices and the edge-sensor model.
+//! - [`control`]: the nominal setup (A, reconstructor, focus-mode), the sparse reconstructor,
+//!   the global controller.
+//! - [`optics`]: rms surface metrics, PSSN.
+//! - [`loads`]: wind pressure screens and loads, pier vibration.
+//! - [`plant`]: segments and their servos, the structure, the coupled and quasi-static mirror
+//!   solvers, the monolithic models.
+//! - [`analysis`]: quasi-static analyses (Table 1), control-structure interaction, the
+//!   split-coupling study.
+//! - [`linalg`]: SIMD kernels, Krylov estimates, block Cholesky.
 
-pub mod blockchol;
-pub mod controller;
-pub mod coupling;
-pub mod csi;
+pub mod analysis;
+pub mod aperture;
+pub mod control;
 pub mod error;
-pub mod geometry;
-pub mod global_csi;
-pub mod interaction;
-pub mod kernels;
-pub mod krylov;
-pub mod layout;
-pub mod metrics;
-pub mod mirror;
-pub mod monolithic;
-pub mod pssn;
-pub mod quasistatic;
-pub mod reconstructor;
-pub mod segment;
-pub mod sensors;
-pub mod static_mirror;
-pub mod structure;
-pub mod vibration;
-pub mod wind;
-pub mod zernike;
+pub mod linalg;
+pub mod loads;
+pub mod optics;
+pub mod plant;
+pub mod sensing;
 
 pub use error::M1Error;

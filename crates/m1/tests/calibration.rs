@@ -5,10 +5,10 @@
 
 use faer::Mat;
 use m1::M1Error;
-use m1::geometry::{Geometry, GeometryParams};
-use m1::interaction::interaction_matrices;
-use m1::layout::Layout;
-use m1::quasistatic::{SHEAR_RANK_TOLERANCE, ShearEstimator, calibration};
+use m1::analysis::quasistatic::{SHEAR_RANK_TOLERANCE, ShearEstimator, calibration};
+use m1::aperture::geometry::{Geometry, GeometryParams};
+use m1::aperture::layout::Layout;
+use m1::sensing::interaction::interaction_matrices;
 
 fn keck(flat: bool) -> Geometry {
     let layout = Layout::keck();

@@ -7,13 +7,13 @@
 
 #![allow(clippy::expect_used, clippy::unwrap_used)] // tests panic on failure by design
 
-use m1::controller::{
+use m1::aperture::geometry::{Geometry, GeometryParams};
+use m1::aperture::layout::Layout;
+use m1::aperture::zernike::ZernikeBasis;
+use m1::control::controller::{
     ControlModes, ControllerParams, ControllerState, LoopGains, SampleClock, integrator_gain,
 };
-use m1::geometry::{Geometry, GeometryParams};
-use m1::layout::Layout;
-use m1::reconstructor::sparse_mul;
-use m1::zernike::ZernikeBasis;
+use m1::control::reconstructor::sparse_mul;
 
 fn modes(name: &str) -> ControlModes {
     let layout = Layout::preset(name).expect("layout");
@@ -489,7 +489,7 @@ fn the_sample_clock_tolerates_accumulated_time() {
 #[test]
 #[ignore]
 fn timing_report() {
-    use m1::sensors::{EdgeSensors, SensorErrors};
+    use m1::sensing::sensors::{EdgeSensors, SensorErrors};
     use std::time::Instant;
     for name in ["keck", "tmt", "elt"] {
         let layout = Layout::preset(name).expect("layout");

@@ -11,12 +11,12 @@
 
 use faer::Mat;
 use faer::sparse::SparseColMat;
-use m1::geometry::{Geometry, GeometryParams};
-use m1::interaction::{
+use m1::aperture::geometry::{Geometry, GeometryParams};
+use m1::aperture::layout::{KECK_CONIC, KECK_RADIUS_OF_CURVATURE, Layout};
+use m1::sensing::interaction::{
     RigidMotion, a_matrix, global_ptt, global_rigid_modes, in_plane_motion, interaction_matrices,
     out_of_plane_motion, segment_coordinates, sensor_reading, to_dense,
 };
-use m1::layout::{KECK_CONIC, KECK_RADIUS_OF_CURVATURE, Layout};
 use nalgebra::Vector3;
 
 /// Relative threshold on singular values for the exact (flat-mirror, full-matrix) ranks.
@@ -562,7 +562,9 @@ fn reconstructor_paths_agree_on_tmt() {
 }
 
 fn reconstructor_paths_agree(layout: &Layout) {
-    use m1::reconstructor::{DenseReconstructor, ModalGain, SparseReconstructor, orthonormalize};
+    use m1::control::reconstructor::{
+        DenseReconstructor, ModalGain, SparseReconstructor, orthonormalize,
+    };
     let g = geometry(layout, false, 0.1);
     let a = a_matrix(&g);
     let null = global_ptt(&g);
@@ -636,7 +638,7 @@ fn reconstructor_paths_agree(layout: &Layout) {
 #[test]
 fn reconstructor_refuses_extra_unobservable_modes() {
     use m1::M1Error;
-    use m1::reconstructor::SparseReconstructor;
+    use m1::control::reconstructor::SparseReconstructor;
     let g = keck(true, 0.0);
     let a = a_matrix(&g);
     match SparseReconstructor::new(&a, global_ptt(&g).as_ref(), vec![]) {

@@ -5,14 +5,14 @@
 //! and a servo-loop sweep with all 492 segments.
 #![allow(clippy::expect_used, clippy::unwrap_used)] // tests panic on failure by design
 
-use m1::controller::ControllerParams;
-use m1::csi::{ActuatorLoop, log_grid};
-use m1::geometry::{Geometry, GeometryParams};
-use m1::global_csi::GlobalCsi;
-use m1::layout::Layout;
-use m1::monolithic::FrequencyModel;
-use m1::segment::SegmentModel;
-use m1::structure::{
+use m1::analysis::csi::{ActuatorLoop, log_grid};
+use m1::analysis::global_csi::GlobalCsi;
+use m1::aperture::geometry::{Geometry, GeometryParams};
+use m1::aperture::layout::Layout;
+use m1::control::controller::ControllerParams;
+use m1::plant::monolithic::FrequencyModel;
+use m1::plant::segment::SegmentModel;
+use m1::plant::structure::{
     CellModel, CellParams, DEFAULT_STRUCTURE, ModalModel, StructurePreset, StructureSource,
 };
 

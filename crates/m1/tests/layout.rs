@@ -6,7 +6,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
-use m1::layout::{Edge, Layout, LayoutError, Segment, TMT_SECTOR_SIZE, TMT_SECTORS, hex};
+use m1::aperture::layout::{Edge, Layout, LayoutError, Segment, TMT_SECTOR_SIZE, TMT_SECTORS, hex};
 
 /// Positions computed from integer grid coordinates agree to a few ulps of ~20 m.
 const POS_TOL: f64 = 1e-9;

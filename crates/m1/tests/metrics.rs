@@ -1,13 +1,13 @@
-//! Tests of the optical metrics (`m1::metrics`): identities and closed forms.
+//! Tests of the optical metrics (`m1::optics::metrics`): identities and closed forms.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use m1::geometry::{Geometry, GeometryParams};
-use m1::interaction::global_ptt;
-use m1::layout::Layout;
-use m1::metrics::{
+use m1::aperture::geometry::{Geometry, GeometryParams};
+use m1::aperture::layout::Layout;
+use m1::optics::metrics::{
     MirrorMetrics, actuators_to_ptt, hexagon_area, hexagon_second_moment, ptt_to_actuators,
 };
-use m1::pssn::{Pssn, PssnParams};
+use m1::optics::pssn::{Pssn, PssnParams};
+use m1::sensing::interaction::global_ptt;
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 

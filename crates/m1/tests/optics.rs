@@ -10,14 +10,14 @@
 use std::f64::consts::PI;
 
 use m1::M1Error;
-use m1::layout::Layout;
-use m1::pssn::{
-    KOLMOGOROV_COEFFICIENT, Pssn, PssnParams, PupilGrid, bessel_k, phase_structure_function,
-    phase_variance, pssn_small_error, r0_at_wavelength,
-};
-use m1::zernike::{
+use m1::aperture::layout::Layout;
+use m1::aperture::zernike::{
     ZernikeBasis, gauss_legendre, hexagon_rule, modes_up_to_degree, nm_to_noll, noll_to_nm,
     radial_degree, zernike, zernike_grad, zernike_radial, zernike_xy,
+};
+use m1::optics::pssn::{
+    KOLMOGOROV_COEFFICIENT, Pssn, PssnParams, PupilGrid, bessel_k, phase_structure_function,
+    phase_variance, pssn_small_error, r0_at_wavelength,
 };
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};

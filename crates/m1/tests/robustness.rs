@@ -6,11 +6,12 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use faer::Mat;
-use m1::geometry::{Geometry, GeometryParams};
-use m1::interaction::global_ptt;
-use m1::layout::Layout;
-use m1::quasistatic::{Case, Nominal, Perturbation, RobustnessParams, robustness};
-use m1::reconstructor::{DenseReconstructor, orthonormalize};
+use m1::analysis::quasistatic::{Case, Perturbation, RobustnessParams, robustness};
+use m1::aperture::geometry::{Geometry, GeometryParams};
+use m1::aperture::layout::Layout;
+use m1::control::nominal::Nominal;
+use m1::control::reconstructor::{DenseReconstructor, orthonormalize};
+use m1::sensing::interaction::global_ptt;
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 use rand_distr::{Distribution, StandardNormal};

@@ -5,11 +5,11 @@
 #![allow(clippy::expect_used, clippy::unwrap_used)] // tests panic on failure by design
 
 use faer::sparse::SparseColMat;
-use m1::geometry::{Geometry, GeometryParams};
-use m1::interaction::interaction_matrices;
-use m1::layout::Layout;
-use m1::reconstructor::sparse_mul;
-use m1::sensors::{EdgeSensors, SensorErrors, install_sensors};
+use m1::aperture::geometry::{Geometry, GeometryParams};
+use m1::aperture::layout::Layout;
+use m1::control::reconstructor::sparse_mul;
+use m1::sensing::interaction::interaction_matrices;
+use m1::sensing::sensors::{EdgeSensors, SensorErrors, install_sensors};
 
 fn geometry(name: &str) -> Geometry {
     let layout = Layout::preset(name).expect("layout");

@@ -2,13 +2,13 @@
 //! coupled dynamic solver below 1 Hz, on Keck with the default `tmt` cell.
 #![allow(clippy::expect_used, clippy::unwrap_used)] // tests panic on failure by design
 
-use m1::layout::Layout;
-use m1::mirror::CoupledMirror;
-use m1::segment::SegmentModel;
-use m1::static_mirror::QuasiStaticMirror;
-use m1::structure::{CellModel, CellParams};
+use m1::aperture::layout::Layout;
+use m1::plant::mirror::CoupledMirror;
+use m1::plant::segment::SegmentModel;
+use m1::plant::static_mirror::QuasiStaticMirror;
+use m1::plant::structure::{CellModel, CellParams};
 
-fn keck_tmt_cell() -> m1::structure::ModalModel {
+fn keck_tmt_cell() -> m1::plant::structure::ModalModel {
     CellModel::new(&Layout::keck(), &CellParams::tmt())
         .unwrap()
         .modes()

@@ -8,8 +8,8 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use m1::M1Error;
-use m1::layout::Layout;
-use m1::structure::{
+use m1::aperture::layout::Layout;
+use m1::plant::structure::{
     CellModel, CellParams, Flexibility, ModalModel, ModalSolver, Npz, Skyline, parse_npy, zoh_mode,
 };
 
@@ -98,9 +98,11 @@ fn rigid_motion_of_the_grillage_strains_no_beam() {
     // And the attachments follow the plane exactly.
     let mut z = vec![0.0; m.n_actuators()];
     m.attach(&x, &mut z);
-    let geo =
-        m1::geometry::Geometry::new(&layout, m1::geometry::GeometryParams::for_layout(&layout))
-            .expect("geometry");
+    let geo = m1::aperture::geometry::Geometry::new(
+        &layout,
+        m1::aperture::geometry::GeometryParams::for_layout(&layout),
+    )
+    .expect("geometry");
     for (k, zk) in z.iter().enumerate() {
         let p = geo.segments[k / 3].actuators[k % 3];
         let expect = a + b * p[0] + c * p[1];

@@ -5,7 +5,7 @@
 
 use std::f64::consts::TAU;
 
-use m1::vibration::{BandNoise, NoiseParams, PierVibration, Tone};
+use m1::loads::vibration::{BandNoise, NoiseParams, PierVibration, Tone};
 use rustfft::FftPlanner;
 use rustfft::num_complex::Complex64;
 

@@ -5,9 +5,9 @@
 
 use std::f64::consts::{PI, TAU};
 
-use m1::geometry::{Geometry, GeometryParams};
-use m1::layout::Layout;
-use m1::wind::{
+use m1::aperture::geometry::{Geometry, GeometryParams};
+use m1::aperture::layout::Layout;
+use m1::loads::wind::{
     OuterScale, ScreenParams, ScreenSpectrum, WindLoads, WindParams, equivalent_forces,
     polygon_transform, von_karman_psd,
 };

@@ -1,5 +1,5 @@
 //! Model wiring of the `edge_sensors` FMU: edge-sensor readings (height + Leff x dihedral, gap)
-//! from segment motion, computed by [`m1::sensors::EdgeSensors`].
+//! from segment motion, computed by [`m1::sensing::sensors::EdgeSensors`].
 //!
 //! | variable | causality | size | unit |
 //! |---|---|---|---|
@@ -34,10 +34,10 @@ use fmu::{
     VariableTable,
 };
 use m1::M1Error;
-use m1::controller::SampleClock;
-use m1::geometry::{DEFAULT_LEFF, Geometry, GeometryParams};
-use m1::layout::Layout;
-use m1::sensors::{EdgeSensors, SensorErrors};
+use m1::aperture::geometry::{DEFAULT_LEFF, Geometry, GeometryParams};
+use m1::aperture::layout::Layout;
+use m1::control::controller::SampleClock;
+use m1::sensing::sensors::{EdgeSensors, SensorErrors};
 
 /// Default sample rate of the edge sensors (Hz).
 pub const DEFAULT_SAMPLE_RATE: f64 = 1000.0;

@@ -1,6 +1,6 @@
 //! Model wiring of the `global_controller` FMU: the global edge-sensor control loop
 //! (reconstructor with global piston/tip/tilt projected out, modal integral control at 20 Hz),
-//! computed by [`m1::controller::ControlModes`].
+//! computed by [`m1::control::controller::ControlModes`].
 //!
 //! | variable | causality | size | unit |
 //! |---|---|---|---|
@@ -28,13 +28,13 @@ use fmu::{
     BoolVar, Dependencies, FmuError, IntVar, Model, ModelInfo, RealVar, StrVar, TableBuilder as T,
     Values, VariableTable,
 };
-use m1::controller::{
+use m1::aperture::geometry::{DEFAULT_LEFF, Geometry, GeometryParams};
+use m1::aperture::layout::Layout;
+use m1::control::controller::{
     ControlModes, ControllerParams, ControllerState, DEFAULT_BANDWIDTH, DEFAULT_BANDWIDTH_FOCUS,
     DEFAULT_BANDWIDTH_RADIAL2, DEFAULT_BANDWIDTH_RADIAL34, DEFAULT_FOCUS_GAIN, DEFAULT_RATE,
     LoopGains, Scratch,
 };
-use m1::geometry::{DEFAULT_LEFF, Geometry, GeometryParams};
-use m1::layout::Layout;
 
 const DOC: &str = "<h2>Model</h2>\
 <p>At each sample instant t<sub>k</sub> = t<sub>0</sub> + k / <code>rate</code> (k &ge; 1) the \

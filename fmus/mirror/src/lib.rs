@@ -1,8 +1,8 @@
 //! Model wiring of the mirror FMUs: every segment of one actuator variant and the telescope
-//! structure, solved together at every servo sample ([`m1::mirror::CoupledMirror`]). The
+//! structure, solved together at every servo sample ([`m1::plant::mirror::CoupledMirror`]). The
 //! parameters are those of the segments FMU of the same variant plus those of the structure FMU,
 //! and `quasi_static`, which swaps in the quasi-static plant for wind studies
-//! ([`m1::static_mirror::QuasiStaticMirror`]).
+//! ([`m1::plant::static_mirror::QuasiStaticMirror`]).
 //!
 //! | variable | causality | size | unit |
 //! |---|---|---|---|
@@ -18,7 +18,7 @@
 //!
 //! Why a combined FMU: exchanged between a segments FMU and a structure FMU, the stiff actuator
 //! coupling lags one communication step on each side and diverges unless the step is far below
-//! a millisecond (and, for the piezo, at any step tried). See [`m1::mirror`].
+//! a millisecond (and, for the piezo, at any step tried). See [`m1::plant::mirror`].
 
 use std::marker::PhantomData;
 use std::path::{Path, PathBuf};
@@ -29,9 +29,9 @@ use fmu::{
     BoolVar, Dependencies, FmuError, IntVar, Model, ModelInfo, RealVar, StrVar, TableBuilder as T,
     Values, VariableTable,
 };
-use m1::layout::Layout;
-use m1::mirror::CoupledMirror;
-use m1::static_mirror::QuasiStaticMirror;
+use m1::aperture::layout::Layout;
+use m1::plant::mirror::CoupledMirror;
+use m1::plant::static_mirror::QuasiStaticMirror;
 use segments::{ParamVars, PiezoVariant, Variant, VoiceCoilVariant};
 use structure_model::{CellVars, declare_cell_params};
 
@@ -438,7 +438,7 @@ mod tests {
             .expect("quasi-static")
             .model()
             .clone();
-        let want = 1.0 / model.static_stiffness(m1::segment::Channel::Piston);
+        let want = 1.0 / model.static_stiffness(m1::plant::segment::Channel::Piston);
         let (z, zc) = (v.real(m.vars.z), v.real(m.vars.z_cell));
         for j in 0..z.len() {
             let rel = z[j] - zc[j];

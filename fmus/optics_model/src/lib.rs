@@ -1,5 +1,5 @@
 //! Model wiring of the `optics` FMU: optical metrics of the mirror state (rms surface,
-//! focus-mode, PSSN), computed by [`m1::metrics::MirrorMetrics`] and [`m1::pssn::Pssn`].
+//! focus-mode, PSSN), computed by [`m1::optics::metrics::MirrorMetrics`] and [`m1::optics::pssn::Pssn`].
 //!
 //! | variable | causality | size | unit |
 //! |---|---|---|---|
@@ -34,10 +34,10 @@ use fmu::{
     VariableTable,
 };
 use m1::M1Error;
-use m1::geometry::{Geometry, GeometryParams};
-use m1::layout::Layout;
-use m1::metrics::MirrorMetrics;
-use m1::pssn::{Pssn, PssnParams};
+use m1::aperture::geometry::{Geometry, GeometryParams};
+use m1::aperture::layout::Layout;
+use m1::optics::metrics::MirrorMetrics;
+use m1::optics::pssn::{Pssn, PssnParams};
 
 /// Default samples across the aperture of the PSSN pupil grid (see the documentation).
 pub const DEFAULT_PSSN_SAMPLES: i32 = 256;

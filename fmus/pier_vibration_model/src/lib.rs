@@ -1,5 +1,5 @@
 //! Model wiring of the `pier_vibration` FMU: vertical pier vibration, tones plus seeded
-//! band-limited noise ([`m1::vibration`]).
+//! band-limited noise ([`m1::loads::vibration`]).
 //!
 //! | variable | causality | size | unit |
 //! |---|---|---|---|
@@ -14,7 +14,7 @@ use serde::{Deserialize, Serialize};
 use fmu::{
     FmuError, IntVar, Model, ModelInfo, RealVar, StrVar, TableBuilder as T, Values, VariableTable,
 };
-use m1::vibration::{NoiseParams, PierVibration, Tone};
+use m1::loads::vibration::{NoiseParams, PierVibration, Tone};
 
 /// Number of tones.
 pub const N_TONES: usize = 3;
@@ -240,7 +240,7 @@ mod tests {
 
     #[test]
     fn tables_build_for_every_layout() {
-        for variant in m1::layout::Layout::PRESETS {
+        for variant in m1::aperture::layout::Layout::PRESETS {
             let (t, _) = PierVibrationFmu::new(variant).expect("table");
             assert_eq!(t.by_name("pier_z").map(|v| v.len), Some(1));
         }

@@ -1,5 +1,5 @@
 //! Model wiring of the segments FMUs: the variable table of each actuator variant and the glue
-//! between the FMI value store and [`m1::segment::SegmentArray`]. Both variants have the same
+//! between the FMI value store and [`m1::plant::segment::SegmentArray`]. Both variants have the same
 //! inputs and outputs, so one replaces the other in a system; only their parameters differ.
 //!
 //! | variable | causality | size | unit |
@@ -20,8 +20,8 @@ use fmu::{
     BoolVar, Dependencies, FmuError, IntVar, Model, ModelInfo, RealVar, StrVar, TableBuilder as T,
     Values, VariableTable,
 };
-use m1::layout::Layout;
-use m1::segment::{
+use m1::aperture::layout::Layout;
+use m1::plant::segment::{
     ActuatorParams, Channel, Drive, SegmentArray, SegmentModel, SegmentParams, ServoParams, Shunt,
 };
 
@@ -207,7 +207,7 @@ impl Variant for PiezoVariant {
                     T::real("piezo_stiffness")
                         .parameter()
                         .unit("N/m")
-                        .start(m1::segment::PIEZO_STIFFNESS)
+                        .start(m1::plant::segment::PIEZO_STIFFNESS)
                         .positive()
                         .describe("Open-circuit stiffness of each piezo stack"),
                 ),

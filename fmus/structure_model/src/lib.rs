@@ -1,5 +1,5 @@
 //! Model wiring of the `structure` FMU: the telescope structure seen by M1 (modal model driven by
-//! actuator forces and pier motion). The physics is [`m1::structure`]; this crate declares the
+//! actuator forces and pier motion). The physics is [`m1::plant::structure`]; this crate declares the
 //! variables and moves values between the FMI value store and [`ModalSolver`].
 //!
 //! | variable | causality | size | unit |
@@ -20,8 +20,8 @@ use fmu::{
     VariableTable,
 };
 use m1::M1Error;
-use m1::layout::Layout;
-use m1::structure::{CellModel, CellParams, ModalModel, ModalSolver, StructurePreset};
+use m1::aperture::layout::Layout;
+use m1::plant::structure::{CellModel, CellParams, ModalModel, ModalSolver, StructurePreset};
 
 /// Handles of every variable.
 #[derive(Debug, Clone, Copy, Serialize, Deserialize)]

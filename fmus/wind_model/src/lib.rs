@@ -1,5 +1,5 @@
 //! Model wiring of the `wind` FMU: wind loads on the segments from frozen-flow von Karman
-//! pressure screens ([`m1::wind`]).
+//! pressure screens ([`m1::loads::wind`]).
 //!
 //! | variable | causality | size | unit |
 //! |---|---|---|---|
@@ -16,9 +16,9 @@ use serde::{Deserialize, Serialize};
 use fmu::{
     FmuError, IntVar, Model, ModelInfo, RealVar, StrVar, TableBuilder as T, Values, VariableTable,
 };
-use m1::geometry::{Geometry, GeometryParams};
-use m1::layout::Layout;
-use m1::wind::{
+use m1::aperture::geometry::{Geometry, GeometryParams};
+use m1::aperture::layout::Layout;
+use m1::loads::wind::{
     DEFAULT_AIR_DENSITY, OuterScale, ScreenParams, WindLoads, WindParams, pressure_rms_from_cp,
 };
 
@@ -155,7 +155,7 @@ fn table(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
         T::real("pressure_coefficient")
             .parameter()
             .unit("1")
-            .start(m1::wind::DEFAULT_PRESSURE_COEFFICIENT)
+            .start(m1::loads::wind::DEFAULT_PRESSURE_COEFFICIENT)
             .non_negative()
             .describe(
                 "rms pressure coefficient Cp (sigma_p = Cp q when pressure_rms is 0; calibrated: the \

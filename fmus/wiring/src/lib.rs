@@ -4,7 +4,7 @@
 
 use fmu::FmuError;
 use m1::M1Error;
-use m1::layout::Layout;
+use m1::aperture::layout::Layout;
 
 /// The layouts every FMU is packaged for (one .fmu each): [`Layout::PRESETS`].
 pub fn layout_variants() -> Vec<String> {

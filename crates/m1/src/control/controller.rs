@@ -5,7 +5,7 @@
 //! # Control law
 //!
 //! With $A$ ($n_s \times n_a$) the interaction matrix, $B_0$ its reconstructor with global
-//! piston/tip/tilt (the columns of $N$) projected out ([`crate::reconstructor`]:
+//! piston/tip/tilt (the columns of $N$) projected out ([`crate::control::reconstructor`]:
 //! $B_0 A P = P$, $P = I - N N^T$), the readings $y$ and their set-point $y_{ref}$, sample $k$
 //! updates the actuator command by
 //!
@@ -25,7 +25,7 @@
 //!   focus-mode (the seed paper's $\Gamma$, `focus_gain`) and $g_f$ from `bandwidth_focus`
 //!   (0.1 Hz);
 //! - **radial degree 2** $R_2$ (two orthonormal columns): the span of the Zernike modes
-//!   $Z_4, Z_5, Z_6$ projected on the segments' piston/tip/tilt ([`crate::zernike`]), as
+//!   $Z_4, Z_5, Z_6$ projected on the segments' piston/tip/tilt ([`crate::aperture::zernike`]), as
 //!   actuator displacements, with $N$ projected out, minus the direction of that span closest to
 //!   focus-mode (focus-mode is almost exactly $Z_4$ and has its own group). What remains is
 //!   astigmatism, and is exactly orthogonal to $\psi_f$; gain $g_2$ from `bandwidth_radial2`
@@ -64,10 +64,10 @@ use faer::{Mat, MatRef};
 use serde::{Deserialize, Serialize};
 
 use crate::M1Error;
-use crate::geometry::Geometry;
-use crate::quasistatic::Nominal;
-use crate::reconstructor::orthonormalize;
-use crate::zernike::ZernikeBasis;
+use crate::aperture::geometry::Geometry;
+use crate::aperture::zernike::ZernikeBasis;
+use crate::control::nominal::Nominal;
+use crate::control::reconstructor::orthonormalize;
 
 /// Default loop sample rate (Hz).
 pub const DEFAULT_RATE: f64 = 20.0;

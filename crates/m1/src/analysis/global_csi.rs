@@ -10,7 +10,7 @@
 //! $G = g I + (-g) N N^T + (g_2 - g) R_2 R_2^T + (g_{34} - g) R_{34} R_{34}^T +
 //! (g_f - g) \psi\psi^T$ (global piston/tip/tilt $N$ projected out, radial degrees >= 5 at
 //! $g$, the radial-degree-3-4 group $R_{34}$, astigmatism $R_2$ and focus-mode $\psi$ at their
-//! own gains; see [`crate::controller`]), the loop rate $f_c$ and the sensors sampled at it,
+//! own gains; see [`crate::control::controller`]), the loop rate $f_c$ and the sensors sampled at it,
 //!
 //! $$L = \frac{1}{e^{i 2\pi f / f_c} - 1}\, G \sum_{|k| \le K} \tilde H_c(f_k) T(f_k), \qquad
 //!   f_k = f + k f_c,$$
@@ -22,7 +22,7 @@
 //! # Zernike bases
 //!
 //! In an orthonormal basis $B$ (Zernike modes up to radial degree $p$ on the segments'
-//! piston/tip/tilt, as in [`crate::csi`]) the loop is $L_B = B^T L B$, i.e.
+//! piston/tip/tilt, as in [`crate::analysis::csi`]) the loop is $L_B = B^T L B$, i.e.
 //! $c\,[g\,B^T T B + \sum_v \gamma_v (B^T v)(v^T T B)]$ over the fifteen controller vectors
 //! $v$ (the columns of $N$, $R_2$, $R_{34}$ and $\psi$: 3 + 2 + 9 + 1) with
 //! $\gamma_v = g_{group(v)} - g$. With $C = [B\; N\; R_2\; R_{34}\; \psi]$, the pieces $C^T T B$ need only the per-kind projections
@@ -32,7 +32,7 @@
 //!
 //! # Peak labels
 //!
-//! As for the servo loop ([`crate::csi`]): at a peak the dominant direction is written in
+//! As for the servo loop ([`crate::analysis::csi`]): at a peak the dominant direction is written in
 //! Zernike coefficients and the peak takes the family of the largest (`P`, `TT`, `FA` or
 //! `Z<j>`). For the sensitivity the direction is the top left singular vector of $S_B$ (the
 //! right singular vector of $I + L_B$ with its smallest singular value), for the loop gain the
@@ -55,7 +55,7 @@
 //! `band_start_hz` lower to hold resonances below 8 Hz to the criterion too. The allowance can be set against the quasi-static
 //! analysis: an error in the interaction matrix multiplies the loop by $Q = B_0 A$ in the
 //! reconstructor's modal space, whose worst $\sigma_{max}(\Gamma \Psi Q \Psi^T)$ over seeded
-//! realizations ([`crate::quasistatic::robustness`]) is what the factor must cover.
+//! realizations ([`crate::analysis::quasistatic::robustness`]) is what the factor must cover.
 
 use faer::linalg::solvers::Solve;
 use faer::{Mat, c64};
@@ -64,11 +64,11 @@ use serde::Serialize;
 use std::f64::consts::TAU;
 
 use crate::M1Error;
-use crate::controller::{ControlModes, ControllerParams, LoopGains, N_RADIAL34};
-use crate::csi::ZernikeChannels;
-use crate::geometry::Geometry;
-use crate::layout::Layout;
-use crate::monolithic::{FrequencyModel, GlobalLoop, PlantOnW, hold};
+use crate::analysis::csi::ZernikeChannels;
+use crate::aperture::geometry::Geometry;
+use crate::aperture::layout::Layout;
+use crate::control::controller::{ControlModes, ControllerParams, LoopGains, N_RADIAL34};
+use crate::plant::monolithic::{FrequencyModel, GlobalLoop, PlantOnW, hold};
 
 /// Local maxima of the all-segment sensitivity above this are labelled.
 pub const SENSITIVITY_LABEL_FROM: f64 = 1.2;
@@ -636,7 +636,7 @@ pub fn global_sweep(
             true,
         ),
     ] {
-        let mut found: Vec<usize> = crate::csi::local_maxima(v)
+        let mut found: Vec<usize> = crate::analysis::csi::local_maxima(v)
             .filter(|&i| v[i] > from && (!in_band || grid[i] >= criteria.band_start_hz))
             .collect();
         found.sort_by(|&x, &y| v[y].total_cmp(&v[x]));
@@ -885,9 +885,9 @@ fn summary(v: &[(f64, f64)], grid: &[f64], band: &dyn Fn(usize) -> bool) -> (f64
 #[allow(clippy::unwrap_used, clippy::expect_used)]
 mod tests {
     use super::*;
-    use crate::geometry::GeometryParams;
-    use crate::segment::SegmentModel;
-    use crate::structure::{CellModel, CellParams};
+    use crate::aperture::geometry::GeometryParams;
+    use crate::plant::segment::SegmentModel;
+    use crate::plant::structure::{CellModel, CellParams};
 
     fn keck(modes: usize, aliases: usize) -> GlobalCsi {
         let layout = Layout::keck();
@@ -947,7 +947,7 @@ mod tests {
     #[test]
     fn zernike_global_loop_converges_to_all_segments() {
         let g = keck(30, 2);
-        let grid = crate::csi::log_grid(0.05, 9.9, 40);
+        let grid = crate::analysis::csi::log_grid(0.05, 9.9, 40);
         let sw = global_sweep(&g, &grid, &GlobalCriteria::default()).unwrap();
         let all = sw.all_segments.high_frequency_loop_gain;
         let last = sw.zernike.last().unwrap().high_frequency_loop_gain;
@@ -981,7 +981,7 @@ mod tests {
             .peak_label(0.01, 7, GlobalQuantity::Sensitivity)
             .unwrap_err();
         assert!(e.to_string().contains("degree"), "{e}");
-        let grid = crate::csi::log_grid(0.005, 9.9, 30);
+        let grid = crate::analysis::csi::log_grid(0.005, 9.9, 30);
         let sw = global_sweep(&g, &grid, &GlobalCriteria::default()).unwrap();
         for c in sw.zernike.iter().chain(std::iter::once(&sw.all_segments)) {
             assert!(
@@ -1014,7 +1014,7 @@ mod tests {
         for f in [8.0, 8.5, 9.0, 9.5, 9.99] {
             assert!(at(f) < 0.9 * limit, "{f} Hz: {}", at(f));
         }
-        let sw = global_sweep(&g, &crate::csi::log_grid(0.05, 9.99, 40), &c).unwrap();
+        let sw = global_sweep(&g, &crate::analysis::csi::log_grid(0.05, 9.99, 40), &c).unwrap();
         assert!(
             sw.meets_loop_gain,
             "{}",

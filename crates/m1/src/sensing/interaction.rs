@@ -5,7 +5,7 @@
 //! # Kinematics
 //!
 //! Segment `i` (centre `c_i`, frame `(r_i, a_i, n_i)` = radial, azimuthal, normal; see
-//! [`crate::geometry`]) moves by a small translation `d_i` and rotation `theta_i`; its point `r`
+//! [`crate::aperture::geometry`]) moves by a small translation `d_i` and rotation `theta_i`; its point `r`
 //! moves by
 //!
 //! ```text
@@ -79,7 +79,7 @@ use faer::Mat;
 use faer::sparse::{SparseColMat, SymbolicSparseColMat};
 use nalgebra::Vector3;
 
-use crate::geometry::Geometry;
+use crate::aperture::geometry::Geometry;
 
 fn v3(a: [f64; 3]) -> Vector3<f64> {
     Vector3::new(a[0], a[1], a[2])

@@ -51,7 +51,7 @@
 use faer::Mat;
 
 use crate::M1Error;
-use crate::layout::Layout;
+use crate::aperture::layout::Layout;
 
 /// Normalisation radius of the TMT Zernike basis (m): half the 30 m aperture.
 pub const TMT_ZERNIKE_RADIUS: f64 = 15.0;

@@ -4,7 +4,7 @@
 //!
 //! For out-of-plane displacements `z` at the actuators (m, length `n_a = 3N`) and in-plane
 //! segment motion `w` (`w[3 i]` radial m, `w[3 i + 1]` azimuthal m, `w[3 i + 2]` clocking rad;
-//! see [`crate::interaction`] for the kinematics), sensor `n` reads
+//! see [`crate::sensing::interaction`] for the kinematics), sensor `n` reads
 //!
 //! ```text
 //! y_n   = s_n (A_hz z + A_hw w)_n + sigma_y  nu_n        (m: height + Leff x dihedral)
@@ -23,7 +23,7 @@
 //! - installation errors ([`install_sensors`]): each sensor point moved in its tangent plane by
 //!   `N(0, position_rms)` along the gap and the shear directions, and the sensor's frame
 //!   (height, gap, shear) rotated by `N(0, tilt_rms)` about the gap and then the shear axis, as
-//!   [`crate::quasistatic`]'s `SensorInstall` perturbation (which tilts the height axis only).
+//!   [`crate::analysis::quasistatic`]'s `SensorInstall` perturbation (which tilts the height axis only).
 //!
 //! Each stream has its own seed derived from `seed` (gains, installation, height noise, gap
 //! noise), so switching one error source on leaves the others' draws unchanged.
@@ -35,8 +35,8 @@ use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
 use crate::M1Error;
-use crate::geometry::Geometry;
-use crate::interaction::interaction_matrices;
+use crate::aperture::geometry::Geometry;
+use crate::sensing::interaction::interaction_matrices;
 
 /// The error sources of the edge sensors (all zero by default: ideal sensors).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

@@ -10,7 +10,7 @@
 //! bandwidth, a piezo stack outright), so the loop "cell moves -> actuator force -> cell
 //! moves" has a high gain at the cell modes, and a delay of `h` in it adds a phase lag of
 //! `2 pi f h` at frequency `f`: above some `h` the lag turns that stiff loop unstable. The
-//! coupled solver ([`crate::mirror::CoupledMirror`]) has no such delay: it solves the two
+//! coupled solver ([`crate::plant::mirror::CoupledMirror`]) has no such delay: it solves the two
 //! together at every servo sample, so it is the reference here.
 //!
 //! # The experiment
@@ -25,9 +25,9 @@
 use serde::Serialize;
 
 use crate::M1Error;
-use crate::mirror::CoupledMirror;
-use crate::segment::{SegmentArray, SegmentModel};
-use crate::structure::{Flexibility, ModalModel, ModalSolver};
+use crate::plant::mirror::CoupledMirror;
+use crate::plant::segment::{SegmentArray, SegmentModel};
+use crate::plant::structure::{Flexibility, ModalModel, ModalSolver};
 
 /// Order of the exchange between the two components.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -204,8 +204,8 @@ pub fn split_vs_coupled(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::layout::Layout;
-    use crate::structure::{CellModel, CellParams};
+    use crate::aperture::layout::Layout;
+    use crate::plant::structure::{CellModel, CellParams};
 
     fn keck_cell() -> ModalModel {
         CellModel::new(&Layout::keck(), &CellParams::soft_cell())

@@ -28,7 +28,7 @@ use serde::{Deserialize, Serialize};
 use std::f64::consts::TAU;
 
 use crate::M1Error;
-use crate::wind::periodic_stencil;
+use crate::loads::wind::periodic_stencil;
 
 /// Noise sample rate over the upper band edge.
 pub const OVERSAMPLING: f64 = 8.0;

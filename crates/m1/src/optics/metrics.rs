@@ -1,18 +1,18 @@
 //! Optical metrics of a mirror state: rms surface error with the global piston/tip/tilt removed,
 //! focus-mode amplitude, and the rms without focus-mode ([`MirrorMetrics`]); the PSSN of the same
-//! state comes from [`crate::pssn::Pssn`] fed with [`MirrorMetrics::residual_ptt`].
+//! state comes from [`crate::optics::pssn::Pssn`] fed with [`MirrorMetrics::residual_ptt`].
 //!
 //! # Surface of a segment state
 //!
 //! The input is `z` (m, length `na = 3 N`): the displacement of the mirror normal to the segment
 //! at each actuator, actuator `k` of segment `i` at index `3 i + k`. Segments are rigid, so the
 //! surface error over segment `i` is an affine function of the position `(x, y)` in the
-//! aperture plane (the plane of [`crate::layout`], where every segment is a regular hexagon of
+//! aperture plane (the plane of [`crate::aperture::layout`], where every segment is a regular hexagon of
 //! circumradius `a` centred on `c_i`):
 //!
 //! $$s_i(x, y) = p_i + t_{x,i}\,(x - c_{x,i}) + t_{y,i}\,(y - c_{y,i}),$$
 //!
-//! the `[p, tx, ty]` state of [`crate::zernike`] and [`crate::pssn`]. It is the plane through
+//! the `[p, tx, ty]` state of [`crate::aperture::zernike`] and [`crate::optics::pssn`]. It is the plane through
 //! the three actuator points projected onto the aperture plane with heights `z`:
 //! `[p, tx, ty]_i = M_i^{-1} z_i`, rows of `M_i` = `[1, a_{x,k} - c_{x,i}, a_{y,k} - c_{y,i}]`
 //! ([`aperture_ptt_matrix`]). The segment moves rigidly in its tangent plane and the tangent
@@ -37,7 +37,7 @@
 //!   the surface with the best-fit global piston/tip/tilt removed. The wavefront error is twice
 //!   this (reflection at normal incidence).
 //! - **`focus`** (m): the coefficient `c` of the focus-mode vector `f` (actuator space, unit
-//!   Euclidean norm over the `na` actuators, [`crate::quasistatic::Nominal::focus`]) in the
+//!   Euclidean norm over the `na` actuators, [`crate::control::nominal::Nominal::focus`]) in the
 //!   least-squares fit of `r` by the residual `F` of `f`: $c = \langle r, F \rangle /
 //!   \|F\|^2$. So `z = c f` gives `c`, and `z = c f` plus any global piston/tip/tilt too. As a
 //!   surface, `c` units of focus-mode have the rms `c * focus_rms_per_unit()`.
@@ -55,8 +55,8 @@
 use nalgebra::{Matrix3, Vector3};
 
 use crate::M1Error;
-use crate::geometry::Geometry;
-use crate::quasistatic::Nominal;
+use crate::aperture::geometry::Geometry;
+use crate::control::nominal::Nominal;
 
 /// Area of a regular hexagon of circumradius `a`: `3 sqrt(3) / 2 a^2` (m^2).
 pub fn hexagon_area(a: f64) -> f64 {
@@ -403,7 +403,7 @@ impl MirrorMetrics {
 
     /// The segment states `[p, tx, ty]` (about each segment centre, aperture plane) of `z` with
     /// the global piston/tip/tilt removed, written into `out` (length `N`): the input of
-    /// [`crate::pssn::Pssn::pssn_ptt`]. Returns the removed plane `[P, Tx, Ty]`.
+    /// [`crate::optics::pssn::Pssn::pssn_ptt`]. Returns the removed plane `[P, Tx, Ty]`.
     pub fn residual_ptt(&self, z: &[f64], out: &mut [[f64; 3]]) -> Result<[f64; 3], M1Error> {
         check_len(z, self.n_actuators())?;
         if out.len() != self.n_segments() {

@@ -116,8 +116,8 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::M1Error;
-use crate::geometry::{Geometry, GeometryParams};
-use crate::layout::Layout;
+use crate::aperture::geometry::{Geometry, GeometryParams};
+use crate::aperture::layout::Layout;
 
 // ------------------------------------------------------------------------------------------
 // Parameters

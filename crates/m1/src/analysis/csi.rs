@@ -6,7 +6,7 @@
 //! # The loop
 //!
 //! The servo loop of every actuator is broken at its drive, with the servo open and the
-//! structure coupled (see [`crate::monolithic`] for the channel model). At frequency $f$, per
+//! structure coupled (see [`crate::plant::monolithic`] for the channel model). At frequency $f$, per
 //! channel kind $k$ (piston, tilt) the open channel ([`open_channel`]) gives the exact sampled
 //! drive-to-stroke response on a rigid base $p_{0,k}$, the stroke per cell displacement
 //! $p_{sz,k}$, the cell force per cell displacement $f_{z,k}$ and the cell force per (held)
@@ -26,7 +26,7 @@
 //!
 //! In an orthonormal basis $B$ of actuator space ($n_a \times n_b$; real, so it is also
 //! orthonormal in channel space, the per-segment change of basis
-//! [`crate::segment::modal_basis`] being orthogonal) the reduced sensitivity is
+//! [`crate::plant::segment::modal_basis`] being orthogonal) the reduced sensitivity is
 //! $S_B = (I + K_s B^T P B)^{-1}$. Three families:
 //!
 //! * **Zernike** up to radial degree $p$: Noll's modes projected on the segments'
@@ -74,12 +74,14 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::M1Error;
-use crate::geometry::Geometry;
-use crate::layout::Layout;
-use crate::metrics::ptt_to_actuators;
-use crate::monolithic::{ChannelTransfer, FrequencyModel, hold, open_channel, servo_transfer};
-use crate::segment::{Channel, SegmentModel};
-use crate::zernike::{ZernikeBasis, modes_up_to_degree, noll_to_nm};
+use crate::aperture::geometry::Geometry;
+use crate::aperture::layout::Layout;
+use crate::aperture::zernike::{ZernikeBasis, modes_up_to_degree, noll_to_nm};
+use crate::optics::metrics::ptt_to_actuators;
+use crate::plant::monolithic::{
+    ChannelTransfer, FrequencyModel, hold, open_channel, servo_transfer,
+};
+use crate::plant::segment::{Channel, SegmentModel};
 
 /// The scalars of both channel kinds at one frequency (index 0 piston, 1 tilt).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -652,7 +654,7 @@ impl ActuatorLoop {
             }
             for kd in 0..2 {
                 let rg = ranges[kd].clone();
-                crate::kernels::real_t_times_complex(
+                crate::linalg::kernels::real_t_times_complex(
                     &rr[kd],
                     rank[kd],
                     r,
@@ -673,7 +675,7 @@ impl ActuatorLoop {
             }
             z2.fill(zero);
             for kd in 0..2 {
-                crate::kernels::real_times_complex(
+                crate::linalg::kernels::real_times_complex(
                     &gram[kd],
                     r,
                     r,
@@ -695,7 +697,7 @@ impl ActuatorLoop {
                     xi[j] = v.im;
                 }
                 let m = rank[kd];
-                crate::kernels::real_times_complex(
+                crate::linalg::kernels::real_times_complex(
                     &rr[kd],
                     m,
                     r,
@@ -716,8 +718,13 @@ impl ActuatorLoop {
                 c64::new(1.0 + (0.7 * t).sin(), (1.3 * t).cos())
             })
             .collect();
-        let pair =
-            crate::krylov::largest_hermitian_eigenpair(w, LANCZOS_MAX_STEPS, &v0, LANCZOS_TOL, op);
+        let pair = crate::linalg::krylov::largest_hermitian_eigenpair(
+            w,
+            LANCZOS_MAX_STEPS,
+            &v0,
+            LANCZOS_TOL,
+            op,
+        );
         let theta = pair.value;
         let sw = theta.max(0.0).sqrt();
         if !sw.is_finite() {
@@ -1340,8 +1347,8 @@ pub fn highest_gain(
 #[allow(clippy::unwrap_used, clippy::expect_used)]
 mod tests {
     use super::*;
-    use crate::geometry::GeometryParams;
-    use crate::structure::{CellModel, CellParams};
+    use crate::aperture::geometry::GeometryParams;
+    use crate::plant::structure::{CellModel, CellParams};
 
     fn keck(modes: usize, model: SegmentModel) -> (ActuatorLoop, Layout) {
         let layout = Layout::keck();
@@ -1475,7 +1482,7 @@ mod tests {
     /// [`FrequencyModel::response`]'s cell motion (Keck, 30 modes).
     #[test]
     fn sensitivity_matches_the_closed_loop_response() {
-        use crate::monolithic::Inputs;
+        use crate::plant::monolithic::Inputs;
         let model = SegmentModel::voice_coil();
         let (lp, _) = keck(30, model.clone());
         let fm = lp.model();

@@ -9,12 +9,12 @@
 //! low-frequency stiffness: the servo's static stiffness and its integral gain, which sets how
 //! fast the compliance grows with frequency. [`QuasiStaticMirror`] keeps exactly that and
 //! nothing faster, so a wind run needs no servo-rate stepping and no retained-mode dynamics;
-//! the coupled solver ([`crate::mirror::CoupledMirror`]) stays the reference, and the two agree
+//! the coupled solver ([`crate::plant::mirror::CoupledMirror`]) stays the reference, and the two agree
 //! below 1 Hz (tested).
 //!
 //! # Model
 //!
-//! Per channel (piston and the two tilts of each segment, as in [`crate::segment`]) the
+//! Per channel (piston and the two tilts of each segment, as in [`crate::plant::segment`]) the
 //! masses are dropped: the chain's static equilibrium `0 = A x + B w` (its continuous plant,
 //! `w` = drive `u`, cell displacement `z_c`, wind force `f`) gives the stroke and the glass
 //! displacement as linear functions of `w`,
@@ -34,8 +34,8 @@ use nalgebra::{SMatrix, SVector};
 use serde::{Deserialize, Serialize};
 
 use crate::M1Error;
-use crate::segment::{Channel, N_CONT, SegmentModel, modal_basis, state};
-use crate::structure::{ModalModel, ModalSolver};
+use crate::plant::segment::{Channel, N_CONT, SegmentModel, modal_basis, state};
+use crate::plant::structure::{ModalModel, ModalSolver};
 
 /// The low-frequency reduction of one channel kind.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

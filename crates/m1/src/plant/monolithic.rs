@@ -4,7 +4,7 @@
 //!
 //! # Frequency response ([`FrequencyModel`])
 //!
-//! Every segment channel (see [`crate::segment`]: the piston channel and the two tilt channels
+//! Every segment channel (see [`crate::plant::segment`]: the piston channel and the two tilt channels
 //! of a segment, in the orthonormal actuator basis `V`) is the same continuous plant
 //! $\dot x = A x + b_u u + b_z z_c + b_w f_w$ under the same discrete servo. The structure is
 //! modal: $D(\omega) q = \Phi_c^T f + b_p p$ with $D_j = \omega_j^2 - \omega^2 + 2 i \zeta_j
@@ -48,8 +48,8 @@ use nalgebra::SMatrix;
 use std::f64::consts::TAU;
 
 use crate::M1Error;
-use crate::segment::{Channel, N_CONT, SegmentModel, modal_basis, state};
-use crate::structure::{ModalModel, ModalSolver};
+use crate::plant::segment::{Channel, N_CONT, SegmentModel, modal_basis, state};
+use crate::plant::structure::{ModalModel, ModalSolver};
 
 /// `exp(i x)`.
 fn cis(x: f64) -> c64 {
@@ -300,7 +300,7 @@ pub struct FrequencyModel {
 impl FrequencyModel {
     /// `n_segments` identical segments of `model` on the `n_modes` lowest modes of `cell`
     /// (damping `damping_ratio` unless the model carries its own). The static correction of
-    /// the truncated modes is not used (as in [`crate::mirror::CoupledMirror`]).
+    /// the truncated modes is not used (as in [`crate::plant::mirror::CoupledMirror`]).
     pub fn new(
         n_segments: usize,
         model: SegmentModel,
@@ -531,7 +531,7 @@ impl FrequencyModel {
 }
 
 /// The global edge-sensor loop in the frequency domain: the controller of
-/// [`crate::controller`] (integrators at its sample rate on four mode groups, output held) on
+/// [`crate::control::controller`] (integrators at its sample rate on four mode groups, output held) on
 /// the mirror of a [`FrequencyModel`] read by ideal edge sensors.
 ///
 /// # Loop gain
@@ -561,7 +561,7 @@ impl FrequencyModel {
 #[derive(Debug, Clone)]
 pub struct GlobalLoop {
     rate: f64,
-    gains: crate::controller::LoopGains,
+    gains: crate::control::controller::LoopGains,
     /// Orthonormal basis of W in the channel basis (na x w).
     w: Mat<f64>,
     /// N, R2, R34, psi in the channel basis (na x 3, na x 2, na x 9, na x 1).
@@ -600,8 +600,8 @@ impl GlobalLoop {
     /// if the controller and the model have different numbers of actuators.
     pub fn new(
         model: &FrequencyModel,
-        controls: &crate::controller::ControlModes,
-        params: &crate::controller::ControllerParams,
+        controls: &crate::control::controller::ControlModes,
+        params: &crate::control::controller::ControllerParams,
     ) -> Result<Self, M1Error> {
         let gains = params.gains()?;
         let na = model.n_actuators();
@@ -812,7 +812,7 @@ impl GlobalLoop {
     pub fn loop_from_plant(
         &self,
         p: &PlantOnW,
-        gains: &crate::controller::LoopGains,
+        gains: &crate::control::controller::LoopGains,
     ) -> (Mat<c64>, [Option<c64>; 2]) {
         let g = gains.rest;
         let z = cis(TAU * p.frequency / self.rate);
@@ -834,7 +834,7 @@ impl GlobalLoop {
     pub fn point(
         &self,
         p: &PlantOnW,
-        gains: &crate::controller::LoopGains,
+        gains: &crate::control::controller::LoopGains,
     ) -> Result<GlobalLoopPoint, M1Error> {
         let f = p.frequency;
         let (lw, scalars) = self.loop_from_plant(p, gains);
@@ -910,7 +910,7 @@ pub struct BandwidthLimit {
 pub fn highest_bandwidth(
     gl: &GlobalLoop,
     plants: &[PlantOnW],
-    base: &crate::controller::ControllerParams,
+    base: &crate::control::controller::ControllerParams,
     radial34_ratio: f64,
     radial2_ratio: f64,
     band_start_hz: f64,
@@ -919,7 +919,7 @@ pub fn highest_bandwidth(
     upper_hz: f64,
 ) -> Result<BandwidthLimit, M1Error> {
     let eval = |b: f64| -> Result<(f64, f64, f64), M1Error> {
-        let params = crate::controller::ControllerParams {
+        let params = crate::control::controller::ControllerParams {
             bandwidth: b,
             bandwidth_radial34: radial34_ratio * b,
             bandwidth_radial2: radial2_ratio * b,
@@ -986,7 +986,7 @@ pub fn highest_bandwidth(
 /// (`Phi_k = Q_k R_k`, `Q_k` orthonormal, rank `r_k <= r`), and identical channels keep any
 /// subspace to itself, so only `Q_k^T X` couples to the modes: `10 (r_p + r_t) + 2 r` states
 /// (660 for Keck with 30 modes). The rest of each channel's state, `(I - Q_k Q_k^T) X`,
-/// evolves as on a rigid base and is taken from a [`SegmentArray`](crate::segment::SegmentArray) driven by the same command
+/// evolves as on a rigid base and is taken from a [`SegmentArray`](crate::plant::segment::SegmentArray) driven by the same command
 /// and wind on a cell at rest. Built once by one matrix exponential of the coupled plant: meant
 /// for Keck, or TMT with tens of modes.
 #[derive(Debug, Clone)]
@@ -1007,13 +1007,13 @@ pub struct StateSpaceMirror {
     ranks: [usize; 2],
     r: usize,
     state: nalgebra::DVector<f64>,
-    free: crate::segment::SegmentArray,
+    free: crate::plant::segment::SegmentArray,
     zeros: Vec<f64>,
     basis: SMatrix<f64, 3, 3>,
 }
 
 impl StateSpaceMirror {
-    /// Same arguments as [`crate::mirror::CoupledMirror::new`] (without the coupling interval:
+    /// Same arguments as [`crate::plant::mirror::CoupledMirror::new`] (without the coupling interval:
     /// this model has none).
     pub fn new(
         n_segments: usize,
@@ -1022,7 +1022,7 @@ impl StateSpaceMirror {
         n_modes: usize,
         damping_ratio: f64,
     ) -> Result<Self, M1Error> {
-        use crate::segment::N_STATE;
+        use crate::plant::segment::N_STATE;
         use nalgebra::{DMatrix, DVector};
         model.validate()?;
         let na = 3 * n_segments;
@@ -1194,7 +1194,7 @@ impl StateSpaceMirror {
             ranks,
             r,
             state: DVector::zeros(ns),
-            free: crate::segment::SegmentArray::new(n, model)?,
+            free: crate::plant::segment::SegmentArray::new(n, model)?,
             zeros: vec![0.0; na],
             basis: modal_basis(),
         })
@@ -1365,16 +1365,16 @@ impl StateSpaceMirror {
 #[allow(clippy::too_many_arguments)]
 pub fn wind_run(
     mirror: &mut StateSpaceMirror,
-    metrics: &crate::metrics::MirrorMetrics,
-    wind: &crate::wind::WindLoads,
+    metrics: &crate::optics::metrics::MirrorMetrics,
+    wind: &crate::loads::wind::WindLoads,
     wind_period: f64,
     control: Option<(
-        &crate::controller::ControlModes,
-        &crate::controller::ControllerParams,
+        &crate::control::controller::ControlModes,
+        &crate::control::controller::ControllerParams,
     )>,
     step: f64,
     duration: f64,
-) -> Result<Vec<(f64, crate::metrics::SurfaceMetrics)>, M1Error> {
+) -> Result<Vec<(f64, crate::optics::metrics::SurfaceMetrics)>, M1Error> {
     let every = |period: f64, name: &'static str| -> Result<usize, M1Error> {
         whole_periods(period, step, name).map(|k| k as usize)
     };
@@ -1430,9 +1430,9 @@ pub fn wind_run(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::layout::Layout;
-    use crate::mirror::CoupledMirror;
-    use crate::structure::{CellModel, CellParams};
+    use crate::aperture::layout::Layout;
+    use crate::plant::mirror::CoupledMirror;
+    use crate::plant::structure::{CellModel, CellParams};
 
     fn close(a: c64, b: c64, tol: f64) -> bool {
         (a - b).norm() <= tol * b.norm().max(1e-300)
@@ -1502,8 +1502,8 @@ mod tests {
                     let z = Complex::from_polar(1.0, TAU * f * model.servo_period());
                     let m = SMatrix::<
                         Complex<f64>,
-                        { crate::segment::N_STATE },
-                        { crate::segment::N_STATE },
+                        { crate::plant::segment::N_STATE },
+                        { crate::plant::segment::N_STATE },
                     >::identity()
                         * z
                         - phi.map(|x| Complex::new(x, 0.0));
@@ -1618,8 +1618,8 @@ mod tests {
     /// controller's gain matrix.
     #[test]
     fn global_loop_projection_equals_the_dense_loop() {
-        use crate::controller::{ControlModes, ControllerParams};
-        use crate::geometry::{Geometry, GeometryParams};
+        use crate::aperture::geometry::{Geometry, GeometryParams};
+        use crate::control::controller::{ControlModes, ControllerParams};
         let layout = Layout::keck();
         let n = layout.n_segments();
         let na = 3 * n;
@@ -1718,8 +1718,8 @@ mod tests {
     /// segment moves the peaks a little (to 8.9 and 9.6 Hz) and raises them (2.3).
     #[test]
     fn tmt_global_loop_exceeds_the_loop_gain_criterion_at_1_hz() {
-        use crate::controller::{ControlModes, ControllerParams};
-        use crate::geometry::{Geometry, GeometryParams};
+        use crate::aperture::geometry::{Geometry, GeometryParams};
+        use crate::control::controller::{ControlModes, ControllerParams};
         let layout = Layout::tmt();
         let n = layout.n_segments();
         let cell = CellModel::new(&layout, &CellParams::soft_cell())

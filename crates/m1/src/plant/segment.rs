@@ -74,7 +74,7 @@ use serde::{Deserialize, Serialize};
 use std::f64::consts::{PI, TAU};
 
 use crate::M1Error;
-use crate::kernels::axpy;
+use crate::linalg::kernels::axpy;
 
 /// Continuous states per channel: node position and velocity, mirror position and velocity,
 /// shunt coordinate and its rate, whiffletree position and velocity.

@@ -3,7 +3,7 @@
 //!
 //! # Conventions
 //!
-//! Global coordinates are those of [`crate::layout`]: `x`, `y` in the aperture plane (m), `z`
+//! Global coordinates are those of [`crate::aperture::layout`]: `x`, `y` in the aperture plane (m), `z`
 //! along the optical axis towards the sky, origin at the mirror vertex.
 //!
 //! - **Prescription.** The parent surface is the conic of revolution (vertex radius of curvature
@@ -57,7 +57,7 @@
 use nalgebra::Vector3;
 
 use crate::M1Error;
-use crate::layout::Layout;
+use crate::aperture::layout::Layout;
 
 /// Default sensor offset from each end of an edge for a TMT-sized segment (m, *assumed*).
 pub const DEFAULT_SENSOR_OFFSET_TMT: f64 = 0.10;

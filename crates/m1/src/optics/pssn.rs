@@ -59,7 +59,7 @@ use rustfft::num_complex::Complex64;
 use rustfft::{Fft, FftPlanner};
 
 use crate::M1Error;
-use crate::layout::Layout;
+use crate::aperture::layout::Layout;
 
 /// Kolmogorov phase structure function coefficient, `2 [24/5 Gamma(6/5)]^(5/6)` (the "6.88").
 pub const KOLMOGOROV_COEFFICIENT: f64 = 6.883_877_182_293_812;
@@ -305,7 +305,7 @@ impl PupilGrid {
     }
 
     /// Surface (m) on the grid of the segment state `ptt` (`[p, tx, ty]` per segment, see
-    /// [`crate::zernike`]), zero outside the segments.
+    /// [`crate::aperture::zernike`]), zero outside the segments.
     pub fn surface_from_ptt(&self, ptt: &[[f64; 3]]) -> Result<Vec<f64>, M1Error> {
         check_ptt(ptt, self.n_segments())?;
         let n = self.samples;
@@ -545,7 +545,7 @@ impl Pssn {
     }
 
     /// PSSN of the segment state `ptt` (`[p, tx, ty]` per segment, m and rad, see
-    /// [`crate::zernike`]).
+    /// [`crate::aperture::zernike`]).
     pub fn pssn_ptt(&self, ptt: &[[f64; 3]]) -> Result<f64, M1Error> {
         check_ptt(ptt, self.grid.n_segments())?;
         let k = self.phase_per_metre;
@@ -694,7 +694,7 @@ struct LagWeight {
 
 impl LagWeight {
     fn new(dx: f64, r0: f64, l0: f64) -> LagWeight {
-        let (x, w) = crate::zernike::gauss_legendre(8);
+        let (x, w) = crate::aperture::zernike::gauss_legendre(8);
         let rule = x
             .iter()
             .zip(&w)

@@ -21,14 +21,14 @@
 //!   of $A^T A$) so that $K$ is well conditioned even where $A N \approx 0$. Writing
 //!   $A^T A = K - G G^T$, the solution is $z = x_0 + Z\,[c; \lambda]$ with $x_0 = K^{-1} A^T y$,
 //!   $Z = [K^{-1} G, -K^{-1} N]$ and the $2k \times 2k$ system from $c = G^T z$, $N^T z = 0$:
-//!   one block Cholesky solve ([`crate::blockchol`]) and $2k$ dot products and updates per
+//!   one block Cholesky solve ([`crate::linalg::blockchol`]) and $2k$ dot products and updates per
 //!   use, no refinement step needed (agreement with the dense path ~1e-11 on TMT).
 
 use faer::sparse::SparseColMat;
 use faer::{Mat, MatRef};
 
 use crate::M1Error;
-use crate::blockchol::{Block, BlockCholesky};
+use crate::linalg::blockchol::{Block, BlockCholesky};
 
 /// One modal gain: an orthonormal mode (length n_a) and its gain (1 = unchanged).
 #[derive(Debug, Clone)]

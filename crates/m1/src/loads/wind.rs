@@ -83,7 +83,7 @@ use rustfft::{Fft, FftPlanner};
 use serde::{Deserialize, Serialize};
 
 use crate::M1Error;
-use crate::geometry::Geometry;
+use crate::aperture::geometry::Geometry;
 
 /// Spectral exponent of the von Karman spectrum, `beta = 11/3`.
 pub const BETA: f64 = 11.0 / 3.0;

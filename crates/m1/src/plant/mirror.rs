@@ -13,7 +13,7 @@
 //! # Scheme
 //!
 //! Per servo tick $T_s$ (the servo samples at the start of the tick, its drive is then held):
-//! - each segment channel (see [`crate::segment`]) is advanced exactly with the cell
+//! - each segment channel (see [`crate::plant::segment`]) is advanced exactly with the cell
 //!   displacement **ramping linearly** over the tick from $z_n$ to $z_{n+1}$ (first-order hold):
 //!   $X_{n+1} = \Phi X_n + \Gamma w_n + \gamma\,\Delta$, $\Delta = z_{n+1} - z_n$, where
 //!   $\gamma$ is the exact response to a unit ramp;
@@ -25,7 +25,7 @@
 //!   b_p (p_n - p_{n-1})$, with $\delta$ the drive and $d_u$ its feedthrough. Only the
 //!   continuous part of the force is interpolated. (Ramping across the jump instead delays the
 //!   drive by half a servo period: measured against the monolithic model of
-//!   [`crate::monolithic`], that put the Keck voice-coil mirror's response to a 30 Hz pier tone
+//!   [`crate::plant::monolithic`], that put the Keck voice-coil mirror's response to a 30 Hz pier tone
 //!   1.6 % off, against 0.13 % with the jump.);
 //! - the two are consistent at the end of the tick: $u_{n+1} = \Phi_a^T f_{n+1} + b_p p$ with
 //!   $f_{n+1} = a_f + E\Delta$ the actuator forces on the cell and $\Delta = \Phi_a (q_{n+1} -
@@ -49,7 +49,7 @@
 //! **Memory-bound products.** At TMT size with 300 modes the shapes are 3.5 MB and the two
 //! coupling matrices 1.4 MB: a step streams about 14 MB, and arithmetic is cheap beside it. The
 //! shapes and the coupling matrices are stored row-major and multiplied by the streaming
-//! kernels of [`crate::kernels`] (each matrix read once, every right-hand side applied while a
+//! kernels of [`crate::linalg::kernels`] (each matrix read once, every right-hand side applied while a
 //! chunk is in registers), and the whole coupled part of a step runs inside one
 //! [`pulp::Arch::dispatch`], so that it is compiled for the processor's vector instructions.
 //! The general matrix products used before (which pack their operand first) took 1.44 times as
@@ -70,7 +70,7 @@
 //! same piecewise-linear cell displacement and the same actuator force, held drive plus
 //! linearly interpolated continuous part. What it approximates is the continuous part of the
 //! force within a tick: against the exact discretisation of the coupled plant
-//! ([`crate::monolithic::StateSpaceMirror`]) the Keck voice-coil mirror's response to a pier tone
+//! ([`crate::plant::monolithic::StateSpaceMirror`]) the Keck voice-coil mirror's response to a pier tone
 //! at 5 or 30 Hz is 0.1-0.2 % off; the piezo's was 0.1 % at 5 Hz and 1.1 % at 30 Hz with the
 //! first, 150 N/um stacks, which rang at 1.4 kHz within a tick (today's 4.3 N/um stacks ring at
 //! 233 Hz and stay well inside that).
@@ -79,11 +79,11 @@ use nalgebra::{DMatrix, SMatrix, SVector};
 use serde::{Deserialize, Serialize};
 
 use crate::M1Error;
-use crate::kernels::{axpy, rows_axpy2_f32, rows_dot, rows_dot_f32, rows_dot3_f32};
-use crate::segment::{
+use crate::linalg::kernels::{axpy, rows_axpy2_f32, rows_dot, rows_dot_f32, rows_dot3_f32};
+use crate::plant::segment::{
     Channel, Gamma, N_CONT, N_IN, N_STATE, Phi, SegmentArray, SegmentModel, modal_basis, state,
 };
-use crate::structure::{Flexibility, ModalModel, ModalSolver};
+use crate::plant::structure::{Flexibility, ModalModel, ModalSolver};
 
 /// Exact response of one mode over `h` to its state, a held force and a force ramp:
 /// `(A, b0, b1)` with `A` row-major 2x2 and `b0`, `b1` the (q, q') responses to a unit held
@@ -823,8 +823,8 @@ fn row_major(m: &DMatrix<f64>) -> Vec<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::layout::Layout;
-    use crate::structure::{CellModel, CellParams};
+    use crate::aperture::layout::Layout;
+    use crate::plant::structure::{CellModel, CellParams};
 
     fn keck(model: SegmentModel, n_modes: usize) -> (CoupledMirror, CellModel) {
         keck_on(model, n_modes, &CellParams::soft_cell())

@@ -1,0 +1,8 @@
+//! Studies built on the rest: the quasi-static analyses (SVD, the robustness of Table 1, noise,
+//! clocking, calibration), control-structure interaction of both loops, the split-coupling
+//! study.
+
+pub mod coupling;
+pub mod csi;
+pub mod global_csi;
+pub mod quasistatic;

@@ -1,0 +1,4 @@
+//! Disturbances: the wind's pressure screens and segment loads, pier vibration sources.
+
+pub mod vibration;
+pub mod wind;

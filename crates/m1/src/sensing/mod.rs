@@ -1,0 +1,5 @@
+//! Edge sensing: the sensor/actuator interaction matrices (A and its in-plane parts) and the
+//! edge-sensor model with noise.
+
+pub mod interaction;
+pub mod sensors;
