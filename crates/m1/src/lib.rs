@@ -15,7 +15,7 @@
 //!   solvers, the monolithic models.
 //! - [`analysis`]: quasi-static analyses (Table 1), control-structure interaction, the
 //!   split-coupling study.
-//! - [`linalg`]: SIMD kernels, Krylov estimates, block Cholesky.
+//! - [`linalg`]: SIMD kernels, Krylov estimates, block and skyline Cholesky, the NPY/NPZ reader.
 
 pub mod analysis;
 pub mod aperture;

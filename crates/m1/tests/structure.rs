@@ -9,9 +9,9 @@ use std::path::{Path, PathBuf};
 
 use m1::M1Error;
 use m1::aperture::layout::Layout;
-use m1::plant::structure::{
-    CellModel, CellParams, Flexibility, ModalModel, ModalSolver, Npz, Skyline, parse_npy, zoh_mode,
-};
+use m1::linalg::npy::{Npz, parse_npy};
+use m1::linalg::skyline::Skyline;
+use m1::plant::structure::{CellModel, CellParams, Flexibility, ModalModel, ModalSolver, zoh_mode};
 
 fn keck() -> CellModel {
     let layout = Layout::preset("keck").expect("keck layout");

@@ -1,5 +1,8 @@
-//! Numerical building blocks: SIMD kernels, Krylov estimates, the block Cholesky factor.
+//! Numerical building blocks: SIMD kernels, Krylov estimates, the block Cholesky factor, the
+//! skyline Cholesky of the FE cell, the NPY/NPZ reader.
 
 pub mod blockchol;
 pub mod kernels;
 pub mod krylov;
+pub mod npy;
+pub mod skyline;
