@@ -42,7 +42,7 @@ use crate::plant::structure::{ModalModel, ModalSolver};
 pub struct ChannelFit {
     /// Integrator ODE `İ = a I + b_u u_cmd + b_z z_c + b_f f`: `a` (1/s).
     pub a: f64,
-    /// `b_u` (1/s... per m of command: m s per s per m, i.e. 1).
+    /// `b_u` (dimensionless: the integrator, in m s, grows by the command error in m).
     pub b_u: f64,
     /// `b_z`.
     pub b_z: f64,
