@@ -9,12 +9,12 @@
 //! - [`sensing`]: interaction matrices and the edge-sensor model.
 //! - [`control`]: the nominal setup (A, reconstructor, focus-mode), the sparse reconstructor,
 //!   the global controller.
-//! - [`optics`]: rms surface metrics, PSSN.
+//! - [`optics`]: rms surface metrics, PSSN, random segment states and their statistics.
 //! - [`loads`]: wind pressure screens and loads, pier vibration.
 //! - [`plant`]: segments and their servos, the structure, the coupled and quasi-static mirror
 //!   solvers, the monolithic models.
 //! - [`analysis`]: quasi-static analyses (Table 1), control-structure interaction, the
-//!   split-coupling study.
+//!   split-coupling study, step-response figures, the studies' default settings.
 //! - [`linalg`]: SIMD kernels, Krylov estimates, block and skyline Cholesky, the NPY/NPZ reader.
 
 pub mod analysis;

@@ -1,5 +1,6 @@
 //! Optical figures of a mirror state: the rms surface metrics (with and without focus-mode, per
-//! segment) and the PSSN.
+//! segment), the PSSN, and the random segment states of the PSSN studies with their statistics.
 
 pub mod metrics;
 pub mod pssn;
+pub mod statistics;

@@ -46,6 +46,8 @@
 //!   on +x.
 //! - [`Layout::from_json_str`] / [`Layout::from_json_file`]: a user layout (see the [`json`]
 //!   module for the format).
+//! - [`Layout::load`]: a preset or a JSON file by name, as the command line takes `--layout`
+//!   ([`DEFAULT_LAYOUT`] when none is given).
 
 pub mod error;
 pub mod hex;
@@ -77,6 +79,9 @@ pub const HEX_TOLERANCE: f64 = 1e-6;
 
 /// Largest number of hex rings [`Layout::hexagonal`] accepts (3 R (R + 1) segments at most).
 pub const MAX_RINGS: u32 = 1000;
+
+/// The layout the tools use when none is named: the Thirty Meter Telescope ([`Layout::tmt`]).
+pub const DEFAULT_LAYOUT: &str = "tmt";
 
 /// One hexagonal mirror segment.
 #[derive(Debug, Clone, PartialEq)]
@@ -134,6 +139,26 @@ impl Layout {
                 name: name.to_string(),
                 known: Self::PRESETS,
             }),
+        }
+    }
+
+    /// The layout `name` names: a JSON file (format in the [`json`] module) when `name` ends
+    /// in `.json` (any case, e.g. `my-mirror.JSON`), else the preset `name` as by
+    /// [`Layout::preset`] (`"keck"`, `"tmt"`, `"elt"`, case-insensitive, surrounding white
+    /// space ignored). A file name keeps its exact spelling.
+    ///
+    /// # Errors
+    /// As [`Layout::from_json_file`] for a file (I/O, JSON, validation), as
+    /// [`Layout::preset`] ([`LayoutError::UnknownPreset`]) otherwise.
+    pub fn load(name: &str) -> Result<Layout, LayoutError> {
+        let path = std::path::Path::new(name);
+        if path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("json"))
+        {
+            Layout::from_json_file(path)
+        } else {
+            Layout::preset(name)
         }
     }
 

@@ -1,0 +1,215 @@
+//! The exact all-segment sensitivity of the actuator loop (module documentation, "All
+//! segments"): the two channel kinds' complements in closed form, the coupled subspace by
+//! Lanczos on $S_W^H S_W$ with the modal solves in the calling thread.
+
+use faer::c64;
+use faer::linalg::solvers::PartialPivLu;
+
+use super::actuator_loop::ActuatorLoop;
+use super::projected::{Kinds, singular};
+use crate::M1Error;
+use crate::plant::monolithic::ChannelTransfer;
+
+/// `x <- K^-1 x` (or `K^-H x`) with `K`'s LU factors, in this thread: the solves sit in the
+/// Lanczos loop of one frequency, and the frequencies are what runs in parallel.
+fn seq_solve(
+    lu: &PartialPivLu<c64>,
+    x: &mut [c64],
+    adjoint: bool,
+    stack: &mut faer::dyn_stack::MemBuffer,
+) {
+    use faer::linalg::lu::partial_pivoting::solve;
+    let n = x.len();
+    let rhs = faer::MatMut::from_column_major_slice_mut(x, n, 1);
+    let st = faer::dyn_stack::MemStack::new(stack);
+    if adjoint {
+        solve::solve_transpose_in_place_with_conj(
+            lu.L(),
+            lu.U(),
+            lu.P(),
+            faer::Conj::Yes,
+            rhs,
+            faer::Par::Seq,
+            st,
+        );
+    } else {
+        solve::solve_in_place_with_conj(
+            lu.L(),
+            lu.U(),
+            lu.P(),
+            faer::Conj::No,
+            rhs,
+            faer::Par::Seq,
+            st,
+        );
+    }
+}
+
+/// Lanczos steps at most for the all-segment $\sigma_{max}(S)$.
+const LANCZOS_MAX_STEPS: usize = 120;
+/// Relative residual of the top Ritz pair of $S^H S$ at which Lanczos stops (the eigenvalue
+/// to this relative accuracy, its square root to half of it).
+const LANCZOS_TOL: f64 = 1e-10;
+
+impl ActuatorLoop {
+    /// The exact all-segment $\sigma_{max}(S)$ for the channel scalars `k` with the servo
+    /// scaled by `gain`: the complements' rigid-base values and the coupled subspace's.
+    pub(super) fn all_from_kinds(&self, k: &Kinds, gain: f64) -> Result<f64, M1Error> {
+        let one = c64::new(1.0, 0.0);
+        let s = k.k_s * gain;
+        let e = [one + s * k.p0[0], one + s * k.p0[1]];
+        if e.iter()
+            .any(|x| x.norm() == 0.0 || !x.re.is_finite() || !x.im.is_finite())
+        {
+            return Err(M1Error::Unstable {
+                channel: "actuator servo loop on a rigid base",
+                spectral_radius: f64::NAN,
+                hint: "the return difference 1 + K_s P_d is zero at this frequency",
+            });
+        }
+        let mut v = 0.0f64;
+        for (kind, &c) in self.complement.iter().enumerate() {
+            if c {
+                v = v.max(1.0 / e[kind].norm());
+            }
+        }
+        let w = self.coupled_dimension();
+        if w == 0 {
+            return Ok(v);
+        }
+        let sw = self.coupled_sensitivity(k, s, e)?;
+        Ok(v.max(sw))
+    }
+
+    /// $\sigma_{max}$ of the sensitivity on the coupled subspace (dimension $r_p + r_t > 0$)
+    /// for the servo `s` (scaled) and the rigid-base return differences `e` of both kinds.
+    fn coupled_sensitivity(&self, k: &Kinds, s: c64, e: [c64; 2]) -> Result<f64, M1Error> {
+        let one = c64::new(1.0, 0.0);
+        let w = self.coupled_dimension();
+        // The closed-loop modal stiffness: each kind's force per cell displacement with the
+        // servo closed, f_z - s f_u H p_sz / E.
+        let beta = [0, 1].map(|kd| k.fu[kd] * k.hold * k.psz[kd] / e[kd]);
+        let zero = c64::new(0.0, 0.0);
+        let ct = |kd: usize| ChannelTransfer {
+            mirror: [zero; 3],
+            force: [zero, k.fz[kd] - s * beta[kd], zero],
+            stroke: [zero; 3],
+            drive: [zero; 3],
+            return_difference: zero,
+            loop_gain: zero,
+        };
+        let kcl = self.fm.modal_stiffness(k.frequency, &[ct(0), ct(1)]);
+        let lu = kcl.partial_piv_lu();
+        let rp = self.coupled_rank[0];
+        let r = self.fm.n_modes();
+        // S_W x = D x - X K_cl^-1 Y^T x in the coordinates of the coupled subspace, with per
+        // kind D = 1 / E, X = (s p_sz / E) R, Y = (f_u H / E) R; S_W^H S_W x is applied with
+        // one pass over R^T, one over R and the Gram matrices G = R^T R in between:
+        //   a_k = R_k^T x_k, z = K^-1 sum_k y_k a_k, b_k = d_k a_k - x_k G_k z,
+        //   z' = K^-H sum_k conj(x_k) b_k,
+        //   out_k = |d_k|^2 x_k - R_k (conj(d_k) x_k z + conj(y_k) z').
+        let d = [one / e[0], one / e[1]];
+        let cy = [0, 1].map(|kd| k.fu[kd] * k.hold / e[kd]);
+        let cx = [0, 1].map(|kd| s * k.psz[kd] / e[kd]);
+        let ranges = [0..rp, rp..w];
+        let (rr, gram, rank) = (&self.coupled_r, &self.coupled_gram, self.coupled_rank);
+        let big = r.max(w);
+        let mut buf = vec![0.0; 5 * big];
+        let mut stack = faer::dyn_stack::MemBuffer::new(
+            faer::linalg::lu::partial_pivoting::solve::solve_in_place_scratch::<usize, c64>(
+                r,
+                1,
+                faer::Par::Seq,
+            ),
+        );
+        let (mut a, mut z, mut z2) = ([vec![zero; r], vec![zero; r]], vec![zero; r], vec![zero; r]);
+        let op = |x: &[c64], o: &mut [c64]| {
+            let (xr, rest) = buf.split_at_mut(big);
+            let (xi, rest) = rest.split_at_mut(big);
+            let (t0, rest) = rest.split_at_mut(big);
+            let (t1, t2) = rest.split_at_mut(big);
+            for (i, v) in x.iter().enumerate() {
+                xr[i] = v.re;
+                xi[i] = v.im;
+            }
+            for kd in 0..2 {
+                let rg = ranges[kd].clone();
+                crate::linalg::kernels::real_t_times_complex(
+                    &rr[kd],
+                    rank[kd],
+                    r,
+                    [&xr[rg.clone()], &xi[rg]],
+                    [&mut t0[..r], &mut t1[..r]],
+                );
+                for (j, aj) in a[kd].iter_mut().enumerate() {
+                    *aj = c64::new(t0[j], t1[j]);
+                }
+            }
+            for (j, zj) in z.iter_mut().enumerate() {
+                *zj = cy[0] * a[0][j] + cy[1] * a[1][j];
+            }
+            seq_solve(&lu, &mut z, false, &mut stack);
+            for (j, zj) in z.iter().enumerate() {
+                xr[j] = zj.re;
+                xi[j] = zj.im;
+            }
+            z2.fill(zero);
+            for kd in 0..2 {
+                crate::linalg::kernels::real_times_complex(
+                    &gram[kd],
+                    r,
+                    r,
+                    [&xr[..r], &xi[..r]],
+                    [&mut t0[..r], &mut t1[..r]],
+                    &mut t2[..r],
+                );
+                let (c, dk, xk) = (cx[kd].conj(), d[kd], cx[kd]);
+                for (j, z2j) in z2.iter_mut().enumerate() {
+                    *z2j += c * (dk * a[kd][j] - xk * c64::new(t0[j], t1[j]));
+                }
+            }
+            seq_solve(&lu, &mut z2, true, &mut stack);
+            for kd in 0..2 {
+                let (c1, c2) = (d[kd].conj() * cx[kd], cy[kd].conj());
+                for j in 0..r {
+                    let v = c1 * z[j] + c2 * z2[j];
+                    xr[j] = v.re;
+                    xi[j] = v.im;
+                }
+                let m = rank[kd];
+                crate::linalg::kernels::real_times_complex(
+                    &rr[kd],
+                    m,
+                    r,
+                    [&xr[..r], &xi[..r]],
+                    [&mut t0[..m], &mut t1[..m]],
+                    &mut t2[..m],
+                );
+                let d2 = d[kd].norm_sqr();
+                let start = ranges[kd].start;
+                for (i, oi) in o[ranges[kd].clone()].iter_mut().enumerate() {
+                    *oi = x[start + i] * d2 - c64::new(t0[i], t1[i]);
+                }
+            }
+        };
+        let v0: Vec<c64> = (0..w)
+            .map(|i| {
+                let t = i as f64;
+                c64::new(1.0 + (0.7 * t).sin(), (1.3 * t).cos())
+            })
+            .collect();
+        let pair = crate::linalg::krylov::largest_hermitian_eigenpair(
+            w,
+            LANCZOS_MAX_STEPS,
+            &v0,
+            LANCZOS_TOL,
+            op,
+        );
+        let theta = pair.value;
+        let sw = theta.max(0.0).sqrt();
+        if !sw.is_finite() {
+            return Err(singular(k.frequency));
+        }
+        Ok(sw)
+    }
+}

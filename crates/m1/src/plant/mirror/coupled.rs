@@ -1,0 +1,363 @@
+//! The coupled solver's state and its public face ([`CoupledMirror`]): built once from the
+//! segment model and the retained modes (the coupling matrices, the shapes in the channel
+//! basis), advanced a communication step at a time, read in actuator order.
+
+use nalgebra::{DMatrix, SMatrix, SVector};
+use serde::{Deserialize, Serialize};
+
+use super::maps::{foh_mode, substep_maps};
+use super::projection::{Project, input_columns, row_major};
+use super::tick::Ticks;
+use crate::M1Error;
+use crate::plant::segment::{
+    Channel, Gamma, N_IN, N_STATE, Phi, SegmentArray, SegmentModel, modal_basis, state,
+};
+use crate::plant::structure::{Flexibility, ModalModel, ModalSolver};
+
+/// Every segment on its actuators, coupled without delay to a modal model of the cell.
+///
+/// Arrays in and out are in actuator order (actuator k of segment i at 3 i + k).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CoupledMirror {
+    pub(super) n_segments: usize,
+    pub(super) model: SegmentModel,
+    /// The servo period.
+    pub(super) ts: f64,
+    /// Coupled sub-steps per servo period.
+    pub(super) substeps: u32,
+    /// Channel maps of one sub-step, by sub-step kind (with the servo's sample, without) and
+    /// channel kind (piston, tilt): X+ = P X + S w + ramp Delta.
+    pub(super) tick: [[Phi; 2]; 2],
+    pub(super) tick_in: [[Gamma; 2]; 2],
+    pub(super) ramp: [SVector<f64, N_STATE>; 2],
+    pub(super) cell_c: [SMatrix<f64, 1, N_STATE>; 2],
+    /// Feedthrough of the cell displacement into the cell force (same for both kinds).
+    pub(super) cell_d: f64,
+    /// `E` per kind: end-of-tick force per unit ramp of the cell displacement.
+    pub(super) e: [f64; 2],
+    pub(super) basis: SMatrix<f64, 3, 3>,
+    /// Free part of the channel states: the segments driven by the command and the wind on a
+    /// cell at rest (`zeros`), stepped a communication step at a time.
+    pub(super) free: SegmentArray,
+    pub(super) zeros: Vec<f64>,
+    // Structure.
+    pub(super) structure: ModalSolver,
+    pub(super) r: usize,
+    pub(super) na: usize,
+    /// Modal FOH maps per mode.
+    pub(super) a_mode: Vec<[f64; 4]>,
+    pub(super) b0: Vec<[f64; 2]>,
+    pub(super) b1: Vec<[f64; 2]>,
+    /// Mode shapes in the channel basis (rows: piston channels, then tilt channels 2 s + m),
+    /// `na x r` row-major.
+    pub(super) phic: Vec<f64>,
+    /// The same in single precision, for the two passes per communication step (inputs onto
+    /// the modes, outputs back): half the memory traffic, relative error about 1e-7.
+    pub(super) phic32: Vec<f32>,
+    /// Single-precision scratch: the channel inputs by kind (command then wind, `2 n_k`), the
+    /// projection's accumulators (`r` each) and the output columns (`6 r`).
+    pub(super) w32: [Vec<f32>; 2],
+    pub(super) acc32: [Vec<f32>; 2],
+    pub(super) cols32: Vec<f32>,
+    /// `[W G_p, W G_t]` with `W = (I - M B1)^-1`: r x 2r row-major.
+    pub(super) wg: Vec<f64>,
+    /// `[G_p, G_t]`, r x 2r row-major, in single precision: the modal force of the drive's
+    /// jump at a servo sample (a small correction: the drive's change over one servo period).
+    pub(super) gg: Vec<f32>,
+    /// Feedthrough of the drive into the cell force.
+    pub(super) drive_d: f64,
+    /// The pier displacement held over the last tick.
+    pub(super) pier: f64,
+    /// Projected free states `Phi_k^T X_k` and cell-driven states `xi_k` (state-major:
+    /// `[s * r + j]`), by kind.
+    pub(super) proj: [Vec<f64>; 2],
+    pub(super) xi: [Vec<f64>; 2],
+    /// Projected inputs `Phi_k^T w_k` (r x 3 column-major), by kind.
+    pub(super) w_proj: [Vec<f64>; 2],
+    pub(super) q: Vec<f64>,
+    pub(super) v: Vec<f64>,
+    /// Modal force at the start of the tick.
+    pub(super) u: Vec<f64>,
+    /// Outputs at the current time, actuator order.
+    pub(super) f_cell: Vec<f64>,
+    pub(super) z_cell: Vec<f64>,
+    pub(super) z_mirror: Vec<f64>,
+    // Scratch.
+    pub(super) scratch: [Vec<f64>; 2],
+    /// Right-hand side of the coupled solve: `h` (r), then `[psi_p; psi_t]` (2r).
+    pub(super) rhs: Vec<f64>,
+    pub(super) psi: Vec<f64>,
+    /// The cell-driven part's drive change at the sample, by kind (2r), and the modal force's
+    /// jump (r).
+    pub(super) drive_step: Vec<f32>,
+    pub(super) jump: Vec<f64>,
+    pub(super) u_new: Vec<f64>,
+    pub(super) out: Vec<f64>,
+    pub(super) cols: Vec<f64>,
+}
+
+impl CoupledMirror {
+    /// `n_segments` identical segments of `model` on the structure `cell` (its `n_modes` lowest
+    /// modes, `damping_ratio` unless the model carries its own), at rest. The coupling is
+    /// solved `substeps` times per servo period (1: at every servo sample; 2 or more also
+    /// between samples, which the stiff piezo stack needs for 1 % accuracy at 30 Hz).
+    pub fn new(
+        n_segments: usize,
+        model: SegmentModel,
+        cell: ModalModel,
+        n_modes: usize,
+        damping_ratio: f64,
+        substeps: u32,
+    ) -> Result<Self, M1Error> {
+        model.validate()?;
+        if substeps == 0 {
+            return Err(M1Error::InvalidParameter {
+                name: "substeps",
+                value: 0.0,
+                reason: "must be >= 1",
+            });
+        }
+        let na = 3 * n_segments;
+        if cell.na != na {
+            return Err(M1Error::SizeMismatch {
+                what: "structure attachments (3 per segment)",
+                expected: na,
+                found: cell.na,
+            });
+        }
+        let mut cell = cell;
+        cell.flexibility = Flexibility::None;
+        let structure = ModalSolver::new(cell, n_modes, damping_ratio)?;
+        let ts = model.servo_period();
+        let d = ts / f64::from(substeps);
+        let (cp, dp) = model.cell_force_map(Channel::Piston);
+        let (ct, _) = model.cell_force_map(Channel::Tilt);
+        let maps = [Channel::Piston, Channel::Tilt].map(|ch| substep_maps(&model, ch, substeps));
+        let [(mp, rp), (mt, rt)] = maps;
+        let ramp = [rp, rt];
+        let cell_d = dp[1];
+        let e = [(cp * ramp[0])[0] + cell_d, (ct * ramp[1])[0] + cell_d];
+        let r = structure.n_modes();
+        let omega: Vec<f64> = structure
+            .frequencies()
+            .iter()
+            .map(|f| std::f64::consts::TAU * f)
+            .collect();
+        let zeta = structure.damping_ratios().to_vec();
+        let mut a_mode = Vec::with_capacity(r);
+        let mut b0 = Vec::with_capacity(r);
+        let mut b1 = Vec::with_capacity(r);
+        for (&w, &z) in omega.iter().zip(&zeta) {
+            let (a, p, q) = foh_mode(w, z, d);
+            a_mode.push(a);
+            b0.push(p);
+            b1.push(q);
+        }
+        // Mode shapes in the channel basis: piston rows, then tilt rows.
+        let phi = DMatrix::from_row_slice(na, r, structure.shapes());
+        let v = modal_basis();
+        let n = n_segments;
+        let mut phic = DMatrix::<f64>::zeros(na, r);
+        for seg in 0..n {
+            let ch = v.transpose() * phi.rows(3 * seg, 3);
+            phic.row_mut(seg).copy_from(&ch.row(0));
+            phic.row_mut(n + 2 * seg).copy_from(&ch.row(1));
+            phic.row_mut(n + 2 * seg + 1).copy_from(&ch.row(2));
+        }
+        let gram = [
+            phic.rows(0, n).transpose() * phic.rows(0, n),
+            phic.rows(n, 2 * n).transpose() * phic.rows(n, 2 * n),
+        ];
+        let m = &gram[0] * e[0] + &gram[1] * e[1];
+        let mut lhs = DMatrix::<f64>::identity(r, r);
+        for i in 0..r {
+            for j in 0..r {
+                lhs[(i, j)] -= m[(i, j)] * b1[j][0];
+            }
+        }
+        let w_inv = lhs.try_inverse().ok_or(M1Error::Unstable {
+            channel: "coupled segments and structure",
+            spectral_radius: f64::NAN,
+            hint: "the coupled tick is singular: check the structure model and the actuator \
+                   stiffness",
+        })?;
+        let mut wg = DMatrix::<f64>::zeros(r, 2 * r);
+        wg.columns_mut(0, r).copy_from(&(&w_inv * &gram[0]));
+        wg.columns_mut(r, r).copy_from(&(&w_inv * &gram[1]));
+        let mut gg = DMatrix::<f64>::zeros(r, 2 * r);
+        gg.columns_mut(0, r).copy_from(&gram[0]);
+        gg.columns_mut(r, r).copy_from(&gram[1]);
+        Ok(Self {
+            n_segments,
+            ts,
+            substeps,
+            tick: [[mp[0].0, mt[0].0], [mp[1].0, mt[1].0]],
+            tick_in: [[mp[0].1, mt[0].1], [mp[1].1, mt[1].1]],
+            ramp,
+            cell_c: [cp, ct],
+            cell_d,
+            e,
+            basis: v,
+            free: SegmentArray::new(n, model.clone())?,
+            zeros: vec![0.0; na],
+            model,
+            structure,
+            r,
+            na,
+            a_mode,
+            b0,
+            b1,
+            phic: row_major(&phic),
+            phic32: row_major(&phic).iter().map(|&x| x as f32).collect(),
+            w32: [vec![0.0f32; 2 * n], vec![0.0f32; 4 * n]],
+            acc32: [vec![0.0f32; r], vec![0.0f32; r]],
+            cols32: vec![0.0f32; 6 * r],
+            wg: row_major(&wg),
+            gg: row_major(&gg).iter().map(|&x| x as f32).collect(),
+            drive_d: cp[state::DRIVE],
+            pier: 0.0,
+            proj: [vec![0.0; r * N_STATE], vec![0.0; r * N_STATE]],
+            xi: [vec![0.0; r * N_STATE], vec![0.0; r * N_STATE]],
+            w_proj: [vec![0.0; r * N_IN], vec![0.0; r * N_IN]],
+            q: vec![0.0; r],
+            v: vec![0.0; r],
+            u: vec![0.0; r],
+            f_cell: vec![0.0; na],
+            z_cell: vec![0.0; na],
+            z_mirror: vec![0.0; na],
+            scratch: [vec![0.0; r * N_STATE], vec![0.0; r * N_STATE]],
+            rhs: vec![0.0; r],
+            psi: vec![0.0; 2 * r],
+            drive_step: vec![0.0f32; 2 * r],
+            jump: vec![0.0; r],
+            u_new: vec![0.0; r],
+            out: vec![0.0; 3 * na],
+            cols: vec![0.0; 6 * r],
+        })
+    }
+
+    /// Number of segments.
+    pub fn n_segments(&self) -> usize {
+        self.n_segments
+    }
+
+    /// Number of actuators (3 per segment).
+    pub fn n_actuators(&self) -> usize {
+        self.na
+    }
+
+    /// The segment model.
+    pub fn model(&self) -> &SegmentModel {
+        &self.model
+    }
+
+    /// The structure's modal model (retained modes, shapes, damping).
+    pub fn structure(&self) -> &ModalSolver {
+        &self.structure
+    }
+
+    /// The servo period, the smallest step (s).
+    pub fn tick_period(&self) -> f64 {
+        self.ts
+    }
+
+    /// Number of whole servo periods in `h`, or an error naming the step if `h` is not a
+    /// positive multiple of the servo period (to 1e-9 of it).
+    pub fn ticks_in(&self, h: f64) -> Result<u64, M1Error> {
+        let k = (h / self.ts).round();
+        if h.is_finite() && k >= 1.0 && (h - k * self.ts).abs() <= 1e-9 * self.ts {
+            Ok(k as u64)
+        } else {
+            Err(M1Error::InvalidParameter {
+                name: "communicationStepSize",
+                value: h,
+                reason: "must be a positive multiple of the servo period (1 / servo_rate): the \
+                         segments and the cell are solved together at every servo sample",
+            })
+        }
+    }
+
+    /// Advances `h` seconds (a whole number of ticks) with the command, the wind forces
+    /// (actuator order, length 3N) and the pier displacement held.
+    pub fn advance(
+        &mut self,
+        h: f64,
+        u_cmd: &[f64],
+        f_wind: &[f64],
+        pier_z: f64,
+    ) -> Result<(), M1Error> {
+        let ticks = self.ticks_in(h)?;
+        crate::error::check_lengths(self.na, &[("u_cmd", u_cmd), ("f_wind", f_wind)])?;
+        // The free part over the whole step at once (its inputs, projected on the channels,
+        // are then read back for the modes).
+        self.free.advance(h, u_cmd, &self.zeros, f_wind)?;
+        // The held inputs on the modes.
+        {
+            let r = self.r;
+            let [p, t] = &mut self.w_proj;
+            let (pu, pf) = input_columns(p, r);
+            let (tu, tf) = input_columns(t, r);
+            // Command and wind columns of each kind, in single precision.
+            for (kind, w) in self.free.channel_inputs().into_iter().enumerate() {
+                let cnt = self.w32[kind].len() / 2;
+                let dst = &mut self.w32[kind];
+                for c in 0..cnt {
+                    dst[c] = w[c] as f32;
+                    dst[cnt + c] = w[2 * cnt + c] as f32;
+                }
+            }
+            let [a0, a1] = &mut self.acc32;
+            pulp::Arch::new().dispatch(Project {
+                phic: &self.phic32,
+                r,
+                n: self.n_segments,
+                w: [&self.w32[0], &self.w32[1]],
+                acc: [a0, a1],
+                out: [pu, pf, tu, tf],
+            });
+        }
+        // The ticks, vectorised for this processor (everything in them is inlined into a
+        // function compiled for its instruction set).
+        pulp::Arch::new().dispatch(Ticks {
+            mirror: self,
+            ticks,
+            pier_z,
+        });
+        self.write_outputs();
+        Ok(())
+    }
+
+    /// Mirror displacement `z` at each actuator (length 3N).
+    pub fn mirror(&self, z: &mut [f64]) {
+        z.copy_from_slice(&self.z_mirror);
+    }
+
+    /// Cell displacement at each attachment (length 3N).
+    pub fn cell_displacement(&self) -> &[f64] {
+        &self.z_cell
+    }
+
+    /// Force of each actuator on the cell (length 3N).
+    pub fn cell_force(&self) -> &[f64] {
+        &self.f_cell
+    }
+
+    /// Back to rest.
+    pub fn reset(&mut self) {
+        self.free.reset();
+        self.pier = 0.0;
+        for a in self.proj.iter_mut().chain(self.xi.iter_mut()) {
+            a.fill(0.0);
+        }
+        for a in [
+            &mut self.q,
+            &mut self.v,
+            &mut self.u,
+            &mut self.f_cell,
+            &mut self.z_cell,
+            &mut self.z_mirror,
+        ] {
+            a.fill(0.0);
+        }
+    }
+}

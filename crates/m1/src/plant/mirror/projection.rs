@@ -1,0 +1,99 @@
+//! The single-precision streaming passes between the channels and the modes, each a SIMD
+//! operation for [`pulp::Arch::dispatch`]: the held inputs onto the modes ([`Project`]) and the
+//! modal columns back onto the channel rows ([`Reconstruct`]).
+
+use nalgebra::DMatrix;
+
+use crate::linalg::kernels::{rows_axpy2_f32, rows_dot3_f32};
+
+/// The two input columns the ticks use (command, wind) of an `r x N_IN` column-major block.
+pub(super) fn input_columns(w: &mut [f64], r: usize) -> (&mut [f64], &mut [f64]) {
+    let (u, rest) = w.split_at_mut(r);
+    (u, &mut rest[r..2 * r])
+}
+
+/// `Phi_k^T w_k` (command and wind columns) for both kinds, from the single-precision shapes:
+/// `out` is (piston command, piston wind, tilt command, tilt wind), each `r` long; `w[kind]` is
+/// the kind's command column then its wind column.
+pub(super) struct Project<'a> {
+    pub(super) phic: &'a [f32],
+    pub(super) r: usize,
+    pub(super) n: usize,
+    pub(super) w: [&'a [f32]; 2],
+    pub(super) acc: [&'a mut [f32]; 2],
+    pub(super) out: [&'a mut [f64]; 4],
+}
+
+impl pulp::WithSimd for Project<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
+        let (r, n) = (self.r, self.n);
+        let [pu, pf, tu, tf] = self.out;
+        let [a0, a1] = self.acc;
+        for (kind, (lo, count), yu, yf) in [(0usize, (0usize, n), pu, pf), (1, (n, 2 * n), tu, tf)]
+        {
+            let x = self.w[kind];
+            rows_axpy2_f32::<S>(
+                simd,
+                &self.phic[lo * r..],
+                r,
+                count,
+                r,
+                [&x[..count], &x[count..2 * count]],
+                [yu, yf],
+                [&mut *a0, &mut *a1],
+            );
+        }
+    }
+}
+
+/// Rows `rows` of `Phi_c [cols_k]` (channel rows: piston `0..n`, tilt `n..3n`; `cols` holds
+/// the three `r`-columns of each kind in turn): `out` is the three output columns over `rows`.
+pub(super) struct Reconstruct<'a> {
+    pub(super) phic: &'a [f32],
+    pub(super) r: usize,
+    pub(super) n: usize,
+    pub(super) rows: std::ops::Range<usize>,
+    pub(super) cols: &'a [f32],
+    pub(super) out: [&'a mut [f64]; 3],
+}
+
+impl pulp::WithSimd for Reconstruct<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
+        let (r, n) = (self.r, self.n);
+        let [o0, o1, o2] = self.out;
+        for (kind, kinds) in [(0usize, 0..n), (1, n..3 * n)] {
+            let lo = self.rows.start.max(kinds.start);
+            let hi = self.rows.end.min(kinds.end);
+            if lo >= hi {
+                continue;
+            }
+            let cols = &self.cols[3 * r * kind..3 * r * (kind + 1)];
+            let (c0, rest) = cols.split_at(r);
+            let (c1, c2) = rest.split_at(r);
+            let at = lo - self.rows.start..hi - self.rows.start;
+            for o in [&mut *o0, &mut *o1, &mut *o2] {
+                o[at.clone()].fill(0.0);
+            }
+            rows_dot3_f32::<S>(
+                simd,
+                &self.phic[lo * r..],
+                r,
+                hi - lo,
+                r,
+                [c0, c1, c2],
+                [&mut o0[at.clone()], &mut o1[at.clone()], &mut o2[at]],
+            );
+        }
+    }
+}
+
+/// The entries of `m` row by row.
+pub(super) fn row_major(m: &DMatrix<f64>) -> Vec<f64> {
+    m.transpose().as_slice().to_vec()
+}

@@ -1,0 +1,199 @@
+//! Tests of the coupled solver: every step's outputs consistent with its state, the static
+//! solution reached, the results independent of the communication step.
+
+use super::*;
+use crate::aperture::layout::Layout;
+use crate::plant::segment::{Channel, N_STATE, SegmentModel, state};
+use crate::plant::structure::{CellModel, CellParams};
+
+fn keck(model: SegmentModel, n_modes: usize) -> (CoupledMirror, CellModel) {
+    keck_on(model, n_modes, &CellParams::soft_cell())
+}
+
+fn keck_on(model: SegmentModel, n_modes: usize, p: &CellParams) -> (CoupledMirror, CellModel) {
+    let layout = Layout::keck();
+    let cell = CellModel::new(&layout, p).expect("cell");
+    let modes = cell.modes().expect("modes");
+    let m =
+        CoupledMirror::new(layout.n_segments(), model, modes, n_modes, 0.02, 1).expect("mirror");
+    (m, cell)
+}
+
+fn wind(na: usize) -> Vec<f64> {
+    (0..na)
+        .map(|i| ((i * 7919 % 13) as f64 - 6.0) * 5.0)
+        .collect()
+}
+
+/// At the end of every step the two sides agree: the force on the cell is the segments'
+/// output for the channel states they ended on (free part plus the part carried on the
+/// modes) and the cell displacement, and the modal force is that force projected on the
+/// modes (the identities the implicit solve enforces).
+#[test]
+fn every_step_ends_consistent() {
+    for model in [
+        SegmentModel::voice_coil(),
+        SegmentModel::piezo_damped_default(),
+    ] {
+        let (mut m, _) = keck(model, 1000);
+        let na = m.n_actuators();
+        let n = m.n_segments();
+        let r = m.r;
+        let u_cmd: Vec<f64> = (0..na).map(|i| 1e-8 * (i % 5) as f64).collect();
+        let fw = wind(na);
+        for k in 0..40 {
+            let p = 1e-9 * (k as f64 * 0.3).sin();
+            m.advance(m.tick_period(), &u_cmd, &fw, p).expect("tick");
+            // Channel states X = x_free + Phi_c xi; f = c X + d z_cell, channel by channel.
+            let v = m.basis;
+            let z = m.cell_displacement().to_vec();
+            let mut f = vec![0.0; na];
+            for seg in 0..n {
+                let idx = [(0usize, seg, n, seg), (1, 2 * seg, 2 * n, n + 2 * seg)];
+                let idx = [idx[0], idx[1], (1, 2 * seg + 1, 2 * n, n + 2 * seg + 1)];
+                let zc = &z[3 * seg..3 * seg + 3];
+                let mut fch = [0.0; 3];
+                for (j, &(kind, c, cnt, row)) in idx.iter().enumerate() {
+                    let zch = v[(0, j)] * zc[0] + v[(1, j)] * zc[1] + v[(2, j)] * zc[2];
+                    let x = |s: usize| {
+                        m.free.state()[kind][s * cnt + c]
+                            + (0..r)
+                                .map(|q| m.phic[row * r + q] * m.xi[kind][s * r + q])
+                                .sum::<f64>()
+                    };
+                    fch[j] = (0..N_STATE).map(|s| m.cell_c[kind][s] * x(s)).sum::<f64>()
+                        + m.cell_d * zch;
+                }
+                for a in 0..3 {
+                    f[3 * seg + a] = v[(a, 0)] * fch[0] + v[(a, 1)] * fch[1] + v[(a, 2)] * fch[2];
+                }
+            }
+            let scale = f.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+            // The outputs come back through the single-precision shapes.
+            for (a, b) in f.iter().zip(m.cell_force()) {
+                assert!((a - b).abs() <= 1e-6 * scale, "force {a} vs {b}");
+            }
+            let phi = m.structure.shapes();
+            let bp = m.structure.pier_gains();
+            let modal: Vec<f64> = (0..r)
+                .map(|j| (0..na).map(|i| phi[i * r + j] * f[i]).sum::<f64>() + bp[j] * p)
+                .collect();
+            let uscale = modal.iter().fold(1e-300, |a: f64, b| a.max(b.abs()));
+            for (j, &u) in modal.iter().enumerate() {
+                // Within 1e-6 of the largest modal force: the inputs reach the modes through
+                // the single-precision shapes.
+                assert!(
+                    (u - m.u[j]).abs() <= 1e-6 * uscale,
+                    "mode {j}: {u} vs {}",
+                    m.u[j]
+                );
+            }
+            // The free part's projection, stepped on the modes, matches the free states.
+            for kind in 0..2 {
+                let (lo, cnt) = if kind == 0 { (0, n) } else { (n, 2 * n) };
+                for s in [state::NODE_POS, state::MIRROR_POS, state::DRIVE] {
+                    let direct = |j: usize| -> f64 {
+                        (0..cnt)
+                            .map(|c| m.phic[(lo + c) * r + j] * m.free.state()[kind][s * cnt + c])
+                            .sum()
+                    };
+                    let scale = (0..r).map(|j| direct(j).abs()).fold(1e-300, f64::max);
+                    for j in (0..r).step_by(7) {
+                        let direct = direct(j);
+                        let carried = m.proj[kind][s * r + j];
+                        // The inputs reach the modes through the single-precision shapes:
+                        // within 1e-6 of the largest projection.
+                        assert!(
+                            (direct - carried).abs() <= 1e-6 * scale,
+                            "proj {direct} vs {carried}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Under a constant load the mirror settles on the analytic static solution: the cell (all
+/// modes retained) deflects by the exact static compliance under the actuator reactions
+/// (f_cell = f_wind),
+/// the integral servo of the piezo holds the stroke at zero, and the mirror sits on the
+/// whiffletree and the flexures in series, f (1/k_w + 1/k_s) per channel.
+#[test]
+fn settles_on_the_static_solution() {
+    let model = SegmentModel::piezo();
+    let (mut m, cell) = keck(model.clone(), 1000);
+    let na = m.n_actuators();
+    let fw = wind(na);
+    let zero = vec![0.0; na];
+    // 24 s: the piezo's integral correction (0.25 Hz, time constant 0.64 s) and the slowest
+    // mode (the 10 Hz mount, 2 % damping) decay by e^-30 or more.
+    for _ in 0..48 {
+        m.advance(0.5, &zero, &fw, 0.0).expect("advance");
+    }
+    let zc = cell.static_deflection(&fw, 0.0).expect("static");
+    let scale = zc.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+    for (a, b) in m.cell_displacement().iter().zip(&zc) {
+        assert!((a - b).abs() <= 1e-5 * scale, "z_cell {a} vs {b}");
+    }
+    // The outputs come back through the single-precision shapes, and the piezo's force is
+    // a difference of stiff terms (K_D times displacements): 1e-4 N of 30 N.
+    for (a, b) in m.cell_force().iter().zip(&fw) {
+        assert!((a - b).abs() <= 1e-4, "f_cell {a} vs {b}");
+    }
+    let v = m.basis;
+    let mut z = vec![0.0; na];
+    m.mirror(&mut z);
+    for seg in 0..m.n_segments() {
+        let f = &fw[3 * seg..3 * seg + 3];
+        let c = &zc[3 * seg..3 * seg + 3];
+        let mut ch = [0.0; 3];
+        for (j, kind) in [Channel::Piston, Channel::Tilt, Channel::Tilt]
+            .iter()
+            .enumerate()
+        {
+            let fj = v[(0, j)] * f[0] + v[(1, j)] * f[1] + v[(2, j)] * f[2];
+            let cj = v[(0, j)] * c[0] + v[(1, j)] * c[1] + v[(2, j)] * c[2];
+            ch[j] = cj + fj * model.support_compliance(*kind);
+        }
+        for a in 0..3 {
+            let want = v[(a, 0)] * ch[0] + v[(a, 1)] * ch[1] + v[(a, 2)] * ch[2];
+            let got = z[3 * seg + a];
+            assert!((got - want).abs() <= 1e-5 * scale, "z {got} vs {want}");
+        }
+    }
+}
+
+/// The coupled solve gives the same answer (to rounding) for any split of time into
+/// communication steps, on both structure presets, and refuses a step off the servo grid.
+#[test]
+fn results_do_not_depend_on_the_communication_step() {
+    for p in [CellParams::soft_cell(), CellParams::tmt()] {
+        let (mut a, _) = keck_on(SegmentModel::voice_coil(), 50, &p);
+        let mut b = a.clone();
+        let na = a.n_actuators();
+        let fw = wind(na);
+        let u = vec![2e-8; na];
+        for _ in 0..10 {
+            a.advance(1e-3, &u, &fw, 1e-9).expect("1 ms");
+        }
+        for _ in 0..50 {
+            b.advance(2e-4, &u, &fw, 1e-9).expect("0.2 ms");
+        }
+        // Equal to rounding: the free part takes one 5-tick map against five 1-tick maps.
+        for (x, y) in [
+            (a.cell_displacement(), b.cell_displacement()),
+            (a.cell_force(), b.cell_force()),
+        ] {
+            let scale = y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for (p, q) in x.iter().zip(y) {
+                assert!((p - q).abs() <= 1e-12 * scale, "{p} vs {q}");
+            }
+        }
+        let e = a
+            .advance(3e-4, &u, &fw, 0.0)
+            .expect_err("off grid")
+            .to_string();
+        assert!(e.contains("communicationStepSize"), "{e}");
+    }
+}

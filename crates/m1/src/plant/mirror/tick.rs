@@ -1,0 +1,261 @@
+//! One coupled tick, entirely on the modes (module documentation, "Scheme" and "Carried on
+//! the modes"): the channels' free and cell-driven parts per kind, the coupled solve for the
+//! modal force, the modes; the ticks of a step as one SIMD dispatch ([`Ticks`]); and the
+//! outputs back in actuator space.
+
+use super::coupled::CoupledMirror;
+use super::projection::Reconstruct;
+use crate::linalg::kernels::{axpy, rows_dot, rows_dot_f32};
+use crate::plant::segment::{N_STATE, state};
+
+impl CoupledMirror {
+    /// One coupled tick, entirely on the modes: the segments' response to the cell motion is
+    /// carried per mode (identical segments: the channel dynamics commute with the mode shapes).
+    /// Modal arrays are state-major (`[s * r + j]`), so every update is a run of axpys.
+    #[inline(always)]
+    fn tick<S: pulp::Simd>(&mut self, simd: S, pier_z: f64, sample: bool) {
+        let r = self.r;
+        const S: usize = N_STATE;
+        self.rhs.fill(0.0);
+        self.jump.fill(0.0);
+        for k in 0..2 {
+            self.tick_channels(k, sample);
+        }
+        // The drive jumps at the sample and is held over the tick: the modal force starts the
+        // tick at the end value of the last one plus that jump, then ramps (the continuous
+        // part of the cell force is what varies within the tick).
+        if sample {
+            rows_dot_f32::<S>(
+                simd,
+                &self.gg,
+                2 * r,
+                r,
+                2 * r,
+                &self.drive_step,
+                &mut self.jump,
+            );
+        }
+        // The pier input is held too: a new value loads the modes from the tick's start.
+        let dp = pier_z - self.pier;
+        self.pier = pier_z;
+        let bp = self.structure.pier_gains();
+        for ((u, jump), b) in self.u.iter_mut().zip(&self.jump).zip(bp) {
+            *u += self.drive_d * jump + dp * b;
+        }
+        // a = free q+ (held and ramp parts of the old modal force): q+ = a + b1_q u+.
+        axpy(&mut self.rhs, pier_z, self.structure.pier_gains());
+        for j in 0..r {
+            let (a, b0, b1) = (&self.a_mode[j], &self.b0[j], &self.b1[j]);
+            let abar = a[0] * self.q[j] + a[1] * self.v[j] + (b0[0] - b1[0]) * self.u[j];
+            self.psi[j] += self.e[0] * abar;
+            self.psi[r + j] += self.e[1] * abar;
+            self.cols[j] = abar;
+        }
+        // u+ = W (h + b_p p) + W G_p (psi_p + e_p a) + W G_t (psi_t + e_t a), with
+        // W = (I - M B1)^-1 = I + W M B1 and W M = e_p W G_p + e_t W G_t, so that
+        // u+ = h' + W G_p (psi_p + e_p a + e_p B1 h') + W G_t (psi_t + e_t a + e_t B1 h'):
+        // one r x 2r product (it fits a core's cache up to r of about 350).
+        for j in 0..r {
+            let bh = self.b1[j][0] * self.rhs[j];
+            self.psi[j] += self.e[0] * bh;
+            self.psi[r + j] += self.e[1] * bh;
+        }
+        self.u_new.copy_from_slice(&self.rhs);
+        rows_dot::<S, 1>(
+            simd,
+            &self.wg,
+            2 * r,
+            r,
+            2 * r,
+            [&self.psi],
+            [&mut self.u_new],
+        );
+        // Modes at the end of the tick.
+        for j in 0..r {
+            let (a, b0, b1) = (&self.a_mode[j], &self.b0[j], &self.b1[j]);
+            let (q, vq, u0, u1) = (self.q[j], self.v[j], self.u[j], self.u_new[j]);
+            self.q[j] = self.cols[j] + b1[0] * u1;
+            self.v[j] = a[2] * q + a[3] * vq + b0[1] * u0 + b1[1] * (u1 - u0);
+            self.u[j] = u1;
+        }
+        // Cell-driven states with this tick's ramp: xi+_i = Y_i + ramp_i q+.
+        for k in 0..2 {
+            let ramp = &self.ramp[k];
+            for i in 0..S {
+                if ramp[i] != 0.0 {
+                    axpy(&mut self.scratch[k][i * r..(i + 1) * r], ramp[i], &self.q);
+                }
+            }
+            std::mem::swap(&mut self.xi[k], &mut self.scratch[k]);
+        }
+    }
+
+    /// The channels of kind `k` (0 piston, 1 tilt) over one tick of [`Self::tick`], on the
+    /// modes: the free part (projected) and the cell-driven part without this tick's ramp, with
+    /// their terms of the coupled solve's right-hand side (`rhs`, `psi`) and, at a servo sample
+    /// (`sample`), the drive's change (`jump`, `drive_step`).
+    #[inline(always)]
+    fn tick_channels(&mut self, k: usize, sample: bool) {
+        let r = self.r;
+        const S: usize = N_STATE;
+        let dr = state::DRIVE;
+        let set = usize::from(!sample);
+        let (p, g, ramp, c) = (
+            &self.tick[set][k],
+            &self.tick_in[set][k],
+            &self.ramp[k],
+            &self.cell_c[k],
+        );
+        let wp = &self.w_proj[k];
+        // Free part, projected: P+_i = sum_s p_is P_s + g_i0 W_u + g_i2 W_f.
+        let (src, dst) = (&self.proj[k], &mut self.scratch[k]);
+        for i in 0..S {
+            let out = &mut dst[i * r..(i + 1) * r];
+            out.fill(0.0);
+            for s in 0..S {
+                let a = p[(i, s)];
+                if a != 0.0 {
+                    axpy(out, a, &src[s * r..(s + 1) * r]);
+                }
+            }
+            for l in [0, 2] {
+                let a = g[(i, l)];
+                if a != 0.0 {
+                    axpy(out, a, &wp[l * r..(l + 1) * r]);
+                }
+            }
+        }
+        std::mem::swap(&mut self.proj[k], &mut self.scratch[k]);
+        // The free part's drive change at the sample, on the modes.
+        if sample {
+            let (new, old) = (&self.proj[k][dr * r..], &self.scratch[k][dr * r..]);
+            for j in 0..r {
+                self.jump[j] += new[j] - old[j];
+            }
+        }
+        // h += P+ c^T.
+        for i in 0..S {
+            if c[i] != 0.0 {
+                axpy(&mut self.rhs, c[i], &self.proj[k][i * r..(i + 1) * r]);
+            }
+        }
+        // Cell-driven part without this tick's ramp: Y_i = sum_s p_is xi_s + (g_i1 - ramp_i) q.
+        let (src, dst) = (&self.xi[k], &mut self.scratch[k]);
+        for i in 0..S {
+            let out = &mut dst[i * r..(i + 1) * r];
+            out.fill(0.0);
+            for s in 0..S {
+                let a = p[(i, s)];
+                if a != 0.0 {
+                    axpy(out, a, &src[s * r..(s + 1) * r]);
+                }
+            }
+            let a = g[(i, 1)] - ramp[i];
+            if a != 0.0 {
+                axpy(out, a, &self.q);
+            }
+        }
+        // The cell-driven part's drive change (the ramp does not reach the drive).
+        if sample {
+            let (new, old) = (&self.scratch[k][dr * r..], &self.xi[k][dr * r..]);
+            let out = &mut self.drive_step[k * r..(k + 1) * r];
+            for j in 0..r {
+                out[j] = (new[j] - old[j]) as f32;
+            }
+        }
+        // psi~_k = Y c^T.
+        let psi = &mut self.psi[k * r..(k + 1) * r];
+        psi.fill(0.0);
+        for i in 0..S {
+            if c[i] != 0.0 {
+                axpy(psi, c[i], &self.scratch[k][i * r..(i + 1) * r]);
+            }
+        }
+    }
+
+    /// Channel states, forces and displacements back in actuator space: one product with the
+    /// mode shapes per kind, `Phi_k [xi_k mirror, q, xi_k c_k^T]`.
+    pub(super) fn write_outputs(&mut self) {
+        let (r, n, na) = (self.r, self.n_segments, self.na);
+        const S: usize = N_STATE;
+        let mp = state::MIRROR_POS;
+        let mut outs = std::mem::take(&mut self.out);
+        for k in 0..2 {
+            let c = &self.cell_c[k];
+            let cols = &mut self.cols[3 * r * k..3 * r * (k + 1)];
+            cols[..r].copy_from_slice(&self.xi[k][mp * r..(mp + 1) * r]);
+            cols[r..2 * r].copy_from_slice(&self.q);
+            let force = &mut cols[2 * r..];
+            force.fill(0.0);
+            for s in 0..S {
+                if c[s] != 0.0 {
+                    axpy(force, c[s], &self.xi[k][s * r..(s + 1) * r]);
+                }
+            }
+        }
+        {
+            // Phi_c [cols_k] over all channel rows.
+            let (o0, rest) = outs.split_at_mut(na);
+            let (o1, o2) = rest.split_at_mut(na);
+            for (d, c) in self.cols32.iter_mut().zip(&self.cols) {
+                *d = *c as f32;
+            }
+            pulp::Arch::new().dispatch(Reconstruct {
+                phic: &self.phic32,
+                r,
+                n,
+                rows: 0..na,
+                cols: &self.cols32,
+                out: [o0, o1, o2],
+            });
+        }
+        // Channel values (rows: piston channels, then tilt) to actuators, segment by segment.
+        let v = self.basis;
+        for seg in 0..n {
+            let rows = [seg, n + 2 * seg, n + 2 * seg + 1];
+            let idx = [
+                (0usize, seg, n),
+                (1, 2 * seg, 2 * n),
+                (1, 2 * seg + 1, 2 * n),
+            ];
+            let mut zm = [0.0; 3];
+            let mut zc = [0.0; 3];
+            let mut fc = [0.0; 3];
+            for m in 0..3 {
+                let (k, c, cnt) = idx[m];
+                let x = self.free.state()[k];
+                let free_f: f64 = (0..S).map(|s| self.cell_c[k][s] * x[s * cnt + c]).sum();
+                zm[m] = x[mp * cnt + c] + outs[rows[m]];
+                zc[m] = outs[na + rows[m]];
+                fc[m] = free_f + outs[2 * na + rows[m]] + self.cell_d * zc[m];
+            }
+            for a in 0..3 {
+                let at = |t: &[f64; 3]| v[(a, 0)] * t[0] + v[(a, 1)] * t[1] + v[(a, 2)] * t[2];
+                self.z_mirror[3 * seg + a] = at(&zm);
+                self.z_cell[3 * seg + a] = at(&zc);
+                self.f_cell[3 * seg + a] = at(&fc);
+            }
+        }
+        self.out = outs;
+    }
+}
+
+/// The ticks of a communication step, as a SIMD operation for [`pulp::Arch::dispatch`].
+pub(super) struct Ticks<'a> {
+    pub(super) mirror: &'a mut CoupledMirror,
+    pub(super) ticks: u64,
+    pub(super) pier_z: f64,
+}
+
+impl pulp::WithSimd for Ticks<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
+        for _ in 0..self.ticks {
+            for s in 0..self.mirror.substeps {
+                self.mirror.tick(simd, self.pier_z, s == 0);
+            }
+        }
+    }
+}

@@ -1,0 +1,293 @@
+//! All segments of a mirror stepped together ([`SegmentArray`]): the 3N channels as a structure
+//! of arrays with one pair of tick maps per channel kind, communication steps that need not
+//! align with the servo samples, and the outputs back in actuator order.
+
+use nalgebra::SMatrix;
+use serde::{Deserialize, Serialize};
+
+use super::model::SegmentModel;
+use super::sampled::propagate;
+use super::{Channel, Gamma, N_IN, N_STATE, Phi, modal_basis, state};
+use crate::M1Error;
+use crate::linalg::kernels::axpy;
+
+/// Propagators of both channel kinds for one step size.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct StepMaps {
+    ticks: u64,
+    p: [Phi; 2],
+    s: [Gamma; 2],
+}
+
+/// All segments of a mirror, stepped together.
+///
+/// Arrays in and out are in actuator order, segment-major: actuator k of segment i at 3 i + k.
+/// Internally the 3N channels are stored by state (structure of arrays): piston channels of all
+/// segments, then tilt channels (two per segment).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SegmentArray {
+    n_segments: usize,
+    model: SegmentModel,
+    tick: [Phi; 2],
+    tick_in: [Gamma; 2],
+    cell_c: [SMatrix<f64, 1, N_STATE>; 2],
+    cell_d: [SMatrix<f64, 1, N_IN>; 2],
+    basis: SMatrix<f64, 3, 3>,
+    maps: StepMaps,
+    /// Time since the last servo sample (s), in [0, servo period).
+    pub(super) phase: f64,
+    /// State by kind: `x[kind][s * n + c]` for state s of channel c.
+    pub(super) x: [Vec<f64>; 2],
+    /// Scratch for the next state.
+    next: [Vec<f64>; 2],
+    /// Modal inputs by kind: `w[kind][l * n + c]`.
+    w: [Vec<f64>; 2],
+}
+
+impl SegmentArray {
+    /// A mirror of `n_segments` identical segments, at rest.
+    pub fn new(n_segments: usize, model: SegmentModel) -> Result<Self, M1Error> {
+        model.validate()?;
+        let (pp, gp) = model.closed_loop(Channel::Piston);
+        let (pt, gt) = model.closed_loop(Channel::Tilt);
+        let (cp, dp) = model.cell_force_map(Channel::Piston);
+        let (ct, dt) = model.cell_force_map(Channel::Tilt);
+        let counts = [n_segments, 2 * n_segments];
+        Ok(Self {
+            n_segments,
+            tick: [pp, pt],
+            tick_in: [gp, gt],
+            cell_c: [cp, ct],
+            cell_d: [dp, dt],
+            basis: modal_basis(),
+            maps: StepMaps {
+                ticks: 1,
+                p: [pp, pt],
+                s: [gp, gt],
+            },
+            phase: 0.0,
+            x: counts.map(|n| vec![0.0; N_STATE * n]),
+            next: counts.map(|n| vec![0.0; N_STATE * n]),
+            w: counts.map(|n| vec![0.0; N_IN * n]),
+            model,
+        })
+    }
+
+    /// Number of segments.
+    pub fn n_segments(&self) -> usize {
+        self.n_segments
+    }
+
+    /// Number of actuators (3 per segment).
+    pub fn n_actuators(&self) -> usize {
+        3 * self.n_segments
+    }
+
+    /// The model parameters.
+    pub fn model(&self) -> &SegmentModel {
+        &self.model
+    }
+
+    /// Back to rest.
+    pub fn reset(&mut self) {
+        for x in &mut self.x {
+            x.fill(0.0);
+        }
+        self.phase = 0.0;
+    }
+
+    fn check_len(what: &'static str, v: &[f64], n: usize) -> Result<(), M1Error> {
+        if v.len() == n {
+            Ok(())
+        } else {
+            Err(M1Error::SizeMismatch {
+                what,
+                expected: n,
+                found: v.len(),
+            })
+        }
+    }
+
+    /// Advances `ticks` servo periods with the inputs held (actuator order, lengths 3N).
+    pub fn step(
+        &mut self,
+        ticks: u64,
+        u_cmd: &[f64],
+        z_cell: &[f64],
+        f_wind: &[f64],
+    ) -> Result<(), M1Error> {
+        let h = ticks as f64 * self.model.servo_period();
+        self.advance(h, u_cmd, z_cell, f_wind)
+    }
+
+    /// Advances `h` seconds with the inputs held (actuator order, lengths 3N). The servo samples
+    /// at its own instants, multiples of its period from the start: a step that ends between two
+    /// samples carries the drive over into the next step, so any sequence of steps gives the
+    /// trajectory of one long step with the same held inputs.
+    pub fn advance(
+        &mut self,
+        h: f64,
+        u_cmd: &[f64],
+        z_cell: &[f64],
+        f_wind: &[f64],
+    ) -> Result<(), M1Error> {
+        let na = self.n_actuators();
+        Self::check_len("u_cmd", u_cmd, na)?;
+        Self::check_len("z_cell", z_cell, na)?;
+        Self::check_len("f_wind", f_wind, na)?;
+        if !(h.is_finite() && h >= 0.0) {
+            return Err(M1Error::InvalidParameter {
+                name: "communicationStepSize",
+                value: h,
+                reason: "must be finite and >= 0",
+            });
+        }
+        self.load_inputs(u_cmd, z_cell, f_wind);
+        let ts = self.model.servo_period();
+        // Sample instants closer than this are the same instant (rounding of step sums).
+        let eps = 1e-9 * ts;
+        let mut rest = h;
+        if self.phase > 0.0 {
+            // Finish the servo period under way: plant only, drive held.
+            let d = (ts - self.phase).min(rest);
+            if d > eps {
+                let maps = Channel::ALL.map(|ch| self.model.plant_only(ch, d));
+                self.apply(&maps);
+            }
+            self.phase += d;
+            rest -= d;
+            if ts - self.phase > eps {
+                return Ok(());
+            }
+            self.phase = 0.0;
+        }
+        let ticks = ((rest + eps) / ts).floor();
+        if ticks >= 1.0 {
+            let ticks = ticks as u64;
+            if self.maps.ticks != ticks {
+                let (p0, s0) = propagate(&self.tick[0], &self.tick_in[0], ticks);
+                let (p1, s1) = propagate(&self.tick[1], &self.tick_in[1], ticks);
+                self.maps = StepMaps {
+                    ticks,
+                    p: [p0, p1],
+                    s: [s0, s1],
+                };
+            }
+            let maps = [
+                (self.maps.p[0], self.maps.s[0]),
+                (self.maps.p[1], self.maps.s[1]),
+            ];
+            self.apply(&maps);
+            rest -= ticks as f64 * ts;
+        }
+        if rest > eps {
+            // A servo sample, then part of its period.
+            let maps = Channel::ALL.map(|ch| self.model.closed_loop_over(ch, rest));
+            self.apply(&maps);
+            self.phase = rest;
+        }
+        Ok(())
+    }
+
+    /// Applies one linear map per channel kind to every channel: X <- P X + S w.
+    fn apply(&mut self, maps: &[(Phi, Gamma); 2]) {
+        for (k, (p, s)) in maps.iter().enumerate() {
+            let n = self.x[k].len() / N_STATE;
+            let x = &self.x[k];
+            let w = &self.w[k];
+            let next = &mut self.next[k];
+            for i in 0..N_STATE {
+                let out = &mut next[i * n..(i + 1) * n];
+                out.fill(0.0);
+                for j in 0..N_STATE {
+                    let a = p[(i, j)];
+                    if a != 0.0 {
+                        axpy(out, a, &x[j * n..(j + 1) * n]);
+                    }
+                }
+                for l in 0..N_IN {
+                    let a = s[(i, l)];
+                    if a != 0.0 {
+                        axpy(out, a, &w[l * n..(l + 1) * n]);
+                    }
+                }
+            }
+            std::mem::swap(&mut self.x[k], &mut self.next[k]);
+        }
+    }
+
+    /// Projects actuator-space inputs onto the channels: q = V^T a per segment.
+    fn load_inputs(&mut self, u_cmd: &[f64], z_cell: &[f64], f_wind: &[f64]) {
+        let n = self.n_segments;
+        let v = self.basis;
+        let [wp, wt] = &mut self.w;
+        for (l, input) in [u_cmd, z_cell, f_wind].into_iter().enumerate() {
+            for (seg, a) in input.chunks_exact(3).enumerate() {
+                wp[l * n + seg] = v[(0, 0)] * a[0] + v[(1, 0)] * a[1] + v[(2, 0)] * a[2];
+                wt[l * 2 * n + 2 * seg] = v[(0, 1)] * a[0] + v[(1, 1)] * a[1] + v[(2, 1)] * a[2];
+                wt[l * 2 * n + 2 * seg + 1] =
+                    v[(0, 2)] * a[0] + v[(1, 2)] * a[1] + v[(2, 2)] * a[2];
+            }
+        }
+    }
+
+    /// The outputs at the current time: mirror displacement `z` and force on the cell `f_cell`
+    /// at each actuator (lengths 3N), with the current cell displacement `z_cell`.
+    pub fn outputs(
+        &self,
+        z_cell: &[f64],
+        z: &mut [f64],
+        f_cell: &mut [f64],
+    ) -> Result<(), M1Error> {
+        let na = self.n_actuators();
+        Self::check_len("z_cell", z_cell, na)?;
+        Self::check_len("z", z, na)?;
+        Self::check_len("f_cell", f_cell, na)?;
+        let n = self.n_segments;
+        let v = self.basis;
+        let mp = state::MIRROR_POS;
+        for seg in 0..n {
+            // Modal mirror displacement and cell force of the three channels of this segment.
+            let idx = [
+                (0usize, seg, n),
+                (1, 2 * seg, 2 * n),
+                (1, 2 * seg + 1, 2 * n),
+            ];
+            let zc = &z_cell[3 * seg..3 * seg + 3];
+            let mut qz = [0.0; 3];
+            let mut qf = [0.0; 3];
+            for (m, &(k, c, nk)) in idx.iter().enumerate() {
+                let x = &self.x[k];
+                qz[m] = x[mp * nk + c];
+                let cc = &self.cell_c[k];
+                let mut f = 0.0;
+                for s in 0..N_STATE {
+                    f += cc[s] * x[s * nk + c];
+                }
+                qf[m] = f;
+            }
+            for a in 0..3 {
+                z[3 * seg + a] = v[(a, 0)] * qz[0] + v[(a, 1)] * qz[1] + v[(a, 2)] * qz[2];
+                f_cell[3 * seg + a] = v[(a, 0)] * qf[0] + v[(a, 1)] * qf[1] + v[(a, 2)] * qf[2];
+            }
+            // The cell-displacement feedthrough is the same for both kinds (actuator spring),
+            // so it maps actuator by actuator.
+            let d = self.cell_d[0][1];
+            for a in 0..3 {
+                f_cell[3 * seg + a] += d * zc[a];
+            }
+        }
+        Ok(())
+    }
+
+    /// The inputs held over the last step in the piston/tilt channel basis, by kind: column-major
+    /// `count x 3` (`u_cmd`, `z_cell`, `f_wind`; count = N piston or 2N tilt channels).
+    pub(crate) fn channel_inputs(&self) -> [&[f64]; 2] {
+        [&self.w[0], &self.w[1]]
+    }
+
+    /// The full state, by kind (piston, tilt), for checkpoints.
+    pub fn state(&self) -> [&[f64]; 2] {
+        [&self.x[0], &self.x[1]]
+    }
+}
