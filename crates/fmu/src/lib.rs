@@ -10,6 +10,7 @@
 //!
 //! No global state: every instance owns its values, model and logger.
 
+pub mod declare;
 pub mod error;
 pub mod ffi;
 pub mod instance;
@@ -19,10 +20,12 @@ pub mod units;
 pub mod variables;
 pub mod xml;
 
+pub use declare::Handle;
 pub use error::FmuError;
 pub use fmi_sys;
 pub use instance::{Instance, State};
 pub use model::{Model, ModelInfo};
 pub use variables::{
-    BoolVar, Check, Dependencies, IntVar, RealVar, StrVar, TableBuilder, Values, VariableTable,
+    BoolVar, Check, Decl, Dependencies, IntVar, RealVar, StrVar, TableBuilder, Values,
+    VariableTable,
 };
