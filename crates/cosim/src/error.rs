@@ -88,6 +88,23 @@ pub enum CosimError {
         /// The messages the FMU logged for this call.
         log: String,
     },
+    /// An FMI call returned fmi2Discard: the FMU discarded it (for fmi2DoStep, it did not
+    /// complete the step, e.g. because it ended the simulation itself). The run fails as on
+    /// [`Self::Status`].
+    #[error(
+        "{component}: {function} returned fmi2Discard{at}: the FMU discarded the {}{log}",
+        discarded_what(function)
+    )]
+    Discarded {
+        /// Instance name.
+        component: String,
+        /// The FMI function.
+        function: &'static str,
+        /// ", at t = ..." when known.
+        at: String,
+        /// The messages the FMU logged for this call.
+        log: String,
+    },
     /// A variable name that the component does not have.
     #[error("{component}: no variable named {name}")]
     UnknownVariable {
@@ -101,20 +118,33 @@ pub enum CosimError {
     Mismatch {
         /// The connection or binding (e.g. "a.y -> b.u").
         what: String,
-        /// Type, causality or size disagreement.
+        /// Type, causality, size or unit disagreement.
         reason: String,
     },
-    /// Invalid input to the master (a step, a time, a value).
     /// A component produced a NaN or infinite output.
     #[error("{component}: output {variable} is {value} after the step to t = {time} s")]
     NonFinite {
+        /// Instance name.
         component: String,
+        /// The output.
         variable: String,
+        /// Its value.
         value: f64,
+        /// The end of the step (s).
         time: f64,
     },
+    /// Invalid input to the master (a step, a time, a value).
     #[error("{0}")]
     Invalid(String),
+}
+
+/// What an FMU discards with fmi2Discard: the step (fmi2DoStep) or the call.
+fn discarded_what(function: &str) -> &'static str {
+    if function == "fmi2DoStep" {
+        "step"
+    } else {
+        "call"
+    }
 }
 
 /// Result with [`CosimError`].

@@ -38,6 +38,36 @@ fn status_name(raw: c_int) -> String {
     }
 }
 
+/// The status `raw` of FMI call `function` of component `component` as a `Result`: fmi2OK and
+/// fmi2Warning pass; fmi2Discard is [`CosimError::Discarded`]; every other status (fmi2Error,
+/// fmi2Fatal, fmi2Pending, an invalid value) is [`CosimError::Status`]. `log` takes the
+/// messages the FMU logged for the call (only on failure).
+fn check_status(
+    component: &str,
+    function: &'static str,
+    raw: c_int,
+    at: Option<f64>,
+    log: impl FnOnce() -> String,
+) -> Result<()> {
+    let at = || at.map(|t| format!(" at t = {t} s")).unwrap_or_default();
+    match fmi2Status::from_raw(raw) {
+        Some(fmi2Status::fmi2OK | fmi2Status::fmi2Warning) => Ok(()),
+        Some(fmi2Status::fmi2Discard) => Err(CosimError::Discarded {
+            component: component.into(),
+            function,
+            at: at(),
+            log: log(),
+        }),
+        _ => Err(CosimError::Status {
+            component: component.into(),
+            function,
+            status: status_name(raw),
+            at: at(),
+            log: log(),
+        }),
+    }
+}
+
 impl Instance {
     pub(crate) fn new(
         fmu: &Fmu,
@@ -100,16 +130,7 @@ impl Instance {
     }
 
     fn check(&self, function: &'static str, raw: c_int, at: Option<f64>) -> Result<()> {
-        match fmi2Status::from_raw(raw) {
-            Some(fmi2Status::fmi2OK | fmi2Status::fmi2Warning) => Ok(()),
-            _ => Err(CosimError::Status {
-                component: self.name.clone(),
-                function,
-                status: status_name(raw),
-                at: at.map(|t| format!(" at t = {t} s")).unwrap_or_default(),
-                log: self.sink.drain_text(),
-            }),
-        }
+        check_status(&self.name, function, raw, at, || self.sink.drain_text())
     }
 
     fn lengths(&self, function: &'static str, a: usize, b: usize) -> Result<()> {
@@ -353,5 +374,79 @@ impl Drop for Instance {
     fn drop(&mut self) {
         // SAFETY: the component came from fmi2Instantiate of this library and is freed once.
         unsafe { (self.shared.library.fns.free_instance)(self.comp) };
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The status mapping: OK and Warning pass, Discard has its own variant (with the message
+    /// that the FMU discarded the step), Error, Fatal, Pending and invalid values stay
+    /// `Status`; the log is taken on failure only.
+    #[test]
+    fn discard_is_distinct_from_error() {
+        let raw = fmi2Status::to_raw;
+        let no_log = || -> String { panic!("the log is taken on failure only") };
+        assert!(check_status("a", "fmi2DoStep", raw(fmi2Status::fmi2OK), None, no_log).is_ok());
+        assert!(
+            check_status(
+                "a",
+                "fmi2DoStep",
+                raw(fmi2Status::fmi2Warning),
+                None,
+                no_log
+            )
+            .is_ok()
+        );
+        let e = check_status(
+            "a",
+            "fmi2DoStep",
+            raw(fmi2Status::fmi2Discard),
+            Some(0.25),
+            || "\n  [logError] stopped".into(),
+        );
+        match e {
+            Err(
+                ref d @ CosimError::Discarded {
+                    ref component,
+                    function,
+                    ref at,
+                    ref log,
+                },
+            ) => {
+                assert_eq!((component.as_str(), function), ("a", "fmi2DoStep"));
+                assert_eq!(at, " at t = 0.25 s");
+                assert!(log.contains("stopped"));
+                assert_eq!(
+                    d.to_string(),
+                    "a: fmi2DoStep returned fmi2Discard at t = 0.25 s: the FMU discarded the \
+                     step\n  [logError] stopped"
+                );
+            }
+            other => panic!("expected Discarded, got {other:?}"),
+        }
+        let e = check_status(
+            "b",
+            "fmi2SetReal",
+            raw(fmi2Status::fmi2Discard),
+            None,
+            String::new,
+        );
+        assert_eq!(
+            e.map_err(|e| e.to_string()),
+            Err("b: fmi2SetReal returned fmi2Discard: the FMU discarded the call".into())
+        );
+        for (s, name) in [
+            (raw(fmi2Status::fmi2Error), "fmi2Error"),
+            (raw(fmi2Status::fmi2Fatal), "fmi2Fatal"),
+            (raw(fmi2Status::fmi2Pending), "fmi2Pending"),
+            (42, "an invalid status (42)"),
+        ] {
+            match check_status("a", "fmi2DoStep", s, None, String::new) {
+                Err(CosimError::Status { status, .. }) => assert_eq!(status, name),
+                other => panic!("expected Status for {name}, got {other:?}"),
+            }
+        }
     }
 }

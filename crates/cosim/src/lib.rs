@@ -21,4 +21,4 @@ pub use description::ModelDescription;
 pub use error::{CosimError, Result};
 pub use fmu::Fmu;
 pub use instance::Instance;
-pub use system::{Order, Simulation, System, Value};
+pub use system::{Order, SchedulerParams, Simulation, System, Value};

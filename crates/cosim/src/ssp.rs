@@ -119,17 +119,24 @@ fn parse_parameters(xml: &str, file: &Path) -> Result<Vec<(String, Value)>> {
     Ok(out)
 }
 
-/// Reads a system from `path`: a `.ssp` archive (unpacked to a temporary directory) or a
-/// `.ssd` file whose component sources are relative to it.
-///
-/// # Errors
-/// Naming the file and the element at fault (malformed XML, a missing FMU or .ssv, a
-/// connection without its ends, a bad number).
-pub fn read(path: &Path) -> Result<SspSystem> {
+/// Where an SSD is read from.
+struct Located {
+    /// The SystemStructure.ssd (or .ssd) file itself.
+    ssd: PathBuf,
+    /// The directory its component and .ssv sources are relative to.
+    base: PathBuf,
+    /// The file named in errors about the SSD's content (inside the archive for a .ssp).
+    named: PathBuf,
+    /// The unpacked archive, if any (kept alive with the system).
+    dir: Option<crate::fmu::TempDir>,
+}
+
+/// Unpacks a `.ssp` archive to a temporary directory, or takes a `.ssd` file as it is.
+fn locate(path: &Path) -> Result<Located> {
     let is_archive = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("ssp"));
-    let (ssd, base, dir) = if is_archive {
+    if is_archive {
         let dir =
             crate::fmu::TempDir::new(path.file_stem().and_then(|s| s.to_str()).unwrap_or("ssp"))?;
         crate::fmu::unzip(path, dir.path())?;
@@ -140,151 +147,228 @@ pub fn read(path: &Path) -> Result<SspSystem> {
                 file: "SystemStructure.ssd".into(),
             });
         }
-        let base = dir.path().to_path_buf();
-        (ssd, base, Some(dir))
+        Ok(Located {
+            ssd,
+            base: dir.path().to_path_buf(),
+            named: path.join("SystemStructure.ssd"),
+            dir: Some(dir),
+        })
     } else {
-        let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
-        (path.to_path_buf(), base, None)
-    };
-    let xml = std::fs::read_to_string(&ssd).map_err(io(&ssd))?;
-    let named = |reason: String| CosimError::Xml {
-        file: if is_archive {
-            path.join("SystemStructure.ssd")
-        } else {
-            path.to_path_buf()
-        },
-        reason,
-    };
-    let mut system = System::default();
-    let mut has_step = false;
-    let mut everies: Vec<(String, usize)> = Vec::new();
-    let mut r = Reader::from_str(&xml);
-    let mut current_component: Option<usize> = None;
-    let mut in_annotation = false;
-    let mut depth_system = 0usize;
-    loop {
-        let pos_before = r.buffer_position();
-        let ev = r
-            .read_event()
-            .map_err(|e| named(format!("malformed SSD at byte {}: {e}", r.error_position())))?;
-        match ev {
-            Event::Eof => break,
-            Event::Start(ref e) | Event::Empty(ref e) => {
-                let is_empty = matches!(ev, Event::Empty(_));
-                let name = local(e);
-                match name.as_str() {
-                    "System" => depth_system += 1,
-                    "Component" if depth_system == 1 => {
-                        let cname = attr(e, "name")
-                            .ok_or_else(|| named("a Component has no name".into()))?;
-                        let source = attr(e, "source")
-                            .ok_or_else(|| named(format!("component {cname} has no source")))?;
-                        let fmu = base.join(&source);
-                        if !fmu.is_file() {
-                            return Err(named(format!(
-                                "component {cname}: source {source} not found ({})",
-                                fmu.display()
-                            )));
-                        }
-                        system.components.push(Component {
-                            name: cname,
-                            fmu,
-                            parameters: Vec::new(),
-                            every: 1,
-                        });
-                        current_component = Some(system.components.len() - 1);
-                    }
-                    "ParameterBinding" => {
-                        if let (Some(c), Some(src)) = (current_component, attr(e, "source")) {
-                            let f = base.join(&src);
-                            let text = std::fs::read_to_string(&f).map_err(io(&f))?;
-                            let p = parse_parameters(&text, &f)?;
-                            system.components[c].parameters.extend(p);
-                        }
-                    }
-                    "ParameterValues" if !is_empty => {
-                        // Read to the matching end and parse the fragment.
-                        let start = usize::try_from(pos_before).unwrap_or(0);
-                        let span = r
-                            .read_to_end(e.name())
-                            .map_err(|err| named(format!("malformed ParameterValues: {err}")))?;
-                        let end = usize::try_from(span.end)
-                            .unwrap_or(xml.len())
-                            .min(xml.len());
-                        let fragment = &xml[start.min(end)..end];
-                        if let Some(c) = current_component {
-                            let p = parse_parameters(fragment, path)?;
-                            system.components[c].parameters.extend(p);
-                        }
-                        continue;
-                    }
-                    "Connection" => {
-                        let get = |k: &str| {
-                            attr(e, k).ok_or_else(|| named(format!("a Connection has no {k}")))
-                        };
-                        system.connections.push(Connection {
-                            from: get("startElement")?,
-                            output: get("startConnector")?,
-                            to: get("endElement")?,
-                            input: get("endConnector")?,
-                        });
-                    }
-                    "DefaultExperiment" => {
-                        if let Some(t) = num(&ssd, "startTime", attr(e, "startTime"))? {
-                            system.start_time = t;
-                        }
-                        if let Some(t) = num(&ssd, "stopTime", attr(e, "stopTime"))? {
-                            system.stop_time = t;
-                        }
-                    }
-                    "Annotation" => {
-                        in_annotation = attr(e, "type").as_deref() == Some(ANNOTATION);
-                    }
-                    "Master" if in_annotation => {
-                        if let Some(h) = num(&ssd, "step", attr(e, "step"))? {
-                            system.step = h;
-                            has_step = true;
-                        }
-                        system.order = match attr(e, "order").as_deref() {
-                            Some("gauss-seidel") => Order::GaussSeidel,
-                            _ => Order::Jacobi,
-                        };
-                    }
-                    "Rate" if in_annotation => {
-                        let c = attr(e, "component")
-                            .ok_or_else(|| named("a Rate has no component".into()))?;
-                        let every = attr(e, "every")
-                            .and_then(|s| s.trim().parse::<usize>().ok())
-                            .ok_or_else(|| named(format!("Rate of {c}: every is not a count")))?;
-                        everies.push((c, every));
-                    }
-                    _ => {}
+        Ok(Located {
+            ssd: path.to_path_buf(),
+            base: path.parent().map(Path::to_path_buf).unwrap_or_default(),
+            named: path.to_path_buf(),
+            dir: None,
+        })
+    }
+}
+
+/// The state of reading one SSD: the system so far and where in the document the reader is.
+struct SsdReader<'a> {
+    /// As [`locate`] found it.
+    at: &'a Located,
+    /// The path given to [`read`] (named for inline parameter values).
+    path: &'a Path,
+    system: System,
+    has_step: bool,
+    /// The `Rate`s of the master annotation, applied once every component is known.
+    everies: Vec<(String, usize)>,
+    current_component: Option<usize>,
+    in_annotation: bool,
+    depth_system: usize,
+}
+
+impl SsdReader<'_> {
+    /// An error about the SSD's content, naming its file.
+    fn named(&self, reason: String) -> CosimError {
+        CosimError::Xml {
+            file: self.at.named.clone(),
+            reason,
+        }
+    }
+
+    /// A start (or empty) element other than a non-empty `ParameterValues`.
+    fn start(&mut self, e: &BytesStart<'_>, name: &str) -> Result<()> {
+        let ssd = self.at.ssd.as_path();
+        match name {
+            "System" => self.depth_system += 1,
+            "Component" if self.depth_system == 1 => self.component(e)?,
+            "ParameterBinding" => {
+                if let (Some(c), Some(src)) = (self.current_component, attr(e, "source")) {
+                    let f = self.at.base.join(&src);
+                    let text = std::fs::read_to_string(&f).map_err(io(&f))?;
+                    let p = parse_parameters(&text, &f)?;
+                    self.system.components[c].parameters.extend(p);
                 }
             }
-            Event::End(ref e) => {
-                let name = e.local_name().into_inner().to_string();
-                match name.as_str() {
-                    "System" => depth_system = depth_system.saturating_sub(1),
-                    "Component" => current_component = None,
-                    "Annotation" => in_annotation = false,
-                    _ => {}
+            "Connection" => {
+                let get = |k: &str| {
+                    attr(e, k).ok_or_else(|| self.named(format!("a Connection has no {k}")))
+                };
+                let connection = Connection {
+                    from: get("startElement")?,
+                    output: get("startConnector")?,
+                    to: get("endElement")?,
+                    input: get("endConnector")?,
+                };
+                self.system.connections.push(connection);
+            }
+            "DefaultExperiment" => {
+                if let Some(t) = num(ssd, "startTime", attr(e, "startTime"))? {
+                    self.system.start_time = t;
                 }
+                if let Some(t) = num(ssd, "stopTime", attr(e, "stopTime"))? {
+                    self.system.stop_time = t;
+                }
+            }
+            "Annotation" => {
+                self.in_annotation = attr(e, "type").as_deref() == Some(ANNOTATION);
+            }
+            "Master" if self.in_annotation => {
+                if let Some(h) = num(ssd, "step", attr(e, "step"))? {
+                    self.system.step = h;
+                    self.has_step = true;
+                }
+                self.system.order = match attr(e, "order").as_deref() {
+                    Some("gauss-seidel") => Order::GaussSeidel,
+                    _ => Order::Jacobi,
+                };
+            }
+            "Rate" if self.in_annotation => {
+                let c = attr(e, "component")
+                    .ok_or_else(|| self.named("a Rate has no component".into()))?;
+                let every = attr(e, "every")
+                    .and_then(|s| s.trim().parse::<usize>().ok())
+                    .ok_or_else(|| self.named(format!("Rate of {c}: every is not a count")))?;
+                self.everies.push((c, every));
             }
             _ => {}
         }
+        Ok(())
     }
-    for (c, every) in everies {
-        let comp = system
-            .components
-            .iter_mut()
-            .find(|x| x.name == c)
-            .ok_or_else(|| named(format!("Rate names no component {c}")))?;
-        comp.every = every;
+
+    /// A top-level `Component`: its FMU must exist.
+    fn component(&mut self, e: &BytesStart<'_>) -> Result<()> {
+        let cname = attr(e, "name").ok_or_else(|| self.named("a Component has no name".into()))?;
+        let source = attr(e, "source")
+            .ok_or_else(|| self.named(format!("component {cname} has no source")))?;
+        let fmu = self.at.base.join(&source);
+        if !fmu.is_file() {
+            return Err(self.named(format!(
+                "component {cname}: source {source} not found ({})",
+                fmu.display()
+            )));
+        }
+        self.system.components.push(Component {
+            name: cname,
+            fmu,
+            parameters: Vec::new(),
+            every: 1,
+        });
+        self.current_component = Some(self.system.components.len() - 1);
+        Ok(())
     }
+
+    /// Inline `ParameterValues` starting at byte `start` of `xml`: read to the matching end and
+    /// parse the fragment.
+    fn parameter_values(
+        &mut self,
+        r: &mut Reader<&[u8]>,
+        e: &BytesStart<'_>,
+        xml: &str,
+        start: u64,
+    ) -> Result<()> {
+        let start = usize::try_from(start).unwrap_or(0);
+        let span = r
+            .read_to_end(e.name())
+            .map_err(|err| self.named(format!("malformed ParameterValues: {err}")))?;
+        let end = usize::try_from(span.end)
+            .unwrap_or(xml.len())
+            .min(xml.len());
+        let fragment = &xml[start.min(end)..end];
+        if let Some(c) = self.current_component {
+            let p = parse_parameters(fragment, self.path)?;
+            self.system.components[c].parameters.extend(p);
+        }
+        Ok(())
+    }
+
+    /// An end element.
+    fn end(&mut self, name: &str) {
+        match name {
+            "System" => self.depth_system = self.depth_system.saturating_sub(1),
+            "Component" => self.current_component = None,
+            "Annotation" => self.in_annotation = false,
+            _ => {}
+        }
+    }
+
+    /// Reads every event of `xml`.
+    fn read_all(&mut self, xml: &str) -> Result<()> {
+        let mut r = Reader::from_str(xml);
+        loop {
+            let pos_before = r.buffer_position();
+            let ev = r.read_event().map_err(|e| {
+                self.named(format!("malformed SSD at byte {}: {e}", r.error_position()))
+            })?;
+            match ev {
+                Event::Eof => break,
+                Event::Start(ref e) | Event::Empty(ref e) => {
+                    let is_empty = matches!(ev, Event::Empty(_));
+                    let name = local(e);
+                    if name == "ParameterValues" && !is_empty {
+                        self.parameter_values(&mut r, e, xml, pos_before)?;
+                    } else {
+                        self.start(e, &name)?;
+                    }
+                }
+                Event::End(ref e) => {
+                    let name = e.local_name().into_inner().to_string();
+                    self.end(&name);
+                }
+                _ => {}
+            }
+        }
+        Ok(())
+    }
+
+    /// The system with the rates applied to their components.
+    fn finish(mut self) -> Result<(System, bool)> {
+        for (c, every) in std::mem::take(&mut self.everies) {
+            let Some(comp) = self.system.components.iter_mut().find(|x| x.name == c) else {
+                return Err(self.named(format!("Rate names no component {c}")));
+            };
+            comp.every = every;
+        }
+        Ok((self.system, self.has_step))
+    }
+}
+
+/// Reads a system from `path`: a `.ssp` archive (unpacked to a temporary directory) or a
+/// `.ssd` file whose component sources are relative to it.
+///
+/// # Errors
+/// Naming the file and the element at fault (malformed XML, a missing FMU or .ssv, a
+/// connection without its ends, a bad number).
+pub fn read(path: &Path) -> Result<SspSystem> {
+    let at = locate(path)?;
+    let xml = std::fs::read_to_string(&at.ssd).map_err(io(&at.ssd))?;
+    let mut reader = SsdReader {
+        at: &at,
+        path,
+        system: System::default(),
+        has_step: false,
+        everies: Vec::new(),
+        current_component: None,
+        in_annotation: false,
+        depth_system: 0,
+    };
+    reader.read_all(&xml)?;
+    let (system, has_step) = reader.finish()?;
     Ok(SspSystem {
         system,
         has_step,
-        _dir: dir,
+        _dir: at.dir,
     })
 }
 

@@ -460,6 +460,142 @@ fn bad_connections_are_named() {
     );
 }
 
+/// The tiny FMU's model description with output y's unit element replaced by `real` (the
+/// `<Real .../>` of y) and `types` inserted as its TypeDefinitions.
+fn tiny_xml_y(real: &str, types: &str) -> String {
+    let y = "<ScalarVariable name=\"y\" valueReference=\"1\" causality=\"output\" \
+             variability=\"continuous\" initial=\"exact\"><Real start=\"0\" unit=\"m\"/>";
+    let xml = tiny_xml();
+    assert!(xml.contains(y), "the fixture changed");
+    xml.replace(y, &y.replace("<Real start=\"0\" unit=\"m\"/>", real))
+        .replace(
+            "</UnitDefinitions>",
+            &format!("</UnitDefinitions>\n  {types}"),
+        )
+}
+
+/// Connected variables that both declare a unit must declare the same one: a.y in s into b.u in
+/// m is refused, naming both ends and both units; the same unit, or a missing unit at either
+/// end, passes. A unit comes from the `unit` attribute or, without one, from the variable's
+/// declared type.
+#[test]
+fn connections_with_different_units_are_refused() {
+    let metres = tiny_fmu("units_m", &tiny_xml(), &[], true);
+    let seconds = tiny_fmu(
+        "units_s",
+        &tiny_xml_y("<Real start=\"0\" unit=\"s\"/>", ""),
+        &[],
+        true,
+    );
+    let none = tiny_fmu(
+        "units_none",
+        &tiny_xml_y("<Real start=\"0\"/>", ""),
+        &[],
+        true,
+    );
+    let types = "<TypeDefinitions><SimpleType name=\"Time\"><Real unit=\"s\"/></SimpleType>\
+                 <SimpleType name=\"Length\"><Real unit=\"m\"/></SimpleType>\
+                 <SimpleType name=\"Plain\"><Real/></SimpleType></TypeDefinitions>";
+    let declared = |name: &str, ty: &str| {
+        tiny_fmu(
+            name,
+            &tiny_xml_y(&format!("<Real start=\"0\" declaredType=\"{ty}\"/>"), types),
+            &[],
+            true,
+        )
+    };
+    let (time, length, plain) = (
+        declared("units_time", "Time"),
+        declared("units_length", "Length"),
+        declared("units_plain", "Plain"),
+    );
+    // The declared type's unit is the variable's.
+    let md = Fmu::open(&time).unwrap().description;
+    let y = md.variable_by_name("y").unwrap();
+    assert_eq!(
+        (y.unit.as_deref(), y.declared_type.as_deref()),
+        (Some("s"), Some("Time"))
+    );
+    assert_eq!(
+        Fmu::open(&plain)
+            .unwrap()
+            .description
+            .variable_by_name("y")
+            .unwrap()
+            .unit,
+        None
+    );
+    let system = |from: &Path| {
+        System::new(0.1, 0.01)
+            .component("a", from)
+            .component("b", &metres)
+            .connect("a.y", "b.u")
+    };
+    for from in [&seconds, &time] {
+        match cosim::Simulation::new(&system(from), &[]) {
+            Err(CosimError::Mismatch { what, reason }) => {
+                assert_eq!(what, "a.y -> b.u");
+                assert_eq!(reason, "units differ: a.y is in \"s\" but b.u is in \"m\"");
+            }
+            Err(e) => panic!("wrong error {e}"),
+            Ok(_) => panic!("connected a.y in s to b.u in m"),
+        }
+    }
+    let e = run(&system(&seconds), &[], 1, &mut |_, _| {})
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("a.y") && e.contains("\"s\"") && e.contains("b.u") && e.contains("\"m\""),
+        "{e}"
+    );
+    for from in [&metres, &none, &length, &plain] {
+        let r = run(&system(from), &["b.y".into()], 1, &mut |_, _| {});
+        assert!(r.is_ok(), "{}: {:?}", from.display(), r.err());
+    }
+}
+
+/// fmi2Discard from doStep fails the run as fmi2Error does (the rows until then come back),
+/// as its own error: the component, the function, the time and that the FMU discarded the step.
+#[test]
+fn a_discarded_step_fails_the_run_as_a_discard() {
+    let path = tiny_fmu("discard", &tiny_xml(), &[], true);
+    let sys = System::new(1.0, 0.01)
+        .component("a", &path)
+        .parameter("a", "u", Value::Real(1.0))
+        .parameter("a", "discard_at", Value::Real(0.25))
+        .component("b", &path)
+        .connect("a.y", "b.u");
+    for order in [Order::Jacobi, Order::GaussSeidel] {
+        let f = run(
+            &sys.clone().order(order),
+            &["a.y".into()],
+            1,
+            &mut |_, _| {},
+        )
+        .unwrap_err();
+        let msg = f.to_string();
+        assert!(
+            msg.contains(
+                "a: fmi2DoStep returned fmi2Discard at t = 0.25 s: the FMU discarded the step"
+            ) && msg.contains("told to discard"),
+            "{order:?}: {msg}"
+        );
+        match &f.error {
+            CosimError::Discarded {
+                component,
+                function,
+                ..
+            } => assert_eq!((component.as_str(), *function), ("a", "fmi2DoStep")),
+            other => panic!("{order:?}: expected Discarded, got {other:?}"),
+        }
+        assert_eq!(
+            f.partial.expect("partial results").n_rows(),
+            26,
+            "{order:?}"
+        );
+    }
+}
+
 /// A system written as .ssp (the FMU inside, parameters inline, step and rates in the master
 /// annotation) reads back to the same system and runs to the same results; a .ssd next to its
 /// FMUs reads too.
@@ -746,4 +882,82 @@ fn threads_change_no_value() {
         r.last_row().unwrap().to_vec()
     };
     assert_eq!(last([0.0; 3]), last([0.0, 1e-4, 0.0]));
+}
+
+/// The scheduler's thresholds come from the system ([`SchedulerParams`], today's values by
+/// default) and change no value: every measured Jacobi step forced onto the threads (threshold
+/// 0) or none (infinite thresholds), every eligible Gauss-Seidel step handed to the look-ahead thread
+/// or none, give the values of the defaults.
+#[test]
+fn scheduler_params_change_no_value() {
+    use cosim::SchedulerParams;
+    let d = SchedulerParams::default();
+    assert_eq!(
+        (
+            d.parallel_min_seconds,
+            d.split_min_seconds,
+            d.wake_seconds,
+            d.lookahead_min_seconds,
+            d.mean_weight
+        ),
+        (2e-4, 5e-5, 1.5e-4, 5e-5, 0.05)
+    );
+    assert_eq!(System::default().scheduler, d);
+    let path = tiny_fmu("scheduler", &tiny_xml(), &[], true);
+    let own = path.with_file_name("tiny_b.fmu");
+    std::fs::copy(&path, &own).unwrap();
+    let sys = |order: Order| {
+        System::new(0.05, 0.001)
+            .component("a", &path)
+            .parameter("a", "u", Value::Real(1.0))
+            .component("b", &own)
+            .parameter("b", "k", Value::Real(0.5))
+            .component("c", &path)
+            .component("d", &path)
+            .every(2)
+            .connect("a.y", "b.u")
+            .connect("a.y", "c.u")
+            .connect("b.y", "d.u")
+            .order(order)
+    };
+    // b (the only instance of its FMU, not recorded) is read by d only: it may go ahead.
+    let record = ["a.y".to_string(), "c.y".to_string(), "d.y".to_string()];
+    let values = |s: &System| -> (Vec<f64>, u64, u64) {
+        let mut sim = cosim::Simulation::new(s, &record).unwrap();
+        assert_eq!(sim.scheduler(), &s.scheduler);
+        let mut out = Vec::new();
+        let mut row = [0.0; 3];
+        while !sim.finished() {
+            sim.step().unwrap();
+            sim.recorded_values(&mut row);
+            out.extend_from_slice(&row);
+        }
+        sim.settle().unwrap();
+        (out, sim.parallel_steps(), sim.lookahead_steps())
+    };
+    let always = SchedulerParams {
+        parallel_min_seconds: 0.0,
+        lookahead_min_seconds: 0.0,
+        ..SchedulerParams::default()
+    };
+    let never = SchedulerParams {
+        parallel_min_seconds: f64::INFINITY,
+        split_min_seconds: f64::INFINITY,
+        lookahead_min_seconds: f64::INFINITY,
+        ..SchedulerParams::default()
+    };
+    for order in [Order::Jacobi, Order::GaussSeidel] {
+        let (plain, ..) = values(&sys(order));
+        let (threaded, parallel, ahead) = values(&sys(order).scheduler(always));
+        let (single, parallel_none, ahead_none) = values(&sys(order).scheduler(never));
+        assert_eq!(plain, threaded, "{order:?}");
+        assert_eq!(plain, single, "{order:?}");
+        assert!(plain.iter().any(|&x| x != 0.0));
+        assert_eq!((parallel_none, ahead_none), (0, 0), "{order:?}");
+        match order {
+            // Every step but the first, before any step time is measured.
+            Order::Jacobi => assert_eq!((parallel, ahead), (49, 0)),
+            Order::GaussSeidel => assert!(parallel == 0 && ahead > 0, "{ahead}"),
+        }
+    }
 }

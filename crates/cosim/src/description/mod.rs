@@ -1,141 +1,21 @@
 //! modelDescription.xml of an FMI 2.0 Co-Simulation FMU, parsed (quick-xml + serde) into typed
 //! structures and checked against the rules of the standard that an importer relies on.
 //!
-//! The parse keeps what a master needs: the co-simulation capabilities, the default
-//! experiment, every scalar variable (type, value reference, causality, variability, initial,
-//! start, unit) and the model structure (outputs and their dependencies). Attributes are read as
-//! strings and converted here, so that an error names the variable and the attribute.
+//! The parse keeps what a master needs: the co-simulation capabilities, the default experiment,
+//! every scalar variable (type, value reference, causality, variability, initial, start, unit) and
+//! the model structure (outputs and their dependencies). A variable's unit is its `unit` attribute,
+//! else the unit of its `declaredType` in `TypeDefinitions` (the master compares the units of
+//! connected variables by name; `UnitDefinitions` are not read). Attributes are read as strings and
+//! converted here, so that an error names the variable and the attribute.
 
 use std::collections::HashMap;
 use std::path::Path;
 
-use serde::Deserialize;
-
 use crate::error::{CosimError, Result};
 
-// ---------------------------------------------------------------------------------------------
-// Raw serde structure (attributes as strings)
-// ---------------------------------------------------------------------------------------------
+mod raw;
 
-#[derive(Deserialize)]
-struct RawModelDescription {
-    #[serde(rename = "@fmiVersion")]
-    fmi_version: Option<String>,
-    #[serde(rename = "@modelName")]
-    model_name: Option<String>,
-    #[serde(rename = "@guid")]
-    guid: Option<String>,
-    #[serde(rename = "@description")]
-    description: Option<String>,
-    #[serde(rename = "@generationTool")]
-    generation_tool: Option<String>,
-    #[serde(rename = "@variableNamingConvention")]
-    naming_convention: Option<String>,
-    #[serde(rename = "CoSimulation")]
-    co_simulation: Option<RawCoSimulation>,
-    #[serde(rename = "DefaultExperiment")]
-    default_experiment: Option<RawDefaultExperiment>,
-    #[serde(rename = "ModelVariables")]
-    model_variables: Option<RawModelVariables>,
-    #[serde(rename = "ModelStructure")]
-    model_structure: Option<RawModelStructure>,
-}
-
-#[derive(Deserialize)]
-struct RawCoSimulation {
-    #[serde(rename = "@modelIdentifier")]
-    model_identifier: Option<String>,
-    #[serde(rename = "@needsExecutionTool")]
-    needs_execution_tool: Option<String>,
-    #[serde(rename = "@canHandleVariableCommunicationStepSize")]
-    can_handle_variable_step: Option<String>,
-    #[serde(rename = "@canBeInstantiatedOnlyOncePerProcess")]
-    once_per_process: Option<String>,
-    #[serde(rename = "@canGetAndSetFMUstate")]
-    can_get_set_state: Option<String>,
-    #[serde(rename = "@canSerializeFMUstate")]
-    can_serialize_state: Option<String>,
-}
-
-#[derive(Deserialize)]
-struct RawDefaultExperiment {
-    #[serde(rename = "@startTime")]
-    start_time: Option<String>,
-    #[serde(rename = "@stopTime")]
-    stop_time: Option<String>,
-    #[serde(rename = "@tolerance")]
-    tolerance: Option<String>,
-    #[serde(rename = "@stepSize")]
-    step_size: Option<String>,
-}
-
-#[derive(Deserialize)]
-struct RawModelVariables {
-    #[serde(rename = "ScalarVariable", default)]
-    variables: Vec<RawScalarVariable>,
-}
-
-#[derive(Deserialize)]
-struct RawTyped {
-    #[serde(rename = "@start")]
-    start: Option<String>,
-    #[serde(rename = "@unit")]
-    unit: Option<String>,
-    #[serde(rename = "@declaredType")]
-    declared_type: Option<String>,
-}
-
-#[derive(Deserialize)]
-struct RawScalarVariable {
-    #[serde(rename = "@name")]
-    name: Option<String>,
-    #[serde(rename = "@valueReference")]
-    value_reference: Option<String>,
-    #[serde(rename = "@description")]
-    description: Option<String>,
-    #[serde(rename = "@causality")]
-    causality: Option<String>,
-    #[serde(rename = "@variability")]
-    variability: Option<String>,
-    #[serde(rename = "@initial")]
-    initial: Option<String>,
-    #[serde(rename = "Real")]
-    real: Option<RawTyped>,
-    #[serde(rename = "Integer")]
-    integer: Option<RawTyped>,
-    #[serde(rename = "Boolean")]
-    boolean: Option<RawTyped>,
-    #[serde(rename = "String")]
-    string: Option<RawTyped>,
-    #[serde(rename = "Enumeration")]
-    enumeration: Option<RawTyped>,
-}
-
-#[derive(Deserialize)]
-struct RawModelStructure {
-    #[serde(rename = "Outputs")]
-    outputs: Option<RawUnknownList>,
-    #[serde(rename = "InitialUnknowns")]
-    initial_unknowns: Option<RawUnknownList>,
-}
-
-#[derive(Deserialize)]
-struct RawUnknownList {
-    #[serde(rename = "Unknown", default)]
-    unknowns: Vec<RawUnknown>,
-}
-
-#[derive(Deserialize)]
-struct RawUnknown {
-    #[serde(rename = "@index")]
-    index: Option<String>,
-    #[serde(rename = "@dependencies")]
-    dependencies: Option<String>,
-}
-
-// ---------------------------------------------------------------------------------------------
-// Typed model description
-// ---------------------------------------------------------------------------------------------
+use raw::{RawModelDescription, RawScalarVariable, RawUnknownList};
 
 /// Causality of a variable.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -227,8 +107,10 @@ pub struct ScalarVariable {
     pub var_type: VarType,
     /// Start value, if given.
     pub start: Option<Start>,
-    /// Unit (Real), if given.
+    /// Unit (Real), if given: the `unit` attribute, else the unit of its declared type.
     pub unit: Option<String>,
+    /// The `declaredType` (a SimpleType of TypeDefinitions), if given.
+    pub declared_type: Option<String>,
 }
 
 /// An entry of ModelStructure/Outputs or InitialUnknowns.
@@ -348,6 +230,54 @@ fn is_c_identifier(s: &str) -> bool {
         && chars.all(|c| c.is_ascii_alphanumeric() || c == '_')
 }
 
+/// The entries of ModelStructure's `what` list (Outputs or InitialUnknowns), their 1-based
+/// indices checked against the `n_vars` variables and made 0-based.
+fn unknowns(
+    ctx: &Ctx<'_>,
+    list: Option<RawUnknownList>,
+    what: &str,
+    n_vars: usize,
+) -> Result<Vec<Unknown>> {
+    let mut out = Vec::new();
+    for u in list.map(|l| l.unknowns).unwrap_or_default() {
+        let index = u
+            .index
+            .as_deref()
+            .and_then(|s| s.trim().parse::<usize>().ok())
+            .filter(|&i| i >= 1 && i <= n_vars)
+            .ok_or_else(|| {
+                ctx.err(format!(
+                    "{what}: Unknown index {:?} is not a variable index 1..{}",
+                    u.index, n_vars
+                ))
+            })?;
+        let dependencies = match u.dependencies.as_deref() {
+            None => None,
+            Some(d) => Some(
+                d.split_whitespace()
+                    .map(|s| {
+                        s.parse::<usize>()
+                            .ok()
+                            .filter(|&i| i >= 1 && i <= n_vars)
+                            .map(|i| i - 1)
+                            .ok_or_else(|| {
+                                ctx.err(format!(
+                                    "{what}: dependency {s:?} of variable {index} is \
+                                         not a variable index"
+                                ))
+                            })
+                    })
+                    .collect::<Result<Vec<usize>>>()?,
+            ),
+        };
+        out.push(Unknown {
+            variable: index - 1,
+            dependencies,
+        });
+    }
+    Ok(out)
+}
+
 impl ModelDescription {
     /// Parses `xml`, read from `file` (named in errors).
     ///
@@ -404,6 +334,14 @@ impl ModelDescription {
                 step_size: ctx.real("DefaultExperiment stepSize", &d.step_size)?,
             },
         };
+        // The unit of each SimpleType that declares a Real unit.
+        let type_units: HashMap<String, String> = raw
+            .type_definitions
+            .map(|t| t.types)
+            .unwrap_or_default()
+            .into_iter()
+            .filter_map(|t| Some((t.name?, t.real?.unit?)))
+            .collect();
         let raw_vars = raw
             .model_variables
             .ok_or_else(|| ctx.err("no <ModelVariables> element"))?
@@ -411,58 +349,22 @@ impl ModelDescription {
         let mut variables = Vec::with_capacity(raw_vars.len());
         let mut by_name = HashMap::with_capacity(raw_vars.len());
         for (k, rv) in raw_vars.into_iter().enumerate() {
-            let v = Self::variable(&ctx, k, rv)?;
+            let v = Self::variable(&ctx, k, rv, &type_units)?;
             if by_name.insert(v.name.clone(), k).is_some() {
                 return Err(ctx.err(format!("variable name {:?} is used twice", v.name)));
             }
             variables.push(v);
         }
-        let unknowns = |list: Option<RawUnknownList>, what: &str| -> Result<Vec<Unknown>> {
-            let mut out = Vec::new();
-            for u in list.map(|l| l.unknowns).unwrap_or_default() {
-                let index = u
-                    .index
-                    .as_deref()
-                    .and_then(|s| s.trim().parse::<usize>().ok())
-                    .filter(|&i| i >= 1 && i <= variables.len())
-                    .ok_or_else(|| {
-                        ctx.err(format!(
-                            "{what}: Unknown index {:?} is not a variable index 1..{}",
-                            u.index,
-                            variables.len()
-                        ))
-                    })?;
-                let dependencies = match u.dependencies.as_deref() {
-                    None => None,
-                    Some(d) => Some(
-                        d.split_whitespace()
-                            .map(|s| {
-                                s.parse::<usize>()
-                                    .ok()
-                                    .filter(|&i| i >= 1 && i <= variables.len())
-                                    .map(|i| i - 1)
-                                    .ok_or_else(|| {
-                                        ctx.err(format!(
-                                            "{what}: dependency {s:?} of variable {index} is \
-                                             not a variable index"
-                                        ))
-                                    })
-                            })
-                            .collect::<Result<Vec<usize>>>()?,
-                    ),
-                };
-                out.push(Unknown {
-                    variable: index - 1,
-                    dependencies,
-                });
-            }
-            Ok(out)
-        };
         let (outputs, initial_unknowns) = match raw.model_structure {
             None => (Vec::new(), Vec::new()),
             Some(ms) => (
-                unknowns(ms.outputs, "ModelStructure/Outputs")?,
-                unknowns(ms.initial_unknowns, "ModelStructure/InitialUnknowns")?,
+                unknowns(&ctx, ms.outputs, "ModelStructure/Outputs", variables.len())?,
+                unknowns(
+                    &ctx,
+                    ms.initial_unknowns,
+                    "ModelStructure/InitialUnknowns",
+                    variables.len(),
+                )?,
             ),
         };
         // Outputs lists exactly the outputs.
@@ -494,7 +396,12 @@ impl ModelDescription {
         })
     }
 
-    fn variable(ctx: &Ctx<'_>, k: usize, rv: RawScalarVariable) -> Result<ScalarVariable> {
+    fn variable(
+        ctx: &Ctx<'_>,
+        k: usize,
+        rv: RawScalarVariable,
+        type_units: &HashMap<String, String>,
+    ) -> Result<ScalarVariable> {
         let name = rv
             .name
             .ok_or_else(|| ctx.err(format!("ScalarVariable #{} has no name", k + 1)))?;
@@ -584,7 +491,12 @@ impl ModelDescription {
             initial,
             var_type,
             start,
-            unit: t.unit.or(t.declared_type),
+            unit: t.unit.or_else(|| {
+                t.declared_type
+                    .as_ref()
+                    .and_then(|d| type_units.get(d).cloned())
+            }),
+            declared_type: t.declared_type,
         })
     }
 

@@ -1,0 +1,254 @@
+//! Setting a system up: [`Simulation::new`] checks the experiment, opens each FMU once, wires
+//! and checks the connections (`wiring.rs`), instantiates every component with its parameters,
+//! lets them leave initialisation mode in parallel (module docs, "Set-up"), decides which may
+//! leave the master's thread, and publishes the initial outputs. Each phase is a function of
+//! its own, in the order they run; the first error in that order is the one reported.
+
+use std::time::Instant;
+
+use super::definition::{Order, System, Value};
+use super::simulation::{Recorded, Simulation};
+use super::step::Running;
+use super::threads::Lookahead;
+use super::wiring::{Wiring, var_of};
+use crate::description::{ScalarVariable, VarType};
+use crate::error::{CosimError, Result};
+use crate::fmu::Fmu;
+use crate::instance::Instance;
+
+/// Sets parameter `v` of `inst` to `value` (`what` names it in the error).
+fn set_value(inst: &mut Instance, v: &ScalarVariable, value: &Value, what: &str) -> Result<()> {
+    let vr = [v.value_reference];
+    let mismatch = |found: &str| CosimError::Mismatch {
+        what: what.into(),
+        reason: format!("{} is {:?}, the value is {found}", v.name, v.var_type),
+    };
+    match (v.var_type, value) {
+        (VarType::Real, Value::Real(x)) => inst.set_real(&vr, &[*x]),
+        (VarType::Real, Value::Integer(x)) => inst.set_real(&vr, &[f64::from(*x)]),
+        (VarType::Integer | VarType::Enumeration, Value::Integer(x)) => {
+            inst.set_integer(&vr, &[*x])
+        }
+        (VarType::Boolean, Value::Boolean(x)) => inst.set_boolean(&vr, &[*x]),
+        (VarType::String, Value::String(x)) => inst.set_string(&vr, &[x.as_str()]),
+        (_, Value::Real(_)) => Err(mismatch("Real")),
+        (_, Value::Integer(_)) => Err(mismatch("Integer")),
+        (_, Value::Boolean(_)) => Err(mismatch("Boolean")),
+        (_, Value::String(_)) => Err(mismatch("String")),
+    }
+}
+
+/// Checks the experiment (a positive step, the stop after the start) and the components
+/// (unique names, rates of at least one base step), before any FMU is opened.
+fn check_experiment(system: &System) -> Result<()> {
+    if !(system.step > 0.0 && system.step.is_finite()) {
+        return Err(CosimError::Invalid(format!(
+            "communication step {} s must be positive",
+            system.step
+        )));
+    }
+    if system.stop_time.partial_cmp(&system.start_time) != Some(std::cmp::Ordering::Greater) {
+        return Err(CosimError::Invalid(format!(
+            "stop time {} s must be after start time {} s",
+            system.stop_time, system.start_time
+        )));
+    }
+    let mut names = std::collections::HashSet::new();
+    for c in &system.components {
+        if !names.insert(c.name.as_str()) {
+            return Err(CosimError::Invalid(format!(
+                "component name {} is used twice",
+                c.name
+            )));
+        }
+        if c.every == 0 {
+            return Err(CosimError::Invalid(format!(
+                "{}: steps every 0 base steps; use 1 or more",
+                c.name
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Opens each FMU once per distinct file: the FMUs, and per component the index of its own.
+fn open_fmus(system: &System) -> Result<(Vec<Fmu>, Vec<usize>)> {
+    let mut fmus: Vec<Fmu> = Vec::new();
+    let mut fmu_of = Vec::with_capacity(system.components.len());
+    for c in &system.components {
+        let pos = fmus.iter().position(|f| f.path == c.fmu);
+        let k = match pos {
+            Some(k) => k,
+            None => {
+                fmus.push(Fmu::open(&c.fmu)?);
+                fmus.len() - 1
+            }
+        };
+        fmu_of.push(k);
+    }
+    Ok((fmus, fmu_of))
+}
+
+/// Instantiates component `c`, sets up its experiment and parameters and enters
+/// initialisation mode; its buffers are laid out by `wiring` (global slot `offset`).
+fn instantiate(
+    system: &System,
+    c: usize,
+    fmu: &Fmu,
+    wiring: &Wiring,
+    offset: &[usize],
+) -> Result<Running> {
+    let comp = &system.components[c];
+    let t0 = Instant::now();
+    let mut inst = fmu.instantiate(&comp.name, false)?;
+    inst.setup_experiment(None, system.start_time, Some(system.stop_time))?;
+    for (name, value) in &comp.parameters {
+        let v = var_of(fmu, &comp.name, name)?;
+        set_value(&mut inst, v, value, &format!("{}.{name}", comp.name))?;
+    }
+    inst.enter_initialization_mode()?;
+    let in_conn = &wiring.in_conn[c];
+    let out_vars = &wiring.out_vars[c];
+    let in_vrs: Vec<u32> = in_conn.iter().map(|x| x.0).collect();
+    let in_src: Vec<usize> = in_conn.iter().map(|x| offset[x.1] + x.2).collect();
+    Ok(Running {
+        name: comp.name.clone(),
+        instance: inst,
+        every: comp.every,
+        in_buf: vec![0.0; in_vrs.len()],
+        in_vrs,
+        in_src,
+        out_buf: vec![0.0; out_vars.len()],
+        out_names: out_vars
+            .iter()
+            .map(|&vr| {
+                fmu.description
+                    .variables
+                    .iter()
+                    .find(|v| v.value_reference == vr && v.var_type == VarType::Real)
+                    .map_or_else(|| format!("vr {vr}"), |v| v.name.clone())
+            })
+            .collect(),
+        busy: 0.0,
+        last: 0.0,
+        // Until measured, assume a component is worth a thread.
+        mean: f64::INFINITY,
+        mean_weight: system.scheduler.mean_weight,
+        out_vrs: out_vars.clone(),
+        out_slot: offset[c],
+        setup: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// Where the models get built: every component leaves initialisation mode, in parallel, one
+/// instance per task; the first error in component order is reported.
+fn exit_initialization(comps: &mut [Running]) -> Result<()> {
+    use rayon::prelude::*;
+    let exits: Vec<Result<()>> = comps
+        .par_iter_mut()
+        .map(|r| {
+            let t0 = Instant::now();
+            let out = r.instance.exit_initialization_mode();
+            r.setup += t0.elapsed().as_secs_f64();
+            out
+        })
+        .collect();
+    exits.into_iter().collect::<Result<Vec<()>>>()?;
+    Ok(())
+}
+
+/// Per component, whether it must stay on the master's thread in Gauss-Seidel order: any of
+/// its outputs recorded (`rec_local`), or another instance of its FMU in the system.
+fn stay_on_master(fmu_of: &[usize], rec_local: &[(String, usize, usize)]) -> Vec<bool> {
+    let n = fmu_of.len();
+    // Components that may go to the look-ahead thread: not recorded, and the only
+    // instance of their FMU (instances of one library may share its global state, and
+    // the sequential order never ran two of them at once).
+    let mut stay_on_master = vec![false; n];
+    for r in rec_local {
+        stay_on_master[r.1] = true;
+    }
+    for c in 0..n {
+        if fmu_of.iter().filter(|&&k| k == fmu_of[c]).count() > 1 {
+            stay_on_master[c] = true;
+        }
+    }
+    stay_on_master
+}
+
+impl Simulation {
+    /// Opens every FMU, instantiates and initialises every component, applies parameters and
+    /// checks every connection (names, types, causalities, sizes, units). `record` lists
+    /// signals to record as "component.signal" (arrays by base name). The scheduler's
+    /// thresholds are the system's ([`System::scheduler`]).
+    ///
+    /// # Errors
+    /// Naming the component, variable or connection at fault.
+    pub fn new(system: &System, record: &[String]) -> Result<Self> {
+        check_experiment(system)?;
+        let (fmus, fmu_of) = open_fmus(system)?;
+        // Output slots: every connected or recorded output signal of each component.
+        let mut wiring = Wiring::connect(system, &fmus, &fmu_of)?;
+        let rec_local = wiring.record(system, &fmus, &fmu_of, record)?;
+        let offset = wiring.offsets();
+        // Instantiate, set parameters, initialise.
+        let mut comps = Vec::with_capacity(system.components.len());
+        for c in 0..system.components.len() {
+            comps.push(instantiate(system, c, &fmus[fmu_of[c]], &wiring, &offset)?);
+        }
+        exit_initialization(&mut comps)?;
+        let stay_on_master = stay_on_master(&fmu_of, &rec_local);
+        let recorded = Recorded {
+            columns: rec_local.iter().map(|r| r.0.clone()).collect(),
+            slots: rec_local.iter().map(|r| offset[r.1] + r.2).collect(),
+        };
+        let mut sim = Self::assemble(system, comps, &wiring, stay_on_master, recorded, fmus)?;
+        // The initial outputs feed the first step (or zeros, fmpy.ssp's convention).
+        if !system.zero_start {
+            for c in 0..sim.comps.len() {
+                sim.read_outputs(c)?;
+            }
+        }
+        Ok(sim)
+    }
+
+    /// The simulation at the start time from its initialised components, with the look-ahead
+    /// thread started for Gauss-Seidel (unless turned off, or with a single component).
+    fn assemble(
+        system: &System,
+        comps: Vec<Running>,
+        wiring: &Wiring,
+        stay_on_master: Vec<bool>,
+        recorded: Recorded,
+        fmus: Vec<Fmu>,
+    ) -> Result<Self> {
+        let n = comps.len();
+        let total = wiring.offsets()[n];
+        let lookahead = if system.order == Order::GaussSeidel && n > 1 && !system.no_lookahead {
+            Some(Lookahead::start()?)
+        } else {
+            None
+        };
+        Ok(Self {
+            every: comps.iter().map(|r| r.every as u64).collect(),
+            names: comps.iter().map(|r| r.name.clone()).collect(),
+            comps: comps.into_iter().map(|r| Some(Box::new(r))).collect(),
+            sources: wiring.sources(),
+            stay_on_master,
+            lookahead,
+            params: system.scheduler,
+            parallel_steps: 0,
+            outputs: vec![0.0; total],
+            snapshot: vec![0.0; total],
+            order: system.order,
+            step: system.step,
+            time: system.start_time,
+            start: system.start_time,
+            stop: system.stop_time,
+            n_steps: 0,
+            fmu_critical: 0.0,
+            recorded,
+            _fmus: fmus,
+        })
+    }
+}

@@ -1,0 +1,236 @@
+//! The step semantics: what one communication step does in each order (module docs). A
+//! [`Running`] component sets its gathered inputs, steps and reads its outputs; Jacobi gives
+//! every due component the outputs of the communication point and publishes theirs after all
+//! have stepped; Gauss-Seidel steps the due components in order, each on the newest outputs,
+//! waiting for the component on the look-ahead thread before anything that reads it. Where the
+//! FMU calls run is the thread policy's choice (`threads.rs`) and changes no value.
+
+use std::time::Instant;
+
+use super::definition::Order;
+use super::simulation::Simulation;
+use super::threads::{self, Job};
+use crate::error::{CosimError, Result};
+use crate::instance::Instance;
+
+/// A running component.
+pub(super) struct Running {
+    pub(super) name: String,
+    pub(super) instance: Instance,
+    pub(super) every: usize,
+    /// Value references of its connected inputs and where each comes from in `outputs`.
+    pub(super) in_vrs: Vec<u32>,
+    pub(super) in_src: Vec<usize>,
+    pub(super) in_buf: Vec<f64>,
+    /// Value references of its connected (or recorded) outputs, and their slots in `outputs`.
+    pub(super) out_vrs: Vec<u32>,
+    pub(super) out_slot: usize,
+    /// Its latest outputs (published into the shared buffer after its step).
+    pub(super) out_buf: Vec<f64>,
+    /// Names of its outputs (for the message when one is not finite).
+    pub(super) out_names: Vec<String>,
+    /// Wall time spent in its set/doStep/get calls (s), in the last step, and a running mean.
+    pub(super) busy: f64,
+    pub(super) last: f64,
+    pub(super) mean: f64,
+    /// Weight of the newest step in `mean` ([`super::SchedulerParams::mean_weight`]).
+    pub(super) mean_weight: f64,
+    /// Wall time of its set-up: instantiation to the end of initialisation (s).
+    pub(super) setup: f64,
+}
+
+impl Running {
+    /// Sets its inputs from `outputs` (all components' published outputs), steps from `t` over
+    /// its own multiple of `h` (cut to the `left` base steps before the stop time), and reads
+    /// its outputs into `out_buf`: one fmi2SetReal, one fmi2DoStep, one fmi2GetReal, no
+    /// allocation.
+    pub(super) fn advance(&mut self, outputs: &[f64], t: f64, h: f64, left: usize) -> Result<()> {
+        self.gather(outputs);
+        self.step_gathered(t, h, left)
+    }
+
+    /// Copies its inputs out of `outputs` into `in_buf`.
+    pub(super) fn gather(&mut self, outputs: &[f64]) {
+        for (b, &s) in self.in_buf.iter_mut().zip(&self.in_src) {
+            *b = outputs[s];
+        }
+    }
+
+    /// [`Self::advance`] on the inputs gathered in `in_buf`.
+    pub(super) fn step_gathered(&mut self, t: f64, h: f64, left: usize) -> Result<()> {
+        let t0 = Instant::now();
+        self.instance.set_real(&self.in_vrs, &self.in_buf)?;
+        self.instance.do_step(t, h * self.every.min(left) as f64)?;
+        self.instance.get_real(&self.out_vrs, &mut self.out_buf)?;
+        self.last = t0.elapsed().as_secs_f64();
+        self.busy += self.last;
+        self.mean = if self.mean.is_finite() {
+            self.mean + self.mean_weight * (self.last - self.mean)
+        } else {
+            self.last
+        };
+        if let Some(k) = self.out_buf.iter().position(|v| !v.is_finite()) {
+            return Err(CosimError::NonFinite {
+                component: self.name.clone(),
+                variable: self.out_names[k].clone(),
+                value: self.out_buf[k],
+                time: t + h * self.every as f64,
+            });
+        }
+        Ok(())
+    }
+
+    /// Copies its outputs into the shared buffer.
+    pub(super) fn publish(&self, outputs: &mut [f64]) {
+        outputs[self.out_slot..self.out_slot + self.out_buf.len()].copy_from_slice(&self.out_buf);
+    }
+}
+
+impl Simulation {
+    /// Advances one base step.
+    ///
+    /// # Errors
+    /// The first component error, naming the component and the time.
+    pub fn step(&mut self) -> Result<()> {
+        let k = self.n_steps;
+        let t = self.time;
+        let h = self.step;
+        // Base steps left before the stop time, this one included: a slower component's last
+        // step ends at the stop time, not past it (FMUs refuse to step past the stopTime
+        // given to fmi2SetupExperiment).
+        let left = ((self.stop - t) / h - 1e-6).ceil().max(1.0) as usize;
+        match self.order {
+            Order::Jacobi => self.step_jacobi(k, t, h, left)?,
+            Order::GaussSeidel => self.step_gauss_seidel(k, t, h, left)?,
+        }
+        self.n_steps += 1;
+        self.time = self.start + self.n_steps as f64 * h;
+        Ok(())
+    }
+
+    /// Jacobi: every due component steps on the outputs of the communication point (a
+    /// snapshot), on the threads the policy picks; all publish after all have stepped.
+    fn step_jacobi(&mut self, k: u64, t: f64, h: f64, left: usize) -> Result<()> {
+        let due = |r: &Running| k.is_multiple_of(r.every as u64);
+        self.snapshot.copy_from_slice(&self.outputs);
+        let snapshot = &self.snapshot;
+        let plan = threads::plan_jacobi(&self.comps, &due, &self.params);
+        if plan.is_parallel() {
+            self.parallel_steps += 1;
+        }
+        let critical = threads::advance_jacobi(plan, &mut self.comps, &due, snapshot, t, h, left)?;
+        for r in self.comps.iter().flatten().filter(|r| due(r)) {
+            r.publish(&mut self.outputs);
+        }
+        self.fmu_critical += critical;
+        Ok(())
+    }
+
+    /// Gauss-Seidel: the due components in turn, each on the newest outputs; one whose
+    /// outputs are not needed right away may go to the look-ahead thread (module docs).
+    fn step_gauss_seidel(&mut self, k: u64, t: f64, h: f64, left: usize) -> Result<()> {
+        for i in 0..self.comps.len() {
+            if !k.is_multiple_of(self.every[i]) {
+                continue;
+            }
+            // Wait for the component in flight if it is this one's previous step or this one
+            // reads it.
+            if let Some(j) = self.lookahead.as_ref().and_then(|l| l.in_flight)
+                && (j == i || self.sources[i].binary_search(&j).is_ok())
+            {
+                self.settle()?;
+            }
+            self.gs_turn(i, k, t, h, left)?;
+        }
+        Ok(())
+    }
+
+    /// The turn of due component `i` in Gauss-Seidel order (nothing it reads is in flight).
+    fn gs_turn(&mut self, i: usize, k: u64, t: f64, h: f64, left: usize) -> Result<()> {
+        let n = self.comps.len();
+        let free = self
+            .lookahead
+            .as_ref()
+            .is_some_and(|l| l.in_flight.is_none());
+        let Some(r) = self.comps[i].as_deref_mut() else {
+            return Err(CosimError::Invalid(format!(
+                "{}: missing from the master (internal error)",
+                self.names[i]
+            )));
+        };
+        r.gather(&self.outputs);
+        // The next turn (the next due component of this step, or the first of the next step)
+        // must not read it, or it would be waited for at once.
+        let next = || {
+            (i + 1..n)
+                .find(|&j| k.is_multiple_of(self.every[j]))
+                .or_else(|| (0..=i).find(|&j| (k + 1).is_multiple_of(self.every[j])))
+        };
+        let defer = free
+            && !self.stay_on_master[i]
+            && self.params.worth_lookahead(r.mean)
+            && next().is_some_and(|j| j != i && self.sources[j].binary_search(&i).is_err());
+        if defer
+            && let Some(la) = self.lookahead.as_mut()
+            && la.jobs.is_some()
+            && let Some(comp) = self.comps[i].take()
+        {
+            match la.hand_over(i, comp, t, h, left) {
+                Ok(()) => return Ok(()),
+                Err(comp) => {
+                    // The thread is gone: step it here, and no more look-ahead.
+                    self.comps[i] = Some(comp);
+                    self.lookahead = None;
+                }
+            }
+        }
+        if let Some(r) = self.comps[i].as_deref_mut() {
+            r.step_gathered(t, h, left)?;
+            r.publish(&mut self.outputs);
+            self.fmu_critical += r.last;
+        }
+        Ok(())
+    }
+
+    /// Reads component `c`'s current outputs into the shared buffer (after [`Self::settle`]).
+    pub(super) fn read_outputs(&mut self, c: usize) -> Result<()> {
+        self.settle()?;
+        if let Some(r) = self.comps[c].as_deref_mut() {
+            r.instance.get_real(&r.out_vrs, &mut r.out_buf)?;
+            r.publish(&mut self.outputs);
+        }
+        Ok(())
+    }
+
+    /// Waits for the component on the look-ahead thread (if any), puts it back and publishes
+    /// its outputs: afterwards every component is in place and every output current.
+    ///
+    /// # Errors
+    /// The error of that component's step (naming it and the time), or a look-ahead thread
+    /// that stopped.
+    pub fn settle(&mut self) -> Result<()> {
+        let Some(la) = self.lookahead.as_mut() else {
+            return Ok(());
+        };
+        let Some(i) = la.in_flight.take() else {
+            return Ok(());
+        };
+        let t0 = Instant::now();
+        let job = la.done.recv().map_err(|_| {
+            CosimError::Invalid(format!(
+                "{}: the look-ahead thread stopped during its step",
+                self.names[i]
+            ))
+        })?;
+        self.fmu_critical += t0.elapsed().as_secs_f64();
+        let Job {
+            index,
+            comp,
+            result,
+            ..
+        } = job;
+        comp.publish(&mut self.outputs);
+        self.comps[index] = Some(comp);
+        result
+    }
+}

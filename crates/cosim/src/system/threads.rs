@@ -1,0 +1,290 @@
+//! The scheduler's thread policy: which components' steps go to other threads, and how. The
+//! step semantics (`step.rs`) fix what every component receives; this file only decides where
+//! its FMU calls run, from the running mean of each component's step time and the thresholds
+//! of [`SchedulerParams`], so that no choice made here changes a value.
+//!
+//! - Jacobi: the due components by recursive halving on rayon's pool ([`advance_split`]), the
+//!   heaviest alone beside the others stepping in turn on a worker, or all in turn on the
+//!   calling thread ([`plan_jacobi`], [`advance_jacobi`]).
+//! - Gauss-Seidel: one component at a time on the look-ahead thread ([`Lookahead`]), when it
+//!   takes long enough per step ([`SchedulerParams::worth_lookahead`]).
+
+use super::step::Running;
+use crate::error::{CosimError, Result};
+
+/// The master's scheduling thresholds: the wall-time heuristics that decide when a step goes
+/// to another thread. They change the wall time of a run only; every component receives the
+/// same values whatever they are (tested). [`Default`] holds the values measured on the
+/// project's 2-core machine; a [`super::System`] carries its own ([`super::System::scheduler`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SchedulerParams {
+    /// Mean time per step (s) above which a component counts as heavy enough to run on its own
+    /// thread in Jacobi order (measured: waking a rayon worker every step costs 50-150 us on
+    /// the 2-core machine); a component not yet measured (its first step) never counts. Default
+    /// 2e-4.
+    pub parallel_min_seconds: f64,
+    /// Jacobi with a single heavy component: the others (at least this much work per step, s)
+    /// step on a worker while it steps, if it takes at least
+    /// [`Self::wake_seconds`] longer than they do. Default 5e-5.
+    pub split_min_seconds: f64,
+    /// The worst time to wake a sleeping worker measured on the 2-core machine (s). Default
+    /// 1.5e-4.
+    pub wake_seconds: f64,
+    /// Mean time per step (s) from which a component may step on the look-ahead thread in
+    /// Gauss-Seidel order (handing it over and back costs a few microseconds when the thread is
+    /// awake, up to 50-150 us to wake it on the 2-core machine, hidden while the master steps
+    /// the others). Default 5e-5; [`super::Simulation::set_lookahead`] changes it on a running
+    /// simulation.
+    pub lookahead_min_seconds: f64,
+    /// Weight of the newest step in each component's running mean of its step time (the mean
+    /// the thresholds above are compared with): `mean += weight * (last - mean)`. Default 0.05.
+    pub mean_weight: f64,
+}
+
+impl Default for SchedulerParams {
+    fn default() -> Self {
+        Self {
+            parallel_min_seconds: 2e-4,
+            split_min_seconds: 5e-5,
+            wake_seconds: 1.5e-4,
+            lookahead_min_seconds: 5e-5,
+            mean_weight: 0.05,
+        }
+    }
+}
+
+impl SchedulerParams {
+    /// Whether a component with this mean step time (s; infinite until measured) is worth
+    /// handing to the look-ahead thread.
+    pub(super) fn worth_lookahead(&self, mean: f64) -> bool {
+        mean.is_finite() && mean >= self.lookahead_min_seconds
+    }
+}
+
+/// A component's step on the look-ahead thread: it goes there with its inputs gathered and
+/// comes back stepped, with the outcome.
+pub(super) struct Job {
+    pub(super) index: usize,
+    pub(super) comp: Box<Running>,
+    t: f64,
+    h: f64,
+    left: usize,
+    pub(super) result: Result<()>,
+}
+
+/// The look-ahead thread of a Gauss-Seidel simulation and the component it has in flight.
+pub(super) struct Lookahead {
+    pub(super) jobs: Option<std::sync::mpsc::SyncSender<Job>>,
+    pub(super) done: std::sync::mpsc::Receiver<Job>,
+    thread: Option<std::thread::JoinHandle<()>>,
+    pub(super) in_flight: Option<usize>,
+    /// Components' steps taken there so far.
+    pub(super) deferred: u64,
+}
+
+impl Lookahead {
+    pub(super) fn start() -> Result<Self> {
+        let (jobs, inbox) = std::sync::mpsc::sync_channel::<Job>(1);
+        let (outbox, done) = std::sync::mpsc::sync_channel::<Job>(1);
+        let thread = std::thread::Builder::new()
+            .name("cosim-lookahead".into())
+            .spawn(move || {
+                while let Ok(mut job) = inbox.recv() {
+                    job.result = job.comp.step_gathered(job.t, job.h, job.left);
+                    if outbox.send(job).is_err() {
+                        break;
+                    }
+                }
+            })
+            .map_err(|e| CosimError::Invalid(format!("cannot start the look-ahead thread: {e}")))?;
+        Ok(Self {
+            jobs: Some(jobs),
+            done,
+            thread: Some(thread),
+            in_flight: None,
+            deferred: 0,
+        })
+    }
+
+    /// Sends component `index` (its inputs gathered) to step from `t` on the thread; it is in
+    /// flight until received from `done`. Gives the component back if the thread is gone.
+    pub(super) fn hand_over(
+        &mut self,
+        index: usize,
+        comp: Box<Running>,
+        t: f64,
+        h: f64,
+        left: usize,
+    ) -> std::result::Result<(), Box<Running>> {
+        let Some(tx) = self.jobs.as_ref() else {
+            return Err(comp);
+        };
+        let job = Job {
+            index,
+            comp,
+            t,
+            h,
+            left,
+            result: Ok(()),
+        };
+        match tx.send(job) {
+            Ok(()) => {
+                self.in_flight = Some(index);
+                self.deferred += 1;
+                Ok(())
+            }
+            Err(std::sync::mpsc::SendError(job)) => Err(job.comp),
+        }
+    }
+}
+
+impl Drop for Lookahead {
+    fn drop(&mut self) {
+        // Closing the channel ends the thread's loop; a job still in flight comes back (or is
+        // dropped with the thread) before the libraries close: Simulation's fields drop after
+        // this one.
+        self.jobs = None;
+        if self.in_flight.take().is_some() {
+            let _ = self.done.recv();
+        }
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// How the due components of a Jacobi step are spread over threads ([`plan_jacobi`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum JacobiPlan {
+    /// All in parallel by recursive halving.
+    Parallel,
+    /// Component `i` (the heaviest) on this thread, the others in turn on a worker.
+    Split(usize),
+    /// All in turn on this thread.
+    InTurn,
+}
+
+impl JacobiPlan {
+    /// Whether the step uses more than one thread.
+    pub(super) fn is_parallel(self) -> bool {
+        self != Self::InTurn
+    }
+}
+
+/// Decides the threads of a Jacobi step from the due components' mean step times: in
+/// parallel when at least two take over [`SchedulerParams::parallel_min_seconds`] per step;
+/// with one such component (the heaviest), it on this thread and the others in turn on a
+/// worker, when they add up to [`SchedulerParams::split_min_seconds`] and it outlasts them by
+/// [`SchedulerParams::wake_seconds`]; otherwise all in turn on this thread.
+pub(super) fn plan_jacobi(
+    comps: &[Option<Box<Running>>],
+    due: &dyn Fn(&Running) -> bool,
+    params: &SchedulerParams,
+) -> JacobiPlan {
+    // Threads only pay when at least two components take long enough per step to
+    // hide waking a worker (tens of microseconds): otherwise step them in turn,
+    // which gives the same (Jacobi) results.
+    // Also: with one heavy component and enough light work to move, the heavy one
+    // on this thread, the others in turn on a worker, whose wake-up hides behind it.
+    let (mut heavy, mut top, mut top_mean, mut rest) = (0, None, 0.0, 0.0);
+    for (i, r) in comps.iter().enumerate() {
+        if let Some(r) = r.as_deref().filter(|r| due(r)) {
+            // Unmeasured (infinite mean): not heavy, as for the look-ahead.
+            heavy += usize::from(r.mean.is_finite() && r.mean >= params.parallel_min_seconds);
+            let m = if r.mean.is_finite() { r.mean } else { 0.0 };
+            if m > top_mean {
+                rest += top_mean;
+                top = Some(i);
+                top_mean = m;
+            } else {
+                rest += m;
+            }
+        }
+    }
+    if heavy > 1 {
+        JacobiPlan::Parallel
+    } else if let Some(i) = top
+        && rest >= params.split_min_seconds
+        && top_mean >= rest + params.wake_seconds
+    {
+        JacobiPlan::Split(i)
+    } else {
+        JacobiPlan::InTurn
+    }
+}
+
+/// Steps the due components of a Jacobi step on the values `outputs` of the communication
+/// point, on the threads of `plan`; returns the wall time of the FMU calls on the critical
+/// path.
+pub(super) fn advance_jacobi(
+    plan: JacobiPlan,
+    comps: &mut [Option<Box<Running>>],
+    due: &(dyn Fn(&Running) -> bool + Sync),
+    outputs: &[f64],
+    t: f64,
+    h: f64,
+    left: usize,
+) -> Result<f64> {
+    Ok(match plan {
+        JacobiPlan::Parallel => advance_split(comps, due, outputs, t, h, left)?,
+        JacobiPlan::Split(i) => {
+            let (before, from) = comps.split_at_mut(i);
+            let (heaviest, after) = from.split_at_mut(1);
+            let (x, y) = rayon::join(
+                || advance_split(heaviest, due, outputs, t, h, left),
+                || {
+                    let others = before.iter_mut().chain(after.iter_mut());
+                    advance_in_turn(others, due, outputs, t, h, left)
+                },
+            );
+            x?.max(y?)
+        }
+        JacobiPlan::InTurn => advance_in_turn(comps.iter_mut(), due, outputs, t, h, left)?,
+    })
+}
+
+/// Steps the due components of `comps` in parallel by recursive halving (`rayon::join`: no
+/// allocation, and the calling thread takes one half). Returns the wall time of the FMU calls
+/// on the critical path (the longer of the two halves, recursively).
+pub(super) fn advance_split(
+    comps: &mut [Option<Box<Running>>],
+    due: &(dyn Fn(&Running) -> bool + Sync),
+    outputs: &[f64],
+    t: f64,
+    h: f64,
+    left: usize,
+) -> Result<f64> {
+    match comps {
+        [] => Ok(0.0),
+        [r] => match r.as_deref_mut() {
+            Some(r) if due(r) => r.advance(outputs, t, h, left).map(|()| r.last),
+            _ => Ok(0.0),
+        },
+        _ => {
+            let (a, b) = comps.split_at_mut(comps.len() / 2);
+            let (x, y) = rayon::join(
+                || advance_split(a, due, outputs, t, h, left),
+                || advance_split(b, due, outputs, t, h, left),
+            );
+            Ok(x?.max(y?))
+        }
+    }
+}
+
+/// Steps the due components of `comps` one after the other on `outputs`; returns the wall
+/// time of their FMU calls.
+pub(super) fn advance_in_turn<'a>(
+    comps: impl Iterator<Item = &'a mut Option<Box<Running>>>,
+    due: &dyn Fn(&Running) -> bool,
+    outputs: &[f64],
+    t: f64,
+    h: f64,
+    left: usize,
+) -> Result<f64> {
+    let mut sum = 0.0;
+    for r in comps.flatten().filter(|r| due(r)) {
+        r.advance(outputs, t, h, left)?;
+        sum += r.last;
+    }
+    Ok(sum)
+}
