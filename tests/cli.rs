@@ -953,3 +953,83 @@ fn system_binds_the_structure_off_the_default() {
         "{err}"
     );
 }
+
+/// `--help` shows the library's defaults (the flags take them from `m1`, so they cannot
+/// drift), in the forms it always showed.
+#[test]
+fn help_shows_the_library_defaults() {
+    let help = |cmd: &str| {
+        let (ok, out, err) = m1cs(&[cmd, "--help"]);
+        assert!(ok, "m1cs {cmd} --help: {err}");
+        out
+    };
+    // The flag's entry: its line and, in the long form, the lines up to the next flag.
+    let shows = |text: &str, flag: &str, default: String| {
+        let lines: Vec<&str> = text.lines().collect();
+        let start = lines
+            .iter()
+            .position(|l| l.trim_start().starts_with(&format!("--{flag} ")))
+            .unwrap_or_else(|| panic!("no --{flag} in\n{text}"));
+        let entry: Vec<&str> = lines[start..]
+            .iter()
+            .enumerate()
+            .take_while(|(k, l)| *k == 0 || !l.trim_start().starts_with('-'))
+            .map(|(_, l)| *l)
+            .collect();
+        let shown = entry
+            .iter()
+            .find_map(|l| l.split("[default: ").nth(1))
+            .map(|d| d.trim_end().trim_end_matches(']'));
+        assert_eq!(shown, Some(default.as_str()), "--{flag}: {entry:?}");
+    };
+    use m1::control::controller as ctl;
+    let run = help("run");
+    shows(&run, "bandwidth", ctl::DEFAULT_BANDWIDTH.to_string());
+    shows(
+        &run,
+        "bandwidth-radial2",
+        ctl::DEFAULT_BANDWIDTH_RADIAL2.to_string(),
+    );
+    shows(
+        &run,
+        "focus-bandwidth",
+        ctl::DEFAULT_BANDWIDTH_FOCUS.to_string(),
+    );
+    shows(
+        &run,
+        "layout",
+        m1::aperture::layout::DEFAULT_LAYOUT.to_string(),
+    );
+    shows(
+        &run,
+        "wind-speed",
+        m1::loads::wind::WindParams::default().speed.to_string(),
+    );
+    let csi = help("csi");
+    shows(&csi, "loop-rate", ctl::DEFAULT_RATE.to_string());
+    shows(
+        &csi,
+        "damping",
+        m1::analysis::defaults::DAMPING_RATIO.to_string(),
+    );
+    shows(
+        &csi,
+        "max-sensitivity",
+        m1::analysis::defaults::csi::MAX_SENSITIVITY.to_string(),
+    );
+    let robustness = help("robustness");
+    let params = m1::analysis::quasistatic::RobustnessParams::default();
+    shows(&robustness, "realizations", params.realizations.to_string());
+    shows(&robustness, "krylov", params.krylov_dim.to_string());
+    // Engineering notation and lists, as before the defaults came from the library.
+    let pssn = help("pssn");
+    assert_eq!(m1::optics::pssn::PssnParams::default().wavelength, 500e-9);
+    shows(&pssn, "wavelength", "500e-9".into());
+    shows(&pssn, "piston-rms", "10e-9".into());
+    shows(
+        &help("coupling"),
+        "steps",
+        "0.0002,0.0004,0.0006,0.001".into(),
+    );
+    shows(&help("wind"), "speeds", "0.5,1,2".into());
+}

@@ -11,6 +11,14 @@ use serde_json::json;
 
 use crate::plot;
 
+/// Default simulated duration of a run (s).
+pub const DURATION: f64 = 5.0;
+/// Default base communication step (s): a multiple of the 0.2 ms servo period.
+pub const STEP: f64 = 1e-3;
+/// Default structure modes the mirror or structure FMU retains (its `n_modes`, an FMI
+/// Integer): the studies' [`m1::analysis::defaults::STRUCTURE_MODES`].
+pub const STRUCTURE_MODES: i32 = m1::analysis::defaults::STRUCTURE_MODES as i32;
+
 /// Actuator variant of the segments.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum Variant {
@@ -54,19 +62,19 @@ pub enum Cell {
 #[derive(Args, Debug, Clone)]
 pub struct SystemArgs {
     /// Mirror layout (keck, tmt, elt): FMUs are taken from FMU_DIR/LAYOUT/.
-    #[arg(long, default_value = "tmt")]
+    #[arg(long, default_value = m1::aperture::layout::DEFAULT_LAYOUT)]
     pub layout: String,
     /// Actuator variant of the segments (`m1cs run --scenario vibration` runs all three).
-    #[arg(long, value_enum, default_value = "voicecoil")]
+    #[arg(long, value_enum, default_value_t = Variant::Voicecoil)]
     pub actuator: Variant,
     /// Disturbance.
-    #[arg(long, value_enum, default_value = "wind")]
+    #[arg(long, value_enum, default_value_t = Scenario::Wind)]
     pub scenario: Scenario,
     /// Where the packaged FMUs are (`cargo xtask package` writes them).
-    #[arg(long, default_value = "target/fmu")]
+    #[arg(long, default_value = super::FMU_DIR)]
     pub fmu_dir: PathBuf,
     /// Mean wind speed across M1 (m/s); the default is the seed paper's Figure 12 case.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = m1::loads::wind::WindParams::default().speed)]
     pub wind_speed: f64,
     /// Global-loop bandwidth on the modes of radial degrees >= 5 (every mode outside the three
     /// groups below) (Hz).
@@ -85,10 +93,10 @@ pub struct SystemArgs {
     /// Mirror cell: `coupled` (the mirror FMU, segments and structure in one solve), `split`
     /// (segments and structure FMUs exchanging f_cell and z_cell every step; short steps only)
     /// or `rigid` (no structure, z_cell = 0).
-    #[arg(long, value_enum, default_value = "coupled")]
+    #[arg(long, value_enum, default_value_t = Cell::Coupled)]
     pub cell: Cell,
     /// Structure modes retained (the rest enter as a static correction).
-    #[arg(long, default_value_t = 60)]
+    #[arg(long, default_value_t = STRUCTURE_MODES)]
     pub structure_modes: i32,
     #[arg(long, default_value = m1::plant::structure::DEFAULT_STRUCTURE, help = super::STRUCTURE_HELP)]
     pub structure: String,
@@ -96,11 +104,11 @@ pub struct SystemArgs {
     #[arg(long)]
     pub uniform: bool,
     /// Simulated duration (s).
-    #[arg(long, default_value_t = 5.0)]
+    #[arg(long, default_value_t = DURATION)]
     pub duration: f64,
     /// Base communication step (s): a multiple of the 0.2 ms servo period for the mirror and
     /// segments FMUs. With `--cell split` keep it at 2e-4 with Gauss-Seidel order.
-    #[arg(long, default_value_t = 1e-3)]
+    #[arg(long, default_value_t = STEP)]
     pub step: f64,
 }
 
@@ -139,7 +147,7 @@ pub struct RunCmd {
     /// thread meanwhile (same values; see --no-lookahead). Jacobi steps them in
     /// parallel on the values of the last communication point (results independent of the
     /// component order; fmpy.ssp's convention).
-    #[arg(long, value_enum, default_value = "gauss-seidel")]
+    #[arg(long, value_enum, default_value_t = OrderArg::GaussSeidel)]
     pub order: OrderArg,
     /// Print the summary as one JSON object.
     #[arg(long)]
@@ -465,113 +473,18 @@ pub fn run_cmd(a: &RunCmd) -> Result<(), String> {
 }
 
 fn execute(a: &RunCmd, runs: Vec<(String, System)>, metrics: &[&str]) -> Result<(), String> {
-    let mut outcomes = Vec::new();
-    let mut maps = Vec::new();
-    let mut spectra = Vec::new();
     // Every FMU opened once for all the runs: they share its unpacked files and loaded library
     // (and so its caches, e.g. the structure's modes), instead of unpacking it per run.
-    let mut paths: Vec<&std::path::Path> = runs
-        .iter()
-        .flat_map(|(_, s)| s.components.iter().map(|c| c.fmu.as_path()))
-        .collect();
-    paths.sort();
-    paths.dedup();
-    let _open: Vec<cosim::Fmu> = paths
-        .into_iter()
-        .map(cosim::Fmu::open)
-        .collect::<Result<_, _>>()
-        .map_err(|e| e.to_string())?;
-    for (label, s) in &runs {
-        let csv = a.out.join(format!("{}.csv", label.replace(' ', "_")));
-        // The mirror displacement is recorded for the map and the spectrum, not written.
-        let mirror = ["mirror", "segments"]
-            .into_iter()
-            .find(|m| s.components.iter().any(|c| c.name == *m));
-        let mut record: Vec<String> = metrics.iter().map(|m| m.to_string()).collect();
-        if let Some(m) = mirror {
-            record.push(format!("{m}.z"));
-        }
-        let record: Vec<&str> = record.iter().map(String::as_str).collect();
-        let mut o = run_one(label, s, a.decimation, &record, Some(&csv))?;
-        let dt = s.step * a.decimation.max(1) as f64;
-        let z = split_off_z(&mut o.results);
-        if !z.is_empty() {
-            spectra.push((label.clone(), mirror_spectrum(&z, dt)));
-            maps.push((label.clone(), z));
-        }
-        o.results.write_csv(&csv).map_err(|e| e.to_string())?;
-        outcomes.push(o);
-    }
-    draw_z_plots(a, &maps, &spectra)?;
+    let _open = open_fmus(&runs)?;
+    let recorded = record_runs(a, &runs, metrics)?;
+    draw_z_plots(a, &recorded.maps, &recorded.spectra)?;
     let duration = runs.first().map_or(0.0, |r| r.1.stop_time - r.1.start_time);
-    let mut table = Vec::new();
-    for o in &outcomes {
-        let col = |n: &str| o.results.column(n).unwrap_or_else(|| vec![f64::NAN]);
-        let row = json!({
-            "run": o.label,
-            "wall_seconds": o.seconds,
-            "real_time_factor": duration / o.seconds.max(1e-9),
-            // The step loop alone, without instantiation and initialisation (the FMUs' set-up,
-            // e.g. the structure's eigensolve, is paid once per run whatever its length).
-            "setup_seconds": (o.seconds - o.results.timing.loop_seconds).max(0.0),
-            "loop_real_time_factor": duration / o.results.timing.loop_seconds.max(1e-9),
-            "master_share": o.results.timing.master_share(),
-            "component_seconds": o.results.timing.components.iter()
-                .map(|(n, t)| (n.clone(), json!(t)))
-                .collect::<serde_json::Map<_, _>>(),
-            "component_setup_seconds": o.results.timing.setup_components.iter()
-                .map(|(n, t)| (n.clone(), json!(t)))
-                .collect::<serde_json::Map<_, _>>(),
-            "rms_surface_m": settled_rms(&col("optics.rms_surface")),
-            "focus_mode_m": settled_rms(&col("optics.focus_mode")),
-            "rms_surface_without_focus_m": settled_rms(&col("optics.rms_surface_without_focus")),
-            "pssn": settled_mean(&col("optics.pssn")),
-        });
-        table.push(row);
-    }
-    // Plots of the metrics, all runs overlaid.
-    for m in metrics {
-        let data: Vec<(String, Vec<(f64, f64)>)> = outcomes
-            .iter()
-            .filter_map(|o| {
-                let t = o.results.column("time")?;
-                let v = o.results.column(m)?;
-                Some((o.label.clone(), t.into_iter().zip(v).collect()))
-            })
-            .collect();
-        if data.is_empty() {
-            continue;
-        }
-        let series: Vec<(&str, &[(f64, f64)])> = data
-            .iter()
-            .map(|(l, p)| (l.as_str(), p.as_slice()))
-            .collect();
-        let name = m.trim_start_matches("optics.");
-        let (unit, scale) = if *m == "optics.pssn" {
-            ("1", 1.0)
-        } else {
-            ("nm", 1e9)
-        };
-        let scaled: Vec<Vec<(f64, f64)>> = series
-            .iter()
-            .map(|(_, p)| p.iter().map(|(t, v)| (*t, v * scale)).collect())
-            .collect();
-        let series: Vec<(&str, &[(f64, f64)])> = series
-            .iter()
-            .zip(&scaled)
-            .map(|((l, _), p)| (*l, p.as_slice()))
-            .collect();
-        plot::lines(
-            a.out.join(format!("{name}.png")),
-            &series,
-            &format!("{name} ({})", a.system.layout),
-            "time (s)",
-            &format!("{name} ({unit})"),
-            false,
-            false,
-        )
-        .map_err(|e| e.to_string())?;
-    }
+    let table: Vec<serde_json::Value> = recorded
+        .outcomes
+        .iter()
+        .map(|o| summary_row(o, duration))
+        .collect();
+    plot_metrics(a, &recorded.outcomes, metrics)?;
     let summary = match &a.ssp {
         // A user's system: what it is comes from its file, not from the standard-system flags.
         Some(path) => json!({
@@ -595,6 +508,141 @@ fn execute(a: &RunCmd, runs: Vec<(String, System)>, metrics: &[&str]) -> Result<
         println!("{summary}");
         return Ok(());
     }
+    print_summary(a, &table, duration);
+    Ok(())
+}
+
+/// Every distinct FMU of `runs`, opened (kept open while the handles live).
+fn open_fmus(runs: &[(String, System)]) -> Result<Vec<cosim::Fmu>, String> {
+    let mut paths: Vec<&std::path::Path> = runs
+        .iter()
+        .flat_map(|(_, s)| s.components.iter().map(|c| c.fmu.as_path()))
+        .collect();
+    paths.sort();
+    paths.dedup();
+    paths
+        .into_iter()
+        .map(cosim::Fmu::open)
+        .collect::<Result<_, _>>()
+        .map_err(|e| e.to_string())
+}
+
+/// What the runs recorded: the outcomes (their CSV written), and per run with a mirror its
+/// displacement time series (for the map) and amplitude spectrum.
+struct Recorded {
+    outcomes: Vec<Outcome>,
+    maps: Vec<(String, Vec<Vec<f64>>)>,
+    spectra: Vec<(String, Vec<(f64, f64)>)>,
+}
+
+/// Runs each system recording `metrics` and the mirror displacement, and writes each run's
+/// CSV (without the displacement) into `--out`.
+fn record_runs(
+    a: &RunCmd,
+    runs: &[(String, System)],
+    metrics: &[&str],
+) -> Result<Recorded, String> {
+    let mut recorded = Recorded {
+        outcomes: Vec::new(),
+        maps: Vec::new(),
+        spectra: Vec::new(),
+    };
+    for (label, s) in runs {
+        let csv = a.out.join(format!("{}.csv", label.replace(' ', "_")));
+        // The mirror displacement is recorded for the map and the spectrum, not written.
+        let mirror = ["mirror", "segments"]
+            .into_iter()
+            .find(|m| s.components.iter().any(|c| c.name == *m));
+        let mut record: Vec<String> = metrics.iter().map(|m| m.to_string()).collect();
+        if let Some(m) = mirror {
+            record.push(format!("{m}.z"));
+        }
+        let record: Vec<&str> = record.iter().map(String::as_str).collect();
+        let mut o = run_one(label, s, a.decimation, &record, Some(&csv))?;
+        let dt = s.step * a.decimation.max(1) as f64;
+        let z = split_off_z(&mut o.results);
+        if !z.is_empty() {
+            recorded
+                .spectra
+                .push((label.clone(), mirror_spectrum(&z, dt)));
+            recorded.maps.push((label.clone(), z));
+        }
+        o.results.write_csv(&csv).map_err(|e| e.to_string())?;
+        recorded.outcomes.push(o);
+    }
+    Ok(recorded)
+}
+
+/// A run's row of the summary: timings and the settled optics metrics.
+fn summary_row(o: &Outcome, duration: f64) -> serde_json::Value {
+    let col = |n: &str| o.results.column(n).unwrap_or_else(|| vec![f64::NAN]);
+    json!({
+        "run": o.label,
+        "wall_seconds": o.seconds,
+        "real_time_factor": duration / o.seconds.max(1e-9),
+        // The step loop alone, without instantiation and initialisation (the FMUs' set-up,
+        // e.g. the structure's eigensolve, is paid once per run whatever its length).
+        "setup_seconds": (o.seconds - o.results.timing.loop_seconds).max(0.0),
+        "loop_real_time_factor": duration / o.results.timing.loop_seconds.max(1e-9),
+        "master_share": o.results.timing.master_share(),
+        "component_seconds": o.results.timing.components.iter()
+            .map(|(n, t)| (n.clone(), json!(t)))
+            .collect::<serde_json::Map<_, _>>(),
+        "component_setup_seconds": o.results.timing.setup_components.iter()
+            .map(|(n, t)| (n.clone(), json!(t)))
+            .collect::<serde_json::Map<_, _>>(),
+        "rms_surface_m": settled_rms(&col("optics.rms_surface")),
+        "focus_mode_m": settled_rms(&col("optics.focus_mode")),
+        "rms_surface_without_focus_m": settled_rms(&col("optics.rms_surface_without_focus")),
+        "pssn": settled_mean(&col("optics.pssn")),
+    })
+}
+
+/// One plot per metric over time, all runs overlaid (nm, PSSN as is).
+fn plot_metrics(a: &RunCmd, outcomes: &[Outcome], metrics: &[&str]) -> Result<(), String> {
+    for m in metrics {
+        let data: Vec<(String, Vec<(f64, f64)>)> = outcomes
+            .iter()
+            .filter_map(|o| {
+                let t = o.results.column("time")?;
+                let v = o.results.column(m)?;
+                Some((o.label.clone(), t.into_iter().zip(v).collect()))
+            })
+            .collect();
+        if data.is_empty() {
+            continue;
+        }
+        let name = m.trim_start_matches("optics.");
+        let (unit, scale) = if *m == "optics.pssn" {
+            ("1", 1.0)
+        } else {
+            ("nm", 1e9)
+        };
+        let scaled: Vec<Vec<(f64, f64)>> = data
+            .iter()
+            .map(|(_, p)| p.iter().map(|(t, v)| (*t, v * scale)).collect())
+            .collect();
+        let series: Vec<(&str, &[(f64, f64)])> = data
+            .iter()
+            .zip(&scaled)
+            .map(|((l, _), p)| (l.as_str(), p.as_slice()))
+            .collect();
+        plot::lines(
+            a.out.join(format!("{name}.png")),
+            &series,
+            &format!("{name} ({})", a.system.layout),
+            "time (s)",
+            &format!("{name} ({unit})"),
+            false,
+            false,
+        )
+        .map_err(|e| e.to_string())?;
+    }
+    Ok(())
+}
+
+/// The summary table, and the actuator variants' ratios when all three ran.
+fn print_summary(a: &RunCmd, table: &[serde_json::Value], duration: f64) {
     match &a.ssp {
         Some(path) => println!(
             "{}: {duration} s simulated (statistics over the second half):",
@@ -617,7 +665,7 @@ fn execute(a: &RunCmd, runs: Vec<(String, System)>, metrics: &[&str]) -> Result<
         "x realtime loop",
         "master"
     );
-    for r in &table {
+    for r in table {
         let g = |k: &str| r[k].as_f64().unwrap_or(f64::NAN);
         println!(
             "{:<12} {:>14.3} {:>14.3} {:>18.3} {:>8.5} {:>9.2} {:>11.2} {:>16.2} {:>7.1}%",
@@ -651,7 +699,6 @@ fn execute(a: &RunCmd, runs: Vec<(String, System)>, metrics: &[&str]) -> Result<
         "CSV, plots and summary.json in {}",
         Path::new(&a.out).display()
     );
-    Ok(())
 }
 
 /// Removes the recorded mirror displacement columns (`<component>.z[k]`) from `r` and returns

@@ -10,18 +10,27 @@
 use clap::{Args, ValueEnum};
 use serde_json::json;
 
-use m1::analysis::csi::{ActuatorLoop, BasisCurve, highest_gain, log_grid, sweep};
+use m1::analysis::csi::{
+    ActuatorLoop, BasisCurve, CsiSweep, GainLimit, highest_gain, log_grid, sweep,
+};
+use m1::analysis::defaults::{self as study, csi as servo_study, global_csi as global_study};
 use m1::analysis::global_csi::{
     GlobalCriteria, GlobalCsi, GlobalQuantity, GlobalSweep, SENSITIVITY_LABEL_FROM, global_sweep,
 };
 use m1::analysis::quasistatic::{self, Case, Perturbation, RobustnessParams};
 use m1::aperture::geometry::{Geometry, GeometryParams};
-use m1::control::controller::ControllerParams;
+use m1::aperture::layout::Layout;
+use m1::control::controller::{self as controller, ControllerParams};
 use m1::control::nominal::Nominal;
 use m1::plant::monolithic::FrequencyModel;
 use m1::plant::segment::SegmentModel;
 
+use super::defaults::list;
 use crate::plot;
+
+/// `--help`'s form of the default gain range.
+static GAIN_RANGE: std::sync::LazyLock<String> =
+    std::sync::LazyLock::new(|| list(&servo_study::GAIN_RANGE));
 
 /// Actuator variants.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -56,78 +65,78 @@ impl CsiActuator {
 #[derive(Args, Debug)]
 pub struct CsiArgs {
     /// Mirror layout (keck, tmt, elt) or a JSON file of segment centres.
-    #[arg(long, default_value = "tmt")]
+    #[arg(long, default_value = m1::aperture::layout::DEFAULT_LAYOUT)]
     pub layout: String,
     /// Retained structure modes.
-    #[arg(long, default_value_t = 60)]
+    #[arg(long, default_value_t = study::STRUCTURE_MODES)]
     pub modes: usize,
     #[arg(long, default_value = m1::plant::structure::DEFAULT_STRUCTURE, help = super::STRUCTURE_HELP)]
     pub structure: String,
     /// Modal damping ratio of the structure.
-    #[arg(long, default_value_t = 0.02)]
+    #[arg(long, default_value_t = study::DAMPING_RATIO)]
     pub damping: f64,
     /// Actuator variant.
-    #[arg(long, value_enum, default_value = "voicecoil")]
+    #[arg(long, value_enum, default_value_t = CsiActuator::Voicecoil)]
     pub actuator: CsiActuator,
     /// Largest radial degree of the Zernike bases.
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = servo_study::MAX_DEGREE)]
     pub max_degree: u32,
     /// Log-spaced grid points (a refinement around each peak is added).
-    #[arg(long, default_value_t = 200)]
+    #[arg(long, default_value_t = servo_study::FREQUENCIES)]
     pub frequencies: usize,
     /// Lowest frequency (Hz).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = servo_study::FMIN_HZ)]
     pub fmin: f64,
     /// Highest frequency (Hz).
-    #[arg(long, default_value_t = 300.0)]
+    #[arg(long, default_value_t = servo_study::FMAX_HZ)]
     pub fmax: f64,
     /// Sensitivity criterion: sigma_max(S) below this...
-    #[arg(long, default_value_t = 2.0)]
+    #[arg(long, default_value_t = servo_study::MAX_SENSITIVITY)]
     pub max_sensitivity: f64,
     /// ... at every grid frequency up to this (Hz).
-    #[arg(long, default_value_t = 15.0)]
+    #[arg(long, default_value_t = servo_study::BELOW_HZ)]
     pub below: f64,
     /// Range of the factor on the servo gains searched (lo,hi).
-    #[arg(long, value_delimiter = ',', default_value = "0.05,20")]
+    #[arg(long, value_delimiter = ',', default_value = GAIN_RANGE.as_str())]
     pub gain_range: Vec<f64>,
     /// Global loop: bandwidth of the modes of radial degrees >= 5 (every mode outside the three
     /// groups below) (Hz).
-    #[arg(long, default_value_t = m1::control::controller::DEFAULT_BANDWIDTH)]
+    #[arg(long, default_value_t = controller::DEFAULT_BANDWIDTH)]
     pub bandwidth: f64,
     /// Global loop: bandwidth of radial degrees 3-4 (Z7 to Z15, without radial degree 2 and
     /// focus-mode) (Hz).
-    #[arg(long, default_value_t = m1::control::controller::DEFAULT_BANDWIDTH_RADIAL34)]
+    #[arg(long, default_value_t = controller::DEFAULT_BANDWIDTH_RADIAL34)]
     pub bandwidth_radial34: f64,
     /// Global loop: bandwidth of radial degree 2 without focus-mode (astigmatism) (Hz).
-    #[arg(long, default_value_t = m1::control::controller::DEFAULT_BANDWIDTH_RADIAL2)]
+    #[arg(long, default_value_t = controller::DEFAULT_BANDWIDTH_RADIAL2)]
     pub bandwidth_radial2: f64,
     /// Global loop: bandwidth of focus-mode (Hz).
-    #[arg(long, default_value_t = m1::control::controller::DEFAULT_BANDWIDTH_FOCUS)]
+    #[arg(long, default_value_t = controller::DEFAULT_BANDWIDTH_FOCUS)]
     pub bandwidth_focus: f64,
     /// Global loop: sample rate (Hz).
-    #[arg(long, default_value_t = 20.0)]
+    #[arg(long, default_value_t = controller::DEFAULT_RATE)]
     pub loop_rate: f64,
     /// Global loop: structure modes (the lowest, at most --modes; the loop's band with its
     /// sampling images ends at 3.5 loop rates).
-    #[arg(long, default_value_t = 100)]
+    #[arg(long, default_value_t = global_study::MODES)]
     pub global_modes: usize,
     /// Global loop: log-spaced grid points from --global-fmin to --loop-gain-from (then
     /// every --global-band-step Hz up to the loop's Nyquist frequency).
-    #[arg(long, default_value_t = 80)]
+    #[arg(long, default_value_t = global_study::FREQUENCIES)]
     pub global_frequencies: usize,
     /// Global loop: grid step (Hz) from --loop-gain-from to the Nyquist frequency, fine enough
     /// for the structure's lightly damped modes (half-power width 2 zeta f = 0.36 Hz at 9 Hz).
-    #[arg(long, default_value_t = 0.05)]
+    #[arg(long, default_value_t = global_study::BAND_STEP_HZ)]
     pub global_band_step: f64,
     /// Global loop: lowest frequency (Hz).
-    #[arg(long, default_value_t = 0.01)]
+    #[arg(long, default_value_t = global_study::FMIN_HZ)]
     pub global_fmin: f64,
     /// Global loop: images of the sensors' sampling summed on each side.
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = global_study::ALIASES)]
     pub aliases: usize,
     /// Global loop: the principal loop gain must stay below 1/2 divided by this at high
     /// frequency (the seed paper's allowance for interaction-matrix uncertainty).
-    #[arg(long, default_value_t = 2.0)]
+    #[arg(long, default_value_t = GlobalCriteria::default().allowance)]
     pub allowance: f64,
     /// Global loop: the loop-gain criterion applies at and above this frequency (Hz): the
     /// structural resonances (below 8 Hz the bare integrator's own loop gain approaches the
@@ -136,7 +145,7 @@ pub struct CsiArgs {
     pub loop_gain_from: f64,
     /// Realizations of 0.1 % sensor-gain errors whose worst sigma_max(Gamma Psi Q Psi^T) is
     /// set against the allowance (0 skips it).
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = global_study::Q_REALIZATIONS)]
     pub q_realizations: usize,
     /// Print one JSON object instead of the table.
     #[arg(long)]
@@ -252,21 +261,21 @@ fn check_args(a: &CsiArgs) -> Result<(f64, f64), String> {
     }
 }
 
-/// Runs `m1cs csi`.
-pub fn csi(a: &CsiArgs) -> Result<(), String> {
-    let range = check_args(a)?;
-    let layout = crate::load_layout(&a.layout)?;
-    let n = layout.n_segments();
-    let started = std::time::Instant::now();
-    let cell = super::structure_modes(&a.structure, &layout)?;
-    let cell_modes = cell.clone();
-    let fm = FrequencyModel::new(n, a.actuator.model(), cell, a.modes, a.damping)
-        .map_err(|e| format!("--modes {}: {e}", a.modes))?;
-    let geometry = Geometry::new(&layout, GeometryParams::for_layout(&layout))
-        .map_err(|e| format!("geometry of {}: {e}", layout.name))?;
-    // Segment bases with as many vectors as each Zernike basis (rounded up to whole segments).
-    // Then doubling (and all segments) while the basis stays within SEGMENT_VECTORS vectors.
-    let mut counts: Vec<usize> = (0..=a.max_degree)
+/// The actuator servo loop (a): its sweep and highest gain, and when each was done (s from
+/// the start of the command).
+struct ServoLoop {
+    lp: ActuatorLoop,
+    sw: CsiSweep,
+    limit: GainLimit,
+    sweep_s: f64,
+    servo_s: f64,
+}
+
+/// Segment bases with as many vectors as each Zernike basis up to `max_degree` (rounded up to
+/// whole segments), then doubling (and all segments) while the basis stays within
+/// [`SEGMENT_VECTORS`] vectors.
+fn segment_counts(max_degree: u32, n: usize) -> Vec<usize> {
+    let mut counts: Vec<usize> = (0..=max_degree)
         .map(|p| {
             m1::aperture::zernike::modes_up_to_degree(p)
                 .div_ceil(3)
@@ -278,7 +287,20 @@ pub fn csi(a: &CsiArgs) -> Result<(), String> {
         m = (2 * m).min(n);
         counts.push(m);
     }
-    let lp = ActuatorLoop::new(fm, &layout, &geometry, a.max_degree, &counts)
+    counts
+}
+
+/// The servo loop's sweep over the bases and its highest gain, on the model `fm`.
+fn servo_loop(
+    a: &CsiArgs,
+    layout: &Layout,
+    geometry: &Geometry,
+    fm: FrequencyModel,
+    range: (f64, f64),
+    started: std::time::Instant,
+) -> Result<ServoLoop, String> {
+    let counts = segment_counts(a.max_degree, layout.n_segments());
+    let lp = ActuatorLoop::new(fm, layout, geometry, a.max_degree, &counts)
         .map_err(|e| format!("--max-degree {}: {e}", a.max_degree))?;
     let grid = log_grid(a.fmin, a.fmax, a.frequencies);
     let sw = sweep(&lp, &grid, REFINE, LABEL_THRESHOLD).map_err(|e| e.to_string())?;
@@ -286,20 +308,18 @@ pub fn csi(a: &CsiArgs) -> Result<(), String> {
     let limit = highest_gain(&lp, &sw, a.below, a.max_sensitivity, range)
         .map_err(|e| format!("gain search: {e}"))?;
     let servo_s = started.elapsed().as_secs_f64();
-    // (b) The global loop.
-    let params = ControllerParams {
-        rate: a.loop_rate,
-        bandwidth: a.bandwidth,
-        bandwidth_radial34: a.bandwidth_radial34,
-        bandwidth_radial2: a.bandwidth_radial2,
-        bandwidth_focus: a.bandwidth_focus,
-        ..ControllerParams::default()
-    };
-    let gmodes = a.global_modes.min(a.modes);
-    let gfm = FrequencyModel::new(n, a.actuator.model(), cell_modes, gmodes, a.damping)
-        .map_err(|e| format!("--global-modes {gmodes}: {e}"))?;
-    let gl = GlobalCsi::new(gfm, &layout, &geometry, params, a.max_degree, a.aliases)
-        .map_err(|e| format!("global loop: {e}"))?;
+    Ok(ServoLoop {
+        lp,
+        sw,
+        limit,
+        sweep_s,
+        servo_s,
+    })
+}
+
+/// The global loop's frequency grid: log-spaced from `--global-fmin` to the start of the
+/// loop-gain band, then every `--global-band-step` Hz up to the Nyquist frequency.
+fn global_grid(a: &CsiArgs) -> Vec<f64> {
     let nyquist = 0.4999 * a.loop_rate;
     let band_start = a.loop_gain_from.min(nyquist);
     let mut ggrid = log_grid(a.global_fmin, band_start, a.global_frequencies + 1);
@@ -309,16 +329,61 @@ pub fn csi(a: &CsiArgs) -> Result<(), String> {
         .max(1.0) as usize;
     ggrid
         .extend((0..=steps).map(|k| band_start + (nyquist - band_start) * k as f64 / steps as f64));
+    ggrid
+}
+
+/// The global loop (b) on the `--global-modes` lowest modes, against its criteria.
+fn global_loop(
+    a: &CsiArgs,
+    layout: &Layout,
+    geometry: &Geometry,
+    cell: m1::plant::structure::ModalModel,
+) -> Result<GlobalSweep, String> {
+    let params = ControllerParams {
+        rate: a.loop_rate,
+        bandwidth: a.bandwidth,
+        bandwidth_radial34: a.bandwidth_radial34,
+        bandwidth_radial2: a.bandwidth_radial2,
+        bandwidth_focus: a.bandwidth_focus,
+        ..ControllerParams::default()
+    };
+    let gmodes = a.global_modes.min(a.modes);
+    let gfm = FrequencyModel::new(
+        layout.n_segments(),
+        a.actuator.model(),
+        cell,
+        gmodes,
+        a.damping,
+    )
+    .map_err(|e| format!("--global-modes {gmodes}: {e}"))?;
+    let gl = GlobalCsi::new(gfm, layout, geometry, params, a.max_degree, a.aliases)
+        .map_err(|e| format!("global loop: {e}"))?;
     let criteria = GlobalCriteria {
         allowance: a.allowance,
         band_start_hz: a.loop_gain_from,
         ..GlobalCriteria::default()
     };
-    let gsw = global_sweep(&gl, &ggrid, &criteria).map_err(|e| format!("global loop: {e}"))?;
+    global_sweep(&gl, &global_grid(a), &criteria).map_err(|e| format!("global loop: {e}"))
+}
+
+/// Runs `m1cs csi`.
+pub fn csi(a: &CsiArgs) -> Result<(), String> {
+    let range = check_args(a)?;
+    let layout = super::load_layout(&a.layout)?;
+    let n = layout.n_segments();
+    let started = std::time::Instant::now();
+    let cell = super::structure_modes(&a.structure, &layout)?;
+    let fm = FrequencyModel::new(n, a.actuator.model(), cell.clone(), a.modes, a.damping)
+        .map_err(|e| format!("--modes {}: {e}", a.modes))?;
+    let geometry = Geometry::new(&layout, GeometryParams::for_layout(&layout))
+        .map_err(|e| format!("geometry of {}: {e}", layout.name))?;
+    let servo = servo_loop(a, &layout, &geometry, fm, range, started)?;
+    let gsw = global_loop(a, &layout, &geometry, cell)?;
     let q = q_allowance(&geometry, a.q_realizations)?;
     let elapsed = started.elapsed().as_secs_f64();
+    let (sweep_s, servo_s, sw, limit) = (servo.sweep_s, servo.servo_s, &servo.sw, &servo.limit);
     if let Some(dir) = &a.plot {
-        write_plots(dir, &layout.name, a, &sw, n)?;
+        write_plots(dir, &layout.name, a, sw, n)?;
         write_global_plot(dir, &layout.name, &gsw)?;
     }
     if a.json {
@@ -326,12 +391,27 @@ pub fn csi(a: &CsiArgs) -> Result<(), String> {
             "{}",
             json!({"layout": layout.name, "structure": a.structure, "modes": a.modes, "damping": a.damping,
                    "actuator": a.actuator.name(), "max_degree": a.max_degree,
-                   "coupled_dimension": lp.coupled_dimension(),
+                   "coupled_dimension": servo.lp.coupled_dimension(),
                    "sweep": sw, "highest_gain": limit, "global": gsw, "q_allowance": q,
                    "elapsed_s": elapsed, "sweep_s": sweep_s, "servo_s": servo_s})
         );
         return Ok(());
     }
+    print_servo(a, &layout, &servo, range);
+    print_global(&gsw, q.as_ref());
+    println!(
+        "({elapsed:.1} s: the servo loop's sweep {sweep_s:.1} s and gain search {:.1} s, the \
+         global loop {:.1} s)",
+        servo_s - sweep_s,
+        elapsed - servo_s
+    );
+    Ok(())
+}
+
+/// The servo loop's table: the peak sensitivity per basis, the all-segment peaks and the
+/// highest gain.
+fn print_servo(a: &CsiArgs, layout: &Layout, servo: &ServoLoop, range: (f64, f64)) {
+    let (n, lp, sw, limit) = (layout.n_segments(), &servo.lp, &servo.sw, &servo.limit);
     println!(
         "Actuator servo sensitivity on the structure ({}, {} segments, {} modes, {}, {}-{} Hz, \
          {} points):",
@@ -424,14 +504,6 @@ pub fn csi(a: &CsiArgs) -> Result<(), String> {
             );
         }
     }
-    print_global(&gsw, q.as_ref());
-    println!(
-        "({elapsed:.1} s: the servo loop's sweep {sweep_s:.1} s and gain search {:.1} s, the \
-         global loop {:.1} s)",
-        servo_s - sweep_s,
-        elapsed - servo_s
-    );
-    Ok(())
 }
 
 /// The worst $\sigma_{max}(\Gamma \Psi Q \Psi^T)$ over seeded 0.1 % sensor-gain errors (focus

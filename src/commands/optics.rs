@@ -4,21 +4,22 @@
 //! Segment states are `[p, tx, ty]` per segment, in layout order: piston `p` (m) and the surface
 //! slopes `tx = dz/dx`, `ty = dz/dy` (rad) about the segment centre (see `m1::aperture::zernike`).
 //!
-//! # Random segment states
-//!
-//! The binary crate does not depend on `rand`, so [`run_pssn`] draws its random state from a
-//! small self-contained generator: [`SplitMix64`] (Steele, Lea & Flood 2014, with Vigna's
-//! constants; 64-bit state, passes BigCrush, period 2^64) for uniforms with 53 random bits, and
-//! the Box–Muller transform of pairs of them for standard normal deviates ([`Gaussian`]; both
-//! deviates of a pair are used). The same `--seed` gives the same state on every platform.
-//! Segment `i` gets, in order, `p = piston_rms g`, `tx = tilt_rms g'`, `ty = tilt_rms g''`
-//! from consecutive deviates, so `--tilt-rms` is the rms of each tilt axis.
+//! The random segment state and its statistics are [`m1::optics::statistics`]'s (seeded
+//! Gaussian deviates of the crate's generator; `--tilt-rms` is the rms of each tilt axis).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
+use std::sync::LazyLock;
 
-use m1::aperture::layout::Layout;
+use m1::aperture::layout::{DEFAULT_LAYOUT, Layout};
 use m1::aperture::zernike::{ZernikeBasis, hexagon_rule, noll_to_nm, zernike_xy};
 use m1::optics::pssn::{Pssn, PssnParams, pssn_small_error, r0_at_wavelength};
+use m1::optics::statistics::{
+    DEFAULT_PISTON_RMS, DEFAULT_SEED, DEFAULT_TILT_RMS, piston_rms, random_state, scaled_pistons,
+    small_error_coefficient, tilt_rms_per_axis,
+};
+
+use super::defaults::engineering;
+use super::load_layout;
 
 /// Highest radial degree of the modes listed in the `zernike` summary.
 const TABLE_DEGREE: u32 = 4;
@@ -28,15 +29,23 @@ const DEFAULT_PLOT_MODE: usize = 4;
 const SCAN_MAX: f64 = 50e-9;
 /// Points of the PSSN scan, from 0 to [`SCAN_MAX`].
 const SCAN_POINTS: usize = 11;
+/// Default highest radial degree of the `zernike` basis.
+const MAX_DEGREE: u32 = 6;
+
+/// `--help`'s form of the library's defaults ([`engineering`] notation).
+static WAVELENGTH: LazyLock<String> =
+    LazyLock::new(|| engineering(PssnParams::default().wavelength));
+static PISTON_RMS: LazyLock<String> = LazyLock::new(|| engineering(DEFAULT_PISTON_RMS));
+static TILT_RMS: LazyLock<String> = LazyLock::new(|| engineering(DEFAULT_TILT_RMS));
 
 /// Arguments of `m1cs zernike`.
 #[derive(clap::Args, Debug, Clone)]
 pub struct ZernikeArgs {
     /// Mirror layout (keck, tmt, elt) or a JSON file of segment centres.
-    #[arg(long, default_value = "tmt")]
+    #[arg(long, default_value = DEFAULT_LAYOUT)]
     pub layout: String,
     /// Highest radial degree of the basis (all Noll modes up to it).
-    #[arg(long, default_value_t = 6)]
+    #[arg(long, default_value_t = MAX_DEGREE)]
     pub max_degree: u32,
     /// Print one JSON object instead of the summary.
     #[arg(long)]
@@ -53,28 +62,28 @@ pub struct ZernikeArgs {
 #[derive(clap::Args, Debug, Clone)]
 pub struct PssnArgs {
     /// Mirror layout (keck, tmt, elt) or a JSON file of segment centres.
-    #[arg(long, default_value = "tmt")]
+    #[arg(long, default_value = DEFAULT_LAYOUT)]
     pub layout: String,
     /// Samples across the aperture (at least 2).
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = PssnParams::default().samples)]
     pub samples: usize,
     /// Evaluation wavelength (m).
-    #[arg(long, default_value = "500e-9", allow_negative_numbers = true)]
+    #[arg(long, default_value = WAVELENGTH.as_str(), allow_negative_numbers = true)]
     pub wavelength: f64,
     /// Fried parameter at 500 nm (m); scaled to the wavelength as lambda^(6/5).
-    #[arg(long, default_value_t = 0.2, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = PssnParams::default().r0, allow_negative_numbers = true)]
     pub r0: f64,
     /// Outer scale of the von Karman turbulence (m; `inf` for Kolmogorov).
-    #[arg(long, default_value_t = 30.0, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = PssnParams::default().l0, allow_negative_numbers = true)]
     pub l0: f64,
     /// Rms of the random segment pistons (m).
-    #[arg(long, default_value = "10e-9", allow_negative_numbers = true)]
+    #[arg(long, default_value = PISTON_RMS.as_str(), allow_negative_numbers = true)]
     pub piston_rms: f64,
     /// Rms of each random segment tilt axis, tx and ty (rad).
-    #[arg(long, default_value = "10e-9", allow_negative_numbers = true)]
+    #[arg(long, default_value = TILT_RMS.as_str(), allow_negative_numbers = true)]
     pub tilt_rms: f64,
     /// Seed of the random segment state.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = DEFAULT_SEED)]
     pub seed: u64,
     /// Print one JSON object instead of the summary.
     #[arg(long)]
@@ -87,129 +96,6 @@ pub struct PssnArgs {
 // ------------------------------------------------------------------------------------------
 // Helpers
 // ------------------------------------------------------------------------------------------
-
-/// The preset layout `name` (keck, tmt, elt), or the layout of a JSON file when `name` ends with
-/// `.json`.
-fn load_layout(name: &str) -> Result<Layout, String> {
-    let path = Path::new(name);
-    let layout = if path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("json"))
-    {
-        Layout::from_json_file(path)
-    } else {
-        Layout::preset(name)
-    };
-    layout.map_err(|e| format!("--layout {name}: {e}"))
-}
-
-/// SplitMix64 pseudo-random generator (see the [module documentation](self)).
-#[derive(Debug, Clone)]
-struct SplitMix64 {
-    state: u64,
-}
-
-impl SplitMix64 {
-    fn new(seed: u64) -> Self {
-        Self { state: seed }
-    }
-
-    fn next_u64(&mut self) -> u64 {
-        self.state = self.state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform on `[0, 1)`: the top 53 bits of the next output, times 2^-53.
-    fn next_f64(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 * (1.0 / (1_u64 << 53) as f64)
-    }
-}
-
-/// Standard normal deviates: Box–Muller transform of [`SplitMix64`] uniforms.
-#[derive(Debug, Clone)]
-struct Gaussian {
-    rng: SplitMix64,
-    spare: Option<f64>,
-}
-
-impl Gaussian {
-    fn new(seed: u64) -> Self {
-        Self {
-            rng: SplitMix64::new(seed),
-            spare: None,
-        }
-    }
-
-    /// `sqrt(-2 ln u1) (cos, sin)(2 pi u2)` with `u1` in `(0, 1]` (no logarithm of 0); the sine
-    /// deviate is kept for the next call.
-    fn sample(&mut self) -> f64 {
-        if let Some(z) = self.spare.take() {
-            return z;
-        }
-        let u1 = 1.0 - self.rng.next_f64();
-        let u2 = self.rng.next_f64();
-        let r = (-2.0 * u1.ln()).sqrt();
-        let (s, c) = (2.0 * std::f64::consts::PI * u2).sin_cos();
-        self.spare = Some(r * s);
-        r * c
-    }
-}
-
-/// Random segment state of `n` segments: `[piston_rms g, tilt_rms g', tilt_rms g'']` per
-/// segment from consecutive standard normal deviates of seed `seed`. The pistons of a given seed
-/// are the same pattern, scaled by `piston_rms`, whatever `tilt_rms` is.
-fn random_state(n: usize, piston_rms: f64, tilt_rms: f64, seed: u64) -> Vec<[f64; 3]> {
-    let mut g = Gaussian::new(seed);
-    (0..n)
-        .map(|_| {
-            let p = piston_rms * g.sample();
-            let tx = tilt_rms * g.sample();
-            let ty = tilt_rms * g.sample();
-            [p, tx, ty]
-        })
-        .collect()
-}
-
-/// Rms of the segment pistons (about zero).
-fn piston_rms(state: &[[f64; 3]]) -> f64 {
-    if state.is_empty() {
-        return 0.0;
-    }
-    (state.iter().map(|s| s[0] * s[0]).sum::<f64>() / state.len() as f64).sqrt()
-}
-
-/// Rms of one tilt axis: `sqrt(mean(tx^2 + ty^2) / 2)`.
-fn tilt_rms_per_axis(state: &[[f64; 3]]) -> f64 {
-    if state.is_empty() {
-        return 0.0;
-    }
-    (state.iter().map(|s| s[1] * s[1] + s[2] * s[2]).sum::<f64>() / (2 * state.len()) as f64).sqrt()
-}
-
-/// Small-error coefficient `k = lim y / x^2` (x -> 0) of the points `(x, y)` of a curve
-/// `y = k x^2 - c x^4 + ...`: with the two smallest positive `x1 < x2` and `r = y / x^2`,
-/// the Richardson extrapolation `(r1 x2^2 - r2 x1^2) / (x2^2 - x1^2)` (exact for
-/// `y = k x^2 - c x^4`); `r1` with a single positive `x`; NaN with none.
-fn small_error_coefficient(points: &[(f64, f64)]) -> f64 {
-    let mut usable: Vec<(f64, f64)> = points
-        .iter()
-        .copied()
-        .filter(|&(x, y)| x > 0.0 && x.is_finite() && y.is_finite())
-        .collect();
-    usable.sort_by(|a, b| a.0.total_cmp(&b.0));
-    usable.dedup_by(|a, b| a.0 == b.0);
-    match usable[..] {
-        [] => f64::NAN,
-        [(x, y)] => y / (x * x),
-        [(x1, y1), (x2, y2), ..] => {
-            let (q1, q2) = (x1 * x1, x2 * x2);
-            (y1 / q1 * q2 - y2 / q2 * q1) / (q2 - q1)
-        }
-    }
-}
 
 /// The Noll mode to draw, checked against the `n_modes` of the basis: `--mode` if given, else
 /// [`DEFAULT_PLOT_MODE`] when a plot is asked for, else none.
@@ -490,11 +376,7 @@ fn pssn_report(a: &PssnArgs) -> Result<PssnReport, String> {
     let mut scan = Vec::with_capacity(SCAN_POINTS);
     for k in 0..SCAN_POINTS {
         let rms = SCAN_MAX * k as f64 / (SCAN_POINTS - 1) as f64;
-        let s: Vec<[f64; 3]> = pattern
-            .iter()
-            .map(|p| [rms * p[0] / unit, 0.0, 0.0])
-            .collect();
-        scan.push((rms, eval(&s)?));
+        scan.push((rms, eval(&scaled_pistons(&pattern, unit, rms))?));
     }
     let deficits: Vec<(f64, f64)> = scan.iter().map(|&(x, p)| (x, 1.0 - p)).collect();
     Ok(PssnReport {
@@ -520,73 +402,88 @@ fn pssn_report(a: &PssnArgs) -> Result<PssnReport, String> {
 pub fn run_pssn(a: &PssnArgs) -> Result<(), String> {
     let r = pssn_report(a)?;
     if let Some(path) = &a.plot {
-        let measured: Vec<(f64, f64)> = r.scan.iter().map(|&(x, p)| (x * 1e9, 1.0 - p)).collect();
-        let fit: Vec<(f64, f64)> = r
-            .scan
-            .iter()
-            .map(|&(x, _)| (x * 1e9, r.quadratic * x * x))
-            .collect();
-        let title = format!(
-            "{}: PSSN deficit vs segment piston, {:.0} nm, r0 = {} m",
-            r.layout,
-            r.params.wavelength * 1e9,
-            r.params.r0
-        );
-        crate::plot::lines(
-            path,
-            &[
-                ("1 - PSSN (random pistons)", &measured),
-                ("small-error law k rms²", &fit),
-            ],
-            &title,
-            "piston rms [nm]",
-            "1 - PSSN",
-            true,
-            true,
-        )
-        .map_err(|e| format!("--plot {}: {e}", path.display()))?;
+        plot_scan(path, &r)?;
     }
     if a.json {
-        let scan: Vec<serde_json::Value> = r
-            .scan
-            .iter()
-            .map(|&(x, p)| {
-                serde_json::json!({
-                    "piston_rms_m": x,
-                    "pssn": p,
-                    "deficit": 1.0 - p,
-                    "small_error_law": r.quadratic * x * x,
-                })
-            })
-            .collect();
-        let out = serde_json::json!({
-            "layout": r.layout,
-            "segments": r.segments,
-            "samples": r.params.samples,
-            "spacing_m": r.spacing,
-            "fft_size": r.fft_size,
-            "wavelength_m": r.params.wavelength,
-            "r0_500nm_m": r.params.r0,
-            "r0_at_wavelength_m": r.r0_at_wavelength,
-            "l0_m": r.params.l0,
-            "seed": a.seed,
-            "piston_rms_m": a.piston_rms,
-            "tilt_rms_rad": a.tilt_rms,
-            "realised_piston_rms_m": r.realised_piston_rms,
-            "realised_tilt_rms_rad": r.realised_tilt_rms,
-            "pssn": {
-                "combined": r.combined,
-                "piston_only": r.piston_only,
-                "tilt_only": r.tilt_only,
-                "product": r.product,
-            },
-            "scan": scan,
-            "small_error_coefficient_per_m2": r.quadratic,
-            "plot": a.plot.as_ref().map(|p| p.display().to_string()),
-        });
-        println!("{out}");
+        println!("{}", pssn_json(a, &r));
         return Ok(());
     }
+    print_pssn(a, &r);
+    Ok(())
+}
+
+/// The scan's PNG: 1 - PSSN against the piston rms with the small-error law, log-log.
+fn plot_scan(path: &std::path::Path, r: &PssnReport) -> Result<(), String> {
+    let measured: Vec<(f64, f64)> = r.scan.iter().map(|&(x, p)| (x * 1e9, 1.0 - p)).collect();
+    let fit: Vec<(f64, f64)> = r
+        .scan
+        .iter()
+        .map(|&(x, _)| (x * 1e9, r.quadratic * x * x))
+        .collect();
+    let title = format!(
+        "{}: PSSN deficit vs segment piston, {:.0} nm, r0 = {} m",
+        r.layout,
+        r.params.wavelength * 1e9,
+        r.params.r0
+    );
+    crate::plot::lines(
+        path,
+        &[
+            ("1 - PSSN (random pistons)", &measured),
+            ("small-error law k rms²", &fit),
+        ],
+        &title,
+        "piston rms [nm]",
+        "1 - PSSN",
+        true,
+        true,
+    )
+    .map_err(|e| format!("--plot {}: {e}", path.display()))
+}
+
+/// The report as one JSON object.
+fn pssn_json(a: &PssnArgs, r: &PssnReport) -> serde_json::Value {
+    let scan: Vec<serde_json::Value> = r
+        .scan
+        .iter()
+        .map(|&(x, p)| {
+            serde_json::json!({
+                "piston_rms_m": x,
+                "pssn": p,
+                "deficit": 1.0 - p,
+                "small_error_law": r.quadratic * x * x,
+            })
+        })
+        .collect();
+    serde_json::json!({
+        "layout": r.layout,
+        "segments": r.segments,
+        "samples": r.params.samples,
+        "spacing_m": r.spacing,
+        "fft_size": r.fft_size,
+        "wavelength_m": r.params.wavelength,
+        "r0_500nm_m": r.params.r0,
+        "r0_at_wavelength_m": r.r0_at_wavelength,
+        "l0_m": r.params.l0,
+        "seed": a.seed,
+        "piston_rms_m": a.piston_rms,
+        "tilt_rms_rad": a.tilt_rms,
+        "realised_piston_rms_m": r.realised_piston_rms,
+        "realised_tilt_rms_rad": r.realised_tilt_rms,
+        "pssn": {
+            "combined": r.combined,
+            "piston_only": r.piston_only,
+            "tilt_only": r.tilt_only,
+            "product": r.product,
+        },
+        "scan": scan,
+        "small_error_coefficient_per_m2": r.quadratic,
+        "plot": a.plot.as_ref().map(|p| p.display().to_string()),
+    })
+}
+
+/// The report as text: the PSSN of the state and its parts, then the scan.
+fn print_pssn(a: &PssnArgs, r: &PssnReport) {
     println!(
         "PSSN on {} ({} segments): {} samples across (dx = {:.4} m), FFT {}",
         r.layout, r.segments, r.params.samples, r.spacing, r.fft_size
@@ -669,7 +566,6 @@ pub fn run_pssn(a: &PssnArgs) -> Result<(), String> {
     if let Some(path) = &a.plot {
         println!("\nscan plot written to {}", path.display());
     }
-    Ok(())
 }
 
 #[cfg(test)]
@@ -710,87 +606,6 @@ mod tests {
             std::env::temp_dir().join(format!("m1cs-optics-{name}-{}-{nanos}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         dir
-    }
-
-    #[test]
-    fn splitmix64_matches_the_reference_sequence() {
-        // Vigna's splitmix64.c from the seed 1234567.
-        let mut g = SplitMix64::new(1_234_567);
-        let got: Vec<u64> = (0..5).map(|_| g.next_u64()).collect();
-        assert_eq!(
-            got,
-            [
-                6_457_827_717_110_365_317,
-                3_203_168_211_198_807_973,
-                9_817_491_932_198_370_423,
-                4_593_380_528_125_082_431,
-                16_408_922_859_458_223_821,
-            ]
-        );
-    }
-
-    #[test]
-    fn uniforms_are_in_the_unit_interval() {
-        let mut g = SplitMix64::new(7);
-        let n = 100_000;
-        let mut sum = 0.0;
-        for _ in 0..n {
-            let u = g.next_f64();
-            assert!((0.0..1.0).contains(&u));
-            sum += u;
-        }
-        assert!((sum / n as f64 - 0.5).abs() < 0.005);
-    }
-
-    #[test]
-    fn gaussian_has_zero_mean_and_unit_variance() {
-        let mut g = Gaussian::new(42);
-        let n = 200_000;
-        let x: Vec<f64> = (0..n).map(|_| g.sample()).collect();
-        let mean = x.iter().sum::<f64>() / n as f64;
-        let var = x.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n as f64;
-        let kurt = x.iter().map(|v| (v - mean).powi(4)).sum::<f64>() / n as f64 / (var * var);
-        // Standard errors: 1/sqrt(n) = 0.0022 (mean), sqrt(2/n) = 0.0032 (variance),
-        // sqrt(24/n) = 0.011 (kurtosis).
-        assert!(mean.abs() < 0.01, "mean {mean}");
-        assert!((var - 1.0).abs() < 0.015, "variance {var}");
-        assert!((kurt - 3.0).abs() < 0.06, "kurtosis {kurt}");
-        let within_1sigma = x.iter().filter(|v| v.abs() < 1.0).count() as f64 / n as f64;
-        assert!((within_1sigma - 0.682_689).abs() < 0.005, "{within_1sigma}");
-        assert!(x.iter().all(|v| v.is_finite()));
-    }
-
-    #[test]
-    fn random_state_is_seeded_and_scaled() {
-        let a = random_state(492, 10e-9, 20e-9, 3);
-        assert_eq!(a, random_state(492, 10e-9, 20e-9, 3));
-        assert_ne!(a, random_state(492, 10e-9, 20e-9, 4));
-        // 492 samples: relative standard error of an rms about 1/sqrt(2 n) = 3 %.
-        assert!((piston_rms(&a) / 10e-9 - 1.0).abs() < 0.1);
-        assert!((tilt_rms_per_axis(&a) / 20e-9 - 1.0).abs() < 0.1);
-        // The pistons of a seed do not depend on the tilt rms.
-        let b = random_state(492, 1.0, 0.0, 3);
-        for (s, t) in a.iter().zip(&b) {
-            assert!((s[0] - 10e-9 * t[0]).abs() <= 1e-24);
-            assert_eq!([t[1], t[2]], [0.0, 0.0]);
-        }
-        assert!(random_state(5, 0.0, 0.0, 1).iter().all(|s| *s == [0.0; 3]));
-        assert_eq!(piston_rms(&[]), 0.0);
-        assert_eq!(tilt_rms_per_axis(&[]), 0.0);
-    }
-
-    #[test]
-    fn small_error_coefficient_of_exact_and_degenerate_data() {
-        // y = 3 x^2 - 0.5 x^4, unsorted, with the origin and a repeated point.
-        let y = |x: f64| 3.0 * x * x - 0.5 * x.powi(4);
-        let pts: Vec<(f64, f64)> = [2.0, 0.0, 0.5, 1.0, 0.5]
-            .iter()
-            .map(|&x| (x, y(x)))
-            .collect();
-        assert!((small_error_coefficient(&pts) - 3.0).abs() < 1e-12);
-        assert!((small_error_coefficient(&[(0.0, 0.0), (2.0, 8.0)]) - 2.0).abs() < 1e-15);
-        assert!(small_error_coefficient(&[(0.0, 1.0)]).is_nan());
-        assert!(small_error_coefficient(&[]).is_nan());
     }
 
     #[test]
@@ -902,20 +717,31 @@ mod tests {
         for p in [r.combined, r.piston_only, r.tilt_only, r.product] {
             assert!(p > 0.9 && p < 1.0, "{p}");
         }
+        let d_sum = 2.0 - r.piston_only - r.tilt_only;
+        assert!(((1.0 - r.product) / d_sum - 1.0).abs() < 0.02);
         // Small errors: the deficit is a quadratic form, d(p + t) = d(p) + d(t) + 2 c(p, t); the
-        // cross term c of one realisation is not zero, but cancels in d(p + t) + d(p - t).
-        let a = pssn_args();
+        // cross term c of one realisation is not zero, but cancels in d(p + t) + d(p - t). What
+        // is left is the quartic piston-tilt term, relative size about twice the deficit: checked
+        // at 5 nm rms (deficit 0.4 %; 0.5-0.9 % off over seeds 1-40), where it is small.
+        let a = PssnArgs {
+            piston_rms: 5e-9,
+            tilt_rms: 5e-9,
+            ..pssn_args()
+        };
+        let small = pssn_report(&a).unwrap();
         let layout = load_layout(&a.layout).unwrap();
         let pssn = Pssn::new(&layout, pssn_params(&a).unwrap()).unwrap();
         let state = random_state(layout.n_segments(), a.piston_rms, a.tilt_rms, a.seed);
         let flipped: Vec<[f64; 3]> = state.iter().map(|s| [s[0], -s[1], -s[2]]).collect();
         let d_minus = 1.0 - pssn.pssn_ptt(&flipped).unwrap();
-        let (d_plus, d_sum) = (1.0 - r.combined, 2.0 - r.piston_only - r.tilt_only);
+        let (d_plus, d_sum) = (
+            1.0 - small.combined,
+            2.0 - small.piston_only - small.tilt_only,
+        );
         assert!(
             ((d_plus + d_minus) / (2.0 * d_sum) - 1.0).abs() < 0.02,
             "{d_plus} {d_minus} {d_sum}"
         );
-        assert!(((1.0 - r.product) / d_sum - 1.0).abs() < 0.02);
         assert_eq!(r.scan.len(), SCAN_POINTS);
         assert!((r.scan[0].1 - 1.0).abs() < 1e-12 && r.scan[0].0 == 0.0);
         // Deficit increasing, quadratic at small rms (within 1 % at 5 nm), then below the law.

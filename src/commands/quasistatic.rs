@@ -5,9 +5,10 @@
 use clap::Args;
 use serde_json::json;
 
+use m1::analysis::defaults::calibration as calibration_defaults;
 use m1::analysis::quasistatic::{self, Case, RobustnessParams, default_geometry, svd_summary};
 use m1::aperture::geometry::Geometry;
-use m1::aperture::layout::Layout;
+use m1::aperture::layout::{DEFAULT_LAYOUT, Layout};
 use m1::aperture::zernike::{ZernikeBasis, noll_to_nm};
 use m1::control::nominal::Nominal;
 use m1::sensing::interaction::{a_matrix, global_ptt, interaction_matrices};
@@ -18,7 +19,7 @@ use crate::plot;
 #[derive(Args, Debug, Clone)]
 pub struct MirrorArgs {
     /// Mirror layout (keck, tmt, elt) or a JSON file of segment centres.
-    #[arg(long, default_value = "tmt")]
+    #[arg(long, default_value = DEFAULT_LAYOUT)]
     pub layout: String,
     /// Treat the mirror as flat (ignore the prescription's curvature).
     #[arg(long)]
@@ -32,11 +33,7 @@ pub struct MirrorArgs {
 }
 
 fn load(m: &MirrorArgs) -> Result<(Layout, Geometry), String> {
-    let layout = if m.layout.ends_with(".json") {
-        Layout::from_json_file(std::path::Path::new(&m.layout)).map_err(|e| e.to_string())?
-    } else {
-        Layout::preset(&m.layout).map_err(|e| e.to_string())?
-    };
+    let layout = super::load_layout(&m.layout)?;
     if let Some(l) = m.leff
         && !(l.is_finite() && l >= 0.0)
     {
@@ -93,28 +90,62 @@ pub struct AmatrixArgs {
     #[arg(long)]
     pub maps: Option<String>,
     /// Number of least-observable modes to report after focus-mode.
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = NEXT_MODES)]
     pub next: usize,
 }
 
-/// Runs `m1cs amatrix`.
-pub fn amatrix(a: &AmatrixArgs) -> Result<(), String> {
-    let (layout, g) = load(&a.mirror)?;
-    let am = a_matrix(&g);
-    let dense = am.to_dense();
-    // SVD of A itself: the near-null global piston/tip/tilt and the rank.
-    let (raw, _) = svd_summary(&dense, 1e-9).map_err(|e| e.to_string())?;
-    // SVD of A P (global PTT projected out): the observable modes.
-    let n = m1::control::reconstructor::orthonormalize(global_ptt(&g).as_ref());
-    let ap = &dense - (&dense * &n) * n.transpose();
-    let (obs, v) = svd_summary(&ap, 1e-9).map_err(|e| e.to_string())?;
-    let r = obs.rank;
+/// Least-observable modes reported after focus-mode by default.
+const NEXT_MODES: usize = 5;
+/// Relative singular-value threshold of the ranks.
+const RANK_TOLERANCE: f64 = 1e-9;
+/// Radial degree of the Zernike basis the modes are compared with.
+const ZERNIKE_DEGREE: u32 = 8;
+/// Modes mapped after focus-mode by `--maps`.
+const MAPPED_MODES: usize = 3;
+
+/// What `m1cs amatrix` finds.
+struct AmatrixReport {
+    layout: Layout,
+    g: Geometry,
+    /// SVD of A itself.
+    raw: quasistatic::SvdSummary,
+    /// SVD of A P, global piston/tip/tilt projected out.
+    obs: quasistatic::SvdSummary,
+    /// Right singular vectors of A P (columns).
+    v: faer::Mat<f64>,
+    /// Focus-mode: the last observable right singular vector.
+    focus: Vec<f64>,
+    /// |correlation| of focus-mode with Z4 (global PTT projected out).
+    corr: f64,
+    next: Vec<serde_json::Value>,
+    near_null: Vec<f64>,
+    full: Option<serde_json::Value>,
+}
+
+impl AmatrixReport {
+    /// Observable rank.
+    fn rank(&self) -> usize {
+        self.obs.rank
+    }
+
+    /// Right singular vector `col` of A P.
+    fn mode(&self, col: usize) -> Vec<f64> {
+        (0..self.g.n_actuators())
+            .map(|i| self.v[(i, col)])
+            .collect()
+    }
+}
+
+/// Z4 as actuator displacements with global PTT (the orthonormal columns `n`) projected out,
+/// unit norm.
+fn z4_actuators(
+    g: &Geometry,
+    basis: &ZernikeBasis,
+    n: &faer::Mat<f64>,
+) -> Result<Vec<f64>, String> {
     let na = g.n_actuators();
-    let basis = ZernikeBasis::up_to_degree(&layout, 8).map_err(|e| e.to_string())?;
-    // Focus-mode against Z4.
-    let focus: Vec<f64> = (0..na).map(|i| v[(i, r - 1)]).collect();
     let z4 = basis.mode(4).ok_or("no Z4 in the basis")?;
-    let mut z4a = m1::optics::metrics::ptt_to_actuators(&g, &z4).map_err(|e| e.to_string())?;
+    let mut z4a = m1::optics::metrics::ptt_to_actuators(g, &z4).map_err(|e| e.to_string())?;
     for c in 0..3 {
         let d: f64 = (0..na).map(|i| n[(i, c)] * z4a[i]).sum();
         for (i, x) in z4a.iter_mut().enumerate() {
@@ -122,6 +153,37 @@ pub fn amatrix(a: &AmatrixArgs) -> Result<(), String> {
         }
     }
     unit(&mut z4a);
+    Ok(z4a)
+}
+
+/// Ranks of the full interaction matrix (eq. 1) and of A_gw (`--full`).
+fn full_ranks(g: &Geometry) -> Result<serde_json::Value, String> {
+    let im = interaction_matrices(g);
+    let (f, _) = svd_summary(&im.full().to_dense(), RANK_TOLERANCE).map_err(|e| e.to_string())?;
+    let (gw, _) = svd_summary(&im.a_gw.to_dense(), RANK_TOLERANCE).map_err(|e| e.to_string())?;
+    Ok(json!({
+        "full_shape": f.shape, "full_rank": f.rank, "full_expected_rank": 6 * g.n_segments() - 6,
+        "a_gw_shape": gw.shape, "a_gw_rank": gw.rank,
+        "a_gw_smallest": gw.singular_values[gw.singular_values.len().saturating_sub(5)..].to_vec(),
+    }))
+}
+
+fn amatrix_report(a: &AmatrixArgs) -> Result<AmatrixReport, String> {
+    let (layout, g) = load(&a.mirror)?;
+    let am = a_matrix(&g);
+    let dense = am.to_dense();
+    // SVD of A itself: the near-null global piston/tip/tilt and the rank.
+    let (raw, _) = svd_summary(&dense, RANK_TOLERANCE).map_err(|e| e.to_string())?;
+    // SVD of A P (global PTT projected out): the observable modes.
+    let n = m1::control::reconstructor::orthonormalize(global_ptt(&g).as_ref());
+    let ap = &dense - (&dense * &n) * n.transpose();
+    let (obs, v) = svd_summary(&ap, RANK_TOLERANCE).map_err(|e| e.to_string())?;
+    let r = obs.rank;
+    let na = g.n_actuators();
+    let basis = ZernikeBasis::up_to_degree(&layout, ZERNIKE_DEGREE).map_err(|e| e.to_string())?;
+    // Focus-mode against Z4.
+    let focus: Vec<f64> = (0..na).map(|i| v[(i, r - 1)]).collect();
+    let z4a = z4_actuators(&g, &basis, &n)?;
     let corr = focus
         .iter()
         .zip(&z4a)
@@ -141,91 +203,100 @@ pub fn amatrix(a: &AmatrixArgs) -> Result<(), String> {
     }
     let near_null: Vec<f64> =
         raw.singular_values[raw.singular_values.len().saturating_sub(3)..].to_vec();
-    let full = if a.full {
-        let im = interaction_matrices(&g);
-        let (f, _) = svd_summary(&im.full().to_dense(), 1e-9).map_err(|e| e.to_string())?;
-        let (gw, _) = svd_summary(&im.a_gw.to_dense(), 1e-9).map_err(|e| e.to_string())?;
-        Some(json!({
-            "full_shape": f.shape, "full_rank": f.rank, "full_expected_rank": 6 * g.n_segments() - 6,
-            "a_gw_shape": gw.shape, "a_gw_rank": gw.rank,
-            "a_gw_smallest": gw.singular_values[gw.singular_values.len().saturating_sub(5)..].to_vec(),
-        }))
-    } else {
-        None
-    };
-    let out = json!({
-        "layout": layout.name,
-        "flat": a.mirror.flat || g.prescription.is_flat(),
-        "leff_m": g.params.leff,
-        "shape": raw.shape,
-        "rank_of_a": raw.rank,
-        "global_ptt_singular_values": near_null,
-        "observable_rank": r,
-        "largest": obs.largest,
-        "smallest_nonzero": obs.smallest_nonzero,
-        "condition_number": obs.condition_number,
-        "focus_singular_value": obs.smallest_nonzero,
-        "focus_z4_correlation": corr,
-        "next_modes": next,
-        "full": full,
-        "singular_values": obs.singular_values,
-    });
-    if let Some(p) = &a.plot {
-        let mut marks = vec![(r - 1, "focus-mode")];
-        if r >= 2 {
-            marks.push((r - 2, "next (astigmatism-like)"));
-        }
-        let title = format!(
-            "Singular values of A ({}, {} x {}), global PTT projected out",
-            layout.name, raw.shape.0, raw.shape.1
-        );
-        plot::spectrum(
-            p,
-            &obs.singular_values[..r],
-            &title,
-            "singular value",
-            true,
-            &marks,
-        )
-        .map_err(|e| e.to_string())?;
+    let full = if a.full { Some(full_ranks(&g)?) } else { None };
+    Ok(AmatrixReport {
+        layout,
+        g,
+        raw,
+        obs,
+        v,
+        focus,
+        corr,
+        next,
+        near_null,
+        full,
+    })
+}
+
+fn amatrix_json(a: &AmatrixArgs, r: &AmatrixReport) -> serde_json::Value {
+    json!({
+        "layout": r.layout.name,
+        "flat": a.mirror.flat || r.g.prescription.is_flat(),
+        "leff_m": r.g.params.leff,
+        "shape": r.raw.shape,
+        "rank_of_a": r.raw.rank,
+        "global_ptt_singular_values": r.near_null,
+        "observable_rank": r.rank(),
+        "largest": r.obs.largest,
+        "smallest_nonzero": r.obs.smallest_nonzero,
+        "condition_number": r.obs.condition_number,
+        "focus_singular_value": r.obs.smallest_nonzero,
+        "focus_z4_correlation": r.corr,
+        "next_modes": r.next,
+        "full": r.full,
+        "singular_values": r.obs.singular_values,
+    })
+}
+
+/// `--plot`: the observable singular values, focus-mode and the next marked.
+fn plot_spectrum(p: &str, r: &AmatrixReport) -> Result<(), String> {
+    let rank = r.rank();
+    let mut marks = vec![(rank - 1, "focus-mode")];
+    if rank >= 2 {
+        marks.push((rank - 2, "next (astigmatism-like)"));
     }
-    if let Some(base) = &a.maps {
-        let stem = base.trim_end_matches(".png");
-        let ptt = actuators_to_ptt(&g, &focus)?;
+    let title = format!(
+        "Singular values of A ({}, {} x {}), global PTT projected out",
+        r.layout.name, r.raw.shape.0, r.raw.shape.1
+    );
+    plot::spectrum(
+        p,
+        &r.obs.singular_values[..rank],
+        &title,
+        "singular value",
+        true,
+        &marks,
+    )
+    .map_err(|e| e.to_string())
+}
+
+/// `--maps`: focus-mode and the next [`MAPPED_MODES`] modes as segment PTT maps.
+fn plot_maps(base: &str, r: &AmatrixReport) -> Result<(), String> {
+    let stem = base.trim_end_matches(".png");
+    let ptt = actuators_to_ptt(&r.g, &r.focus)?;
+    plot::mirror_map_ptt(
+        format!("{stem}-focus.png"),
+        &r.layout,
+        &ptt,
+        "Focus-mode (unit norm)",
+        "",
+    )
+    .map_err(|e| e.to_string())?;
+    for k in 0..MAPPED_MODES.min(r.rank().saturating_sub(1)) {
+        let col = r.rank() - 2 - k;
+        let ptt = actuators_to_ptt(&r.g, &r.mode(col))?;
+        let title = format!(
+            "Mode {} (singular value {:.3e})",
+            col + 1,
+            r.obs.singular_values[col]
+        );
         plot::mirror_map_ptt(
-            format!("{stem}-focus.png"),
-            &layout,
+            format!("{stem}-mode{}.png", k + 2),
+            &r.layout,
             &ptt,
-            "Focus-mode (unit norm)",
+            &title,
             "",
         )
         .map_err(|e| e.to_string())?;
-        for k in 0..3.min(r.saturating_sub(1)) {
-            let col = r - 2 - k;
-            let mode: Vec<f64> = (0..na).map(|i| v[(i, col)]).collect();
-            let ptt = actuators_to_ptt(&g, &mode)?;
-            let title = format!(
-                "Mode {} (singular value {:.3e})",
-                col + 1,
-                obs.singular_values[col]
-            );
-            plot::mirror_map_ptt(
-                format!("{stem}-mode{}.png", k + 2),
-                &layout,
-                &ptt,
-                &title,
-                "",
-            )
-            .map_err(|e| e.to_string())?;
-        }
     }
-    if a.mirror.json {
-        println!("{out}");
-        return Ok(());
-    }
+    Ok(())
+}
+
+fn print_amatrix(r: &AmatrixReport, out: &serde_json::Value) {
+    let (g, raw, obs, near_null) = (&r.g, &r.raw, &r.obs, &r.near_null);
     println!(
         "A-matrix of {} ({}; Leff = {} m): {} sensors x {} actuators",
-        layout.name,
+        r.layout.name,
         if g.prescription.is_flat() {
             "flat"
         } else {
@@ -242,14 +313,18 @@ pub fn amatrix(a: &AmatrixArgs) -> Result<(), String> {
         near_null.get(1).copied().unwrap_or(0.0),
         near_null.get(2).copied().unwrap_or(0.0)
     );
-    println!("  with global PTT projected out: rank {r} of {na}");
+    println!(
+        "  with global PTT projected out: rank {} of {}",
+        r.rank(),
+        g.n_actuators()
+    );
     println!(
         "  largest singular value {:.4}, smallest non-zero (focus-mode) {:.4e}, condition number {:.1}",
         obs.largest, obs.smallest_nonzero, obs.condition_number
     );
-    println!("  focus-mode correlation with Zernike Z4: {corr:.5}");
+    println!("  focus-mode correlation with Zernike Z4: {:.5}", r.corr);
     println!("  next least observable modes:");
-    for m in &next {
+    for m in &r.next {
         println!(
             "    #{:>5}  sv {:.4e}  dominant Z{} (n={}, m={}), {:.0}% of the fit",
             m["index"],
@@ -271,6 +346,23 @@ pub fn amatrix(a: &AmatrixArgs) -> Result<(), String> {
             f["a_gw_rank"]
         );
     }
+}
+
+/// Runs `m1cs amatrix`.
+pub fn amatrix(a: &AmatrixArgs) -> Result<(), String> {
+    let r = amatrix_report(a)?;
+    let out = amatrix_json(a, &r);
+    if let Some(p) = &a.plot {
+        plot_spectrum(p, &r)?;
+    }
+    if let Some(base) = &a.maps {
+        plot_maps(base, &r)?;
+    }
+    if a.mirror.json {
+        println!("{out}");
+        return Ok(());
+    }
+    print_amatrix(&r, &out);
     Ok(())
 }
 
@@ -280,16 +372,16 @@ pub struct RobustnessArgs {
     #[command(flatten)]
     pub mirror: MirrorArgs,
     /// Realizations per random case.
-    #[arg(long, default_value_t = 100)]
+    #[arg(long, default_value_t = RobustnessParams::default().realizations)]
     pub realizations: usize,
     /// Focus-mode gain reduction factor of Gamma.
-    #[arg(long, default_value_t = 4.0)]
+    #[arg(long, default_value_t = RobustnessParams::default().focus_gain_factor)]
     pub focus_gain_factor: f64,
     /// Seed of the realizations.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = RobustnessParams::default().seed)]
     pub seed: u64,
     /// Krylov dimension of the eigenvalue and singular-value estimates.
-    #[arg(long, default_value_t = 60)]
+    #[arg(long, default_value_t = RobustnessParams::default().krylov_dim)]
     pub krylov: usize,
     /// Histogram PNG of sigma_max(Gamma Psi Q Psi^T) over the realizations of every case.
     #[arg(long)]
@@ -543,10 +635,10 @@ pub struct CalibrationArgs {
     #[command(flatten)]
     pub mirror: MirrorArgs,
     /// Monte Carlo samples of the check of the exact figures.
-    #[arg(long, default_value_t = 50)]
+    #[arg(long, default_value_t = calibration_defaults::SAMPLES)]
     pub samples: usize,
     /// Seed of the Monte Carlo check.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = calibration_defaults::SEED)]
     pub seed: u64,
     /// Relative singular-value threshold of the pseudo-inverse of A_gw: smaller singular values
     /// (gap-unobservable and weakly observable in-plane modes) are not inverted.

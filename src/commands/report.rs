@@ -17,10 +17,10 @@ pub struct ReportArgs {
     /// Directory to write `index.md` and the figures into (created if missing).
     pub dir: PathBuf,
     /// Mirror layout every analysis runs on (keck, tmt, elt).
-    #[arg(long, default_value = "tmt")]
+    #[arg(long, default_value = m1::aperture::layout::DEFAULT_LAYOUT)]
     pub layout: String,
     /// Where the packaged FMUs are, for the co-simulation analyses (`cargo xtask package`).
-    #[arg(long, default_value = "target/fmu")]
+    #[arg(long, default_value = super::FMU_DIR)]
     pub fmu_dir: PathBuf,
     /// Leave out the analyses that run the co-simulation master (`run`, `wind`), e.g. without
     /// packaged FMUs.
@@ -298,7 +298,7 @@ pub fn report(a: &ReportArgs) -> Result<(), String> {
          `--plot` the figures).\n",
         a.layout
     );
-    crate::load_layout(&a.layout)?;
+    super::load_layout(&a.layout)?;
     let mut failures = Vec::new();
     for an in &list {
         bar.set_message(an.title);

@@ -3,53 +3,62 @@
 //! standard wind system.
 
 use std::path::PathBuf;
+use std::sync::LazyLock;
 
 use clap::Args;
 use serde_json::json;
+
+use m1::analysis::defaults::wind as wind_study;
+use m1::aperture::layout::Layout;
 
 use super::cosim::{
     Cell, Scenario, SystemArgs, Variant, run_one, segment_rms_map, settled_rms, split_off_z,
     standard_system,
 };
+use super::defaults::list;
 use crate::plot;
+
+/// `--help`'s form of the default sweeps.
+static SPEEDS: LazyLock<String> = LazyLock::new(|| list(&wind_study::SPEEDS));
+static BANDWIDTHS: LazyLock<String> = LazyLock::new(|| list(&wind_study::BANDWIDTHS));
 
 /// Arguments of `m1cs wind`.
 #[derive(Args, Debug)]
 pub struct WindArgs {
     /// Mirror layout (keck, tmt, elt): FMUs are taken from FMU_DIR/LAYOUT/.
-    #[arg(long, default_value = "tmt")]
+    #[arg(long, default_value = m1::aperture::layout::DEFAULT_LAYOUT)]
     pub layout: String,
     /// Actuator variant.
-    #[arg(long, value_enum, default_value = "voicecoil")]
+    #[arg(long, value_enum, default_value_t = Variant::Voicecoil)]
     pub actuator: Variant,
     /// Where the packaged FMUs are (`cargo xtask package` writes them).
-    #[arg(long, default_value = "target/fmu")]
+    #[arg(long, default_value = super::FMU_DIR)]
     pub fmu_dir: PathBuf,
     /// Mean wind speeds (m/s), comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "0.5,1,2")]
+    #[arg(long, value_delimiter = ',', default_value = SPEEDS.as_str())]
     pub speeds: Vec<f64>,
     /// Global-loop bandwidths on the modes of radial degrees >= 5 (Hz), comma-separated; radial
     /// degrees 3-4 and 2 get the baseline's ratios of each (1 / 1.5 and 0.75 / 1.5, from m1's
     /// default bandwidths), focus-mode --focus-bandwidth.
-    #[arg(long, value_delimiter = ',', default_value = "0.25,0.5,1")]
+    #[arg(long, value_delimiter = ',', default_value = BANDWIDTHS.as_str())]
     pub bandwidths: Vec<f64>,
     /// Global-loop bandwidth on focus-mode (Hz).
     #[arg(long, default_value_t = m1::control::controller::DEFAULT_BANDWIDTH_FOCUS)]
     pub focus_bandwidth: f64,
     /// Mirror cell: `coupled` (the mirror FMU), `quasi-static` (its quasi-static plant) or
     /// `rigid` (no structure).
-    #[arg(long, value_enum, default_value = "coupled")]
+    #[arg(long, value_enum, default_value_t = Cell::Coupled)]
     pub cell: Cell,
     /// Structure modes retained.
-    #[arg(long, default_value_t = 60)]
+    #[arg(long, default_value_t = super::cosim::STRUCTURE_MODES)]
     pub structure_modes: i32,
     #[arg(long, default_value = m1::plant::structure::DEFAULT_STRUCTURE, help = super::STRUCTURE_HELP)]
     pub structure: String,
     /// Simulated duration of each run (s); statistics over its second half.
-    #[arg(long, default_value_t = 5.0)]
+    #[arg(long, default_value_t = super::cosim::DURATION)]
     pub duration: f64,
     /// Base communication step (s).
-    #[arg(long, default_value_t = 1e-3)]
+    #[arg(long, default_value_t = super::cosim::STEP)]
     pub step: f64,
     /// Print one JSON object instead of the table.
     #[arg(long)]
@@ -118,9 +127,25 @@ fn focus_share(s: &Stats) -> f64 {
     (1.0 - (s.without_focus / s.rms).powi(2)).max(0.0)
 }
 
-/// Runs `m1cs wind`.
-pub fn wind(a: &WindArgs) -> Result<(), String> {
-    let layout = crate::load_layout(&a.layout)?;
+/// A run's growth (last quarter over second quarter) above this is a growing, unstable loop.
+const GROWING: f64 = 1.5;
+
+fn growing(g: f64) -> bool {
+    g.is_finite() && g > GROWING
+}
+
+/// One closed-loop run of the sweep: wind speed, bandwidth, the open loop's rms at that speed
+/// (m) and the closed loop's statistics.
+type Row = (f64, f64, f64, Stats);
+
+/// What the sweep found: the rows, and the maps (open and closed loop at the highest speed
+/// and the highest bandwidth).
+struct Sweep {
+    rows: Vec<Row>,
+    maps: Vec<(String, Vec<f64>)>,
+}
+
+fn check_wind_args(a: &WindArgs) -> Result<(), String> {
     if a.speeds.is_empty() || a.speeds.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
         return Err(format!(
             "--speeds {:?}: give positive wind speeds (m/s)",
@@ -136,7 +161,12 @@ pub fn wind(a: &WindArgs) -> Result<(), String> {
     if a.cell == Cell::Split {
         return Err("--cell split needs a 0.2 ms step: use coupled or rigid here".into());
     }
-    let base = SystemArgs {
+    Ok(())
+}
+
+/// The standard wind system of the first speed and bandwidth, the base of every run.
+fn base_system(a: &WindArgs) -> SystemArgs {
+    SystemArgs {
         layout: a.layout.clone(),
         actuator: a.actuator,
         scenario: Scenario::Wind,
@@ -152,7 +182,12 @@ pub fn wind(a: &WindArgs) -> Result<(), String> {
         uniform: false,
         duration: a.duration,
         step: a.step,
-    };
+    }
+}
+
+/// Every speed open loop, and closed loop at every bandwidth.
+fn sweep(a: &WindArgs, layout: &Layout) -> Result<Sweep, String> {
+    let base = base_system(a);
     let metrics = [
         "optics.rms_surface",
         "optics.focus_mode",
@@ -186,7 +221,7 @@ pub fn wind(a: &WindArgs) -> Result<(), String> {
             &record,
             None,
         )?;
-        let open_stats = stats(&layout, &mut open)?;
+        let open_stats = stats(layout, &mut open)?;
         let last_speed = i + 1 == a.speeds.len();
         if last_speed {
             maps.push((format!("open loop, {speed} m/s"), open_stats.map.clone()));
@@ -207,137 +242,166 @@ pub fn wind(a: &WindArgs) -> Result<(), String> {
                 &record,
                 None,
             )?;
-            let s = stats(&layout, &mut closed)?;
+            let s = stats(layout, &mut closed)?;
             if last_speed && j + 1 == a.bandwidths.len() {
                 maps.push((format!("closed loop {bw} Hz, {speed} m/s"), s.map.clone()));
             }
             rows.push((speed, bw, open_stats.rms, s));
         }
     }
-    let nm = |x: f64| x * 1e9;
-    let growing = |g: f64| g.is_finite() && g > 1.5;
-    if a.json {
-        let out = json!({
-            "layout": a.layout,
-            "actuator": format!("{:?}", a.actuator).to_lowercase(),
-            "cell": format!("{:?}", a.cell).to_lowercase(),
-            "structure_modes": a.structure_modes,
-            "structure": a.structure,
-            "duration_s": a.duration,
-            "focus_bandwidth_hz": a.focus_bandwidth,
-            "statistics": "rms over the second half of each run",
-            "runs": rows.iter().map(|(speed, bw, open, s)| json!({
-                "wind_speed_m_per_s": speed,
-                "bandwidth_hz": bw,
-                "bandwidth_radial34_hz": group_bandwidths(*bw).0,
-                "bandwidth_radial2_hz": group_bandwidths(*bw).1,
-                "open_loop_rms_surface_nm": nm(*open),
-                "closed_loop_rms_surface_nm": nm(s.rms),
-                "closed_loop_focus_mode_nm": nm(s.focus),
-                "closed_loop_rms_without_focus_nm": nm(s.without_focus),
-                "focus_share_of_residual_variance": focus_share(s),
-                "rejection_ratio": s.rms / open,
-                "growth_last_over_second_quarter": s.growth,
-                "growing": growing(s.growth),
-            })).collect::<Vec<_>>(),
-        });
-        println!("{out}");
-    } else {
-        let (r34, r2) = group_bandwidths(1.0);
+    Ok(Sweep { rows, maps })
+}
+
+fn nm(x: f64) -> f64 {
+    x * 1e9
+}
+
+fn wind_json(a: &WindArgs, rows: &[Row]) -> serde_json::Value {
+    json!({
+        "layout": a.layout,
+        "actuator": format!("{:?}", a.actuator).to_lowercase(),
+        "cell": format!("{:?}", a.cell).to_lowercase(),
+        "structure_modes": a.structure_modes,
+        "structure": a.structure,
+        "duration_s": a.duration,
+        "focus_bandwidth_hz": a.focus_bandwidth,
+        "statistics": "rms over the second half of each run",
+        "runs": rows.iter().map(|(speed, bw, open, s)| json!({
+            "wind_speed_m_per_s": speed,
+            "bandwidth_hz": bw,
+            "bandwidth_radial34_hz": group_bandwidths(*bw).0,
+            "bandwidth_radial2_hz": group_bandwidths(*bw).1,
+            "open_loop_rms_surface_nm": nm(*open),
+            "closed_loop_rms_surface_nm": nm(s.rms),
+            "closed_loop_focus_mode_nm": nm(s.focus),
+            "closed_loop_rms_without_focus_nm": nm(s.without_focus),
+            "focus_share_of_residual_variance": focus_share(s),
+            "rejection_ratio": s.rms / open,
+            "growth_last_over_second_quarter": s.growth,
+            "growing": growing(s.growth),
+        })).collect::<Vec<_>>(),
+    })
+}
+
+fn print_wind(a: &WindArgs, rows: &[Row]) {
+    let (r34, r2) = group_bandwidths(1.0);
+    println!(
+        "{} {:?} actuators, {:?} cell, {} s per run (statistics over the second half); bw on \
+         radial degrees >= 5, {r34:.3} of it on 3-4, {r2:.3} on 2, focus-mode {} Hz:",
+        a.layout, a.actuator, a.cell, a.duration, a.focus_bandwidth
+    );
+    println!(
+        "{:>10} {:>10} {:>12} {:>12} {:>11} {:>14} {:>10} {:>8}",
+        "wind (m/s)",
+        "bw (Hz)",
+        "open (nm)",
+        "closed (nm)",
+        "focus share",
+        "w/o focus (nm)",
+        "closed/open",
+        "growing"
+    );
+    for (speed, bw, open, s) in rows {
         println!(
-            "{} {:?} actuators, {:?} cell, {} s per run (statistics over the second half); bw on \
-             radial degrees >= 5, {r34:.3} of it on 3-4, {r2:.3} on 2, focus-mode {} Hz:",
-            a.layout, a.actuator, a.cell, a.duration, a.focus_bandwidth
+            "{:>10.2} {:>10.3} {:>12.2} {:>12.2} {:>11.3} {:>14.2} {:>10.3} {:>8}",
+            speed,
+            bw,
+            nm(*open),
+            nm(s.rms),
+            focus_share(s),
+            nm(s.without_focus),
+            s.rms / open,
+            if growing(s.growth) { "yes" } else { "no" }
         );
-        println!(
-            "{:>10} {:>10} {:>12} {:>12} {:>11} {:>14} {:>10} {:>8}",
-            "wind (m/s)",
-            "bw (Hz)",
-            "open (nm)",
-            "closed (nm)",
-            "focus share",
-            "w/o focus (nm)",
-            "closed/open",
-            "growing"
-        );
-        for (speed, bw, open, s) in &rows {
-            println!(
-                "{:>10.2} {:>10.3} {:>12.2} {:>12.2} {:>11.3} {:>14.2} {:>10.3} {:>8}",
-                speed,
-                bw,
-                nm(*open),
-                nm(s.rms),
-                focus_share(s),
-                nm(s.without_focus),
-                s.rms / open,
-                if growing(s.growth) { "yes" } else { "no" }
-            );
-        }
-        if rows.iter().any(|r| growing(r.3.growth)) {
-            println!(
-                "growing: the residual's last quarter is over 1.5x its second quarter, an \
-                 unstable global loop (see README, the TMT closed loop)"
-            );
-        }
     }
-    if let Some(dir) = &a.plot {
-        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-        let mut series: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
-        let open: Vec<(f64, f64)> = a
-            .speeds
+    if rows.iter().any(|r| growing(r.3.growth)) {
+        println!(
+            "growing: the residual's last quarter is over 1.5x its second quarter, an \
+             unstable global loop (see README, the TMT closed loop)"
+        );
+    }
+}
+
+/// `--plot DIR`: rms_vs_speed.png and the open and closed-loop maps.
+fn plot_wind(
+    dir: &std::path::Path,
+    a: &WindArgs,
+    layout: &Layout,
+    sweep: &Sweep,
+) -> Result<(), String> {
+    let rows = &sweep.rows;
+    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    let mut series: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
+    let open: Vec<(f64, f64)> = a
+        .speeds
+        .iter()
+        .filter_map(|sp| rows.iter().find(|r| r.0 == *sp).map(|r| (*sp, nm(r.2))))
+        .collect();
+    series.push(("open loop".into(), open));
+    for &bw in &a.bandwidths {
+        let pts: Vec<(f64, f64)> = rows
             .iter()
-            .filter_map(|sp| rows.iter().find(|r| r.0 == *sp).map(|r| (*sp, nm(r.2))))
+            .filter(|r| r.1 == bw)
+            .map(|r| (r.0, nm(r.3.rms)))
             .collect();
-        series.push(("open loop".into(), open));
-        for &bw in &a.bandwidths {
-            let pts: Vec<(f64, f64)> = rows
-                .iter()
-                .filter(|r| r.1 == bw)
-                .map(|r| (r.0, nm(r.3.rms)))
-                .collect();
-            series.push((format!("closed loop, {bw} Hz"), pts));
-            let pts: Vec<(f64, f64)> = rows
-                .iter()
-                .filter(|r| r.1 == bw)
-                .map(|r| (r.0, nm(r.3.without_focus)))
-                .collect();
-            series.push((format!("closed {bw} Hz without focus-mode"), pts));
+        series.push((format!("closed loop, {bw} Hz"), pts));
+        let pts: Vec<(f64, f64)> = rows
+            .iter()
+            .filter(|r| r.1 == bw)
+            .map(|r| (r.0, nm(r.3.without_focus)))
+            .collect();
+        series.push((format!("closed {bw} Hz without focus-mode"), pts));
+    }
+    let refs: Vec<(&str, &[(f64, f64)])> = series
+        .iter()
+        .map(|(l, p)| (l.as_str(), p.as_slice()))
+        .collect();
+    plot::lines(
+        dir.join("rms_vs_speed.png"),
+        &refs,
+        &format!(
+            "{}: M1 rms surface under wind (second half of each run)",
+            a.layout
+        ),
+        "wind speed (m/s)",
+        "rms surface (nm)",
+        a.speeds.len() > 1,
+        true,
+    )
+    .map_err(|e| e.to_string())?;
+    for (k, (label, map)) in sweep.maps.iter().enumerate() {
+        if map.is_empty() {
+            continue;
         }
-        let refs: Vec<(&str, &[(f64, f64)])> = series
-            .iter()
-            .map(|(l, p)| (l.as_str(), p.as_slice()))
-            .collect();
-        plot::lines(
-            dir.join("rms_vs_speed.png"),
-            &refs,
-            &format!(
-                "{}: M1 rms surface under wind (second half of each run)",
-                a.layout
-            ),
-            "wind speed (m/s)",
-            "rms surface (nm)",
-            a.speeds.len() > 1,
-            true,
+        let file = if k == 0 {
+            "map_open_loop.png"
+        } else {
+            "map_closed_loop.png"
+        };
+        plot::mirror_map(
+            dir.join(file),
+            layout,
+            map,
+            &format!("{}, {label}: rms residual surface per segment", a.layout),
+            "nm",
         )
         .map_err(|e| e.to_string())?;
-        for (k, (label, map)) in maps.iter().enumerate() {
-            if map.is_empty() {
-                continue;
-            }
-            let file = if k == 0 {
-                "map_open_loop.png"
-            } else {
-                "map_closed_loop.png"
-            };
-            plot::mirror_map(
-                dir.join(file),
-                &layout,
-                map,
-                &format!("{}, {label}: rms residual surface per segment", a.layout),
-                "nm",
-            )
-            .map_err(|e| e.to_string())?;
-        }
+    }
+    Ok(())
+}
+
+/// Runs `m1cs wind`.
+pub fn wind(a: &WindArgs) -> Result<(), String> {
+    let layout = super::load_layout(&a.layout)?;
+    check_wind_args(a)?;
+    let sweep = sweep(a, &layout)?;
+    if a.json {
+        println!("{}", wind_json(a, &sweep.rows));
+    } else {
+        print_wind(a, &sweep.rows);
+    }
+    if let Some(dir) = &a.plot {
+        plot_wind(dir, a, &layout, &sweep)?;
     }
     Ok(())
 }
