@@ -88,6 +88,7 @@ impl TableBuilder {
 ///     #[derive(...)]
 ///     pub struct Vars<V: Bound>(b, layout: &Layout) {
 ///         field: RealVar = <a Decl>,         // one variable
+///         pub other: IntVar = <a Decl>,      // a field may have a visibility
 ///         group: Group => <expr using b>,    // variables declared by another function
 ///     }
 /// }
@@ -105,13 +106,13 @@ macro_rules! variables {
         {
             $(
                 $(#[$fmeta:meta])*
-                $field:ident : $fty:ty $(= $decl:expr)? $(=> $group:expr)?
+                $fvis:vis $field:ident : $fty:ty $(= $decl:expr)? $(=> $group:expr)?
             ),* $(,)?
         }
     ) => {
         $(#[$meta])*
         $vis struct $name {
-            $( $(#[$fmeta])* $field: $fty, )*
+            $( $(#[$fmeta])* $fvis $field: $fty, )*
         }
 
         impl $name {

@@ -9,7 +9,8 @@ use std::ffi::{CStr, CString};
 use fmi_sys::fmi2::{fmi2CallbackFunctions, fmi2Status};
 
 use crate::error::FmuError;
-use crate::model::Model;
+use crate::calls::Call;
+use crate::model::{Model, Running};
 use crate::variables::{Causality, Values, VarType, Variability, Variable, VariableTable};
 
 /// Tag at the start of every live instance, checked before any use of an instance pointer.
@@ -54,7 +55,8 @@ use State::*;
 
 /// A saved FMU state (fmi2GetFMUstate), also the unit of serialisation.
 #[derive(Clone, Serialize, Deserialize)]
-pub struct Snapshot<M> {
+#[serde(bound = "")]
+pub struct Snapshot<M: Model> {
     pub(crate) magic: u64,
     guid: String,
     state: State,
@@ -63,7 +65,7 @@ pub struct Snapshot<M> {
     stop_time: Option<f64>,
     outputs_stale: bool,
     values: Values,
-    model: M,
+    running: Option<M::Running>,
 }
 
 /// An instance of model `M`.
@@ -77,9 +79,12 @@ pub struct Instance<M: Model> {
     guid: String,
     variant: String,
     table: VariableTable,
-    pristine: (Values, M),
+    pristine: Values,
     values: Values,
+    /// The model as configured at instantiation.
     model: M,
+    /// The initialised model, from fmi2ExitInitializationMode until fmi2Reset.
+    running: Option<M::Running>,
     time: f64,
     start_time: f64,
     stop_time: Option<f64>,
@@ -166,10 +171,11 @@ impl<M: Model> Instance<M> {
                     state: Instantiated,
                     guid: g,
                     variant,
-                    pristine: (values.clone(), model.clone()),
+                    pristine: values.clone(),
                     table,
                     values,
                     model,
+                    running: None,
                     time: 0.0,
                     start_time: 0.0,
                     stop_time: None,
@@ -206,10 +212,16 @@ impl<M: Model> Instance<M> {
         self.time
     }
 
-    /// The model, for in-process use.
+    /// The model as configured, for in-process use.
     pub fn model(&self) -> &M {
         &self.model
     }
+
+    /// The running model, once initialised (fmi2ExitInitializationMode) and until reset.
+    pub fn running(&self) -> Option<&M::Running> {
+        self.running.as_ref()
+    }
+
 
     /// Sends a message through the importer's logger (errors always, others when logging is on).
     pub fn log(&self, status: fmi2Status, category: &CStr, msg: &str) {
@@ -246,12 +258,13 @@ impl<M: Model> Instance<M> {
         self.state = Fatal;
     }
 
-    fn require(&self, function: &'static str, allowed: &[State]) -> Result<(), FmuError> {
-        if allowed.contains(&self.state) {
+    /// Refuses `call` unless the standard allows it in the current state ([`Call::allowed`]).
+    fn require(&self, call: Call) -> Result<(), FmuError> {
+        if call.allowed().contains(&self.state) {
             Ok(())
         } else {
             Err(FmuError::IllegalCall {
-                function,
+                function: call.name(),
                 state: self.state.name(),
             })
         }
@@ -259,17 +272,7 @@ impl<M: Model> Instance<M> {
 
     /// fmi2SetDebugLogging.
     pub fn set_debug_logging(&mut self, on: bool, categories: &[String]) -> Result<(), FmuError> {
-        self.require(
-            "fmi2SetDebugLogging",
-            &[
-                Instantiated,
-                InitializationMode,
-                StepComplete,
-                StepFailed,
-                Terminated,
-                Error,
-            ],
-        )?;
+        self.require(Call::SetDebugLogging)?;
         for c in categories {
             if !crate::xml::LOG_CATEGORIES.iter().any(|(n, _)| n == c) {
                 return Err(FmuError::BadValue {
@@ -290,7 +293,7 @@ impl<M: Model> Instance<M> {
 
     /// fmi2SetupExperiment.
     pub fn setup_experiment(&mut self, start: f64, stop: Option<f64>) -> Result<(), FmuError> {
-        self.require("fmi2SetupExperiment", &[Instantiated])?;
+        self.require(Call::SetupExperiment)?;
         if !start.is_finite() {
             return Err(FmuError::BadValue {
                 variable: "startTime".into(),
@@ -315,7 +318,7 @@ impl<M: Model> Instance<M> {
 
     /// fmi2EnterInitializationMode.
     pub fn enter_initialization_mode(&mut self) -> Result<(), FmuError> {
-        self.require("fmi2EnterInitializationMode", &[Instantiated])?;
+        self.require(Call::EnterInitializationMode)?;
         self.state = InitializationMode;
         self.outputs_stale = true;
         Ok(())
@@ -324,8 +327,8 @@ impl<M: Model> Instance<M> {
     /// fmi2ExitInitializationMode: the model checks its parameters; on failure the instance
     /// stays in initialisation mode so that parameters can be corrected.
     pub fn exit_initialization_mode(&mut self) -> Result<(), FmuError> {
-        self.require("fmi2ExitInitializationMode", &[InitializationMode])?;
-        self.model.initialize(&mut self.values, self.start_time)?;
+        self.require(Call::ExitInitializationMode)?;
+        self.running = Some(self.model.initialize(&mut self.values, self.start_time)?);
         self.outputs_stale = false;
         self.time = self.start_time;
         self.state = StepComplete;
@@ -334,26 +337,16 @@ impl<M: Model> Instance<M> {
 
     /// fmi2Terminate.
     pub fn terminate(&mut self) -> Result<(), FmuError> {
-        self.require("fmi2Terminate", &[StepComplete, StepFailed, Error])?;
+        self.require(Call::Terminate)?;
         self.state = Terminated;
         Ok(())
     }
 
     /// fmi2Reset: back to the state after fmi2Instantiate.
     pub fn reset(&mut self) -> Result<(), FmuError> {
-        self.require(
-            "fmi2Reset",
-            &[
-                Instantiated,
-                InitializationMode,
-                StepComplete,
-                StepFailed,
-                Terminated,
-                Error,
-            ],
-        )?;
-        self.values = self.pristine.0.clone();
-        self.model = self.pristine.1.clone();
+        self.require(Call::Reset)?;
+        self.values = self.pristine.clone();
+        self.running = None;
         self.state = Instantiated;
         self.time = 0.0;
         self.start_time = 0.0;
@@ -366,25 +359,20 @@ impl<M: Model> Instance<M> {
         if self.outputs_stale {
             match self.state {
                 InitializationMode => {
-                    // Work on a copy: initialisation may be repeated with other parameters.
-                    let mut m = self.model.clone();
-                    m.initialize(&mut self.values, self.start_time)?;
+                    // The running model is dropped: parameters may still change.
+                    self.model.initialize(&mut self.values, self.start_time)?;
                 }
-                StepComplete => self.model.update_outputs(&mut self.values)?,
+                StepComplete => {
+                    if let Some(r) = self.running.as_mut() {
+                        r.update_outputs(&mut self.values)?;
+                    }
+                }
                 _ => {}
             }
             self.outputs_stale = false;
         }
         Ok(())
     }
-
-    const GET_STATES: [State; 5] = [
-        InitializationMode,
-        StepComplete,
-        StepFailed,
-        Terminated,
-        Error,
-    ];
 
     fn type_range(&self, ty: VarType) -> std::ops::Range<u32> {
         let c = self.table.counts();
@@ -410,7 +398,7 @@ impl<M: Model> Instance<M> {
 
     /// fmi2GetReal.
     pub fn get_real(&mut self, vrs: &[u32], out: &mut [f64]) -> Result<(), FmuError> {
-        self.require("fmi2GetReal", &Self::GET_STATES)?;
+        self.require(Call::GetReal)?;
         self.refresh_outputs()?;
         for (vr, o) in vrs.iter().zip(out.iter_mut()) {
             *o = self.values.reals[self.slot(VarType::Real, *vr, "Real")?];
@@ -420,7 +408,7 @@ impl<M: Model> Instance<M> {
 
     /// fmi2GetInteger.
     pub fn get_integer(&mut self, vrs: &[u32], out: &mut [i32]) -> Result<(), FmuError> {
-        self.require("fmi2GetInteger", &Self::GET_STATES)?;
+        self.require(Call::GetInteger)?;
         self.refresh_outputs()?;
         for (vr, o) in vrs.iter().zip(out.iter_mut()) {
             *o = self.values.integers[self.slot(VarType::Integer, *vr, "Integer")?];
@@ -430,7 +418,7 @@ impl<M: Model> Instance<M> {
 
     /// fmi2GetBoolean.
     pub fn get_boolean(&mut self, vrs: &[u32], out: &mut [bool]) -> Result<(), FmuError> {
-        self.require("fmi2GetBoolean", &Self::GET_STATES)?;
+        self.require(Call::GetBoolean)?;
         self.refresh_outputs()?;
         for (vr, o) in vrs.iter().zip(out.iter_mut()) {
             *o = self.values.booleans[self.slot(VarType::Boolean, *vr, "Boolean")?];
@@ -444,7 +432,7 @@ impl<M: Model> Instance<M> {
         vrs: &[u32],
         out: &mut [*const std::ffi::c_char],
     ) -> Result<(), FmuError> {
-        self.require("fmi2GetString", &Self::GET_STATES)?;
+        self.require(Call::GetString)?;
         self.refresh_outputs()?;
         for (vr, o) in vrs.iter().zip(out.iter_mut()) {
             *o = self.values.strings[self.slot(VarType::String, *vr, "String")?].as_ptr();
@@ -481,14 +469,14 @@ impl<M: Model> Instance<M> {
     /// Validates a batch of scalars of one type; returns their slots. Nothing is written.
     fn validate_set<T: Copy>(
         &self,
-        function: &'static str,
+        call: Call,
         ty: VarType,
         ty_name: &'static str,
         vrs: &[u32],
         vals: &[T],
         check: impl Fn(&VariableTable, &Variable, usize, T) -> Result<(), FmuError>,
     ) -> Result<Vec<usize>, FmuError> {
-        self.require(function, &[Instantiated, InitializationMode, StepComplete])?;
+        self.require(call)?;
         let mut slots = Vec::with_capacity(vrs.len());
         let mut current: Option<&Variable> = None;
         for (vr, x) in vrs.iter().zip(vals) {
@@ -545,7 +533,7 @@ impl<M: Model> Instance<M> {
             return Ok(());
         }
         let slots = self.validate_set(
-            "fmi2SetReal",
+            Call::SetReal,
             VarType::Real,
             "Real",
             vrs,
@@ -562,7 +550,7 @@ impl<M: Model> Instance<M> {
     /// fmi2SetInteger.
     pub fn set_integer(&mut self, vrs: &[u32], vals: &[i32]) -> Result<(), FmuError> {
         let slots = self.validate_set(
-            "fmi2SetInteger",
+            Call::SetInteger,
             VarType::Integer,
             "Integer",
             vrs,
@@ -579,7 +567,7 @@ impl<M: Model> Instance<M> {
     /// fmi2SetBoolean.
     pub fn set_boolean(&mut self, vrs: &[u32], vals: &[bool]) -> Result<(), FmuError> {
         let slots = self.validate_set(
-            "fmi2SetBoolean",
+            Call::SetBoolean,
             VarType::Boolean,
             "Boolean",
             vrs,
@@ -596,7 +584,7 @@ impl<M: Model> Instance<M> {
     /// fmi2SetString.
     pub fn set_string(&mut self, vrs: &[u32], vals: &[&str]) -> Result<(), FmuError> {
         let slots = self.validate_set(
-            "fmi2SetString",
+            Call::SetString,
             VarType::String,
             "String",
             vrs,
@@ -612,7 +600,7 @@ impl<M: Model> Instance<M> {
 
     /// fmi2DoStep.
     pub fn do_step(&mut self, t: f64, h: f64) -> Result<(), FmuError> {
-        self.require("fmi2DoStep", &[StepComplete])?;
+        self.require(Call::DoStep)?;
         let tol = 1e-9 * self.time.abs().max(1.0);
         if !t.is_finite() || (t - self.time).abs() > tol {
             return Err(FmuError::TimeMismatch {
@@ -635,7 +623,12 @@ impl<M: Model> Instance<M> {
                 t + h
             )));
         }
-        self.model.do_step(self.time, h, &mut self.values)?;
+        let state = self.state.name();
+        let running = self.running.as_mut().ok_or(FmuError::IllegalCall {
+            function: Call::DoStep.name(),
+            state,
+        })?;
+        running.do_step(self.time, h, &mut self.values)?;
         if self.values.reals.iter().any(|x| !x.is_finite()) {
             self.state = StepFailed;
             return Err(FmuError::Model(format!(
@@ -649,17 +642,7 @@ impl<M: Model> Instance<M> {
 
     /// fmi2GetFMUstate.
     pub fn get_state(&self) -> Result<Snapshot<M>, FmuError> {
-        self.require(
-            "fmi2GetFMUstate",
-            &[
-                Instantiated,
-                InitializationMode,
-                StepComplete,
-                StepFailed,
-                Terminated,
-                Error,
-            ],
-        )?;
+        self.require(Call::GetFmuState)?;
         Ok(Snapshot {
             magic: MAGIC,
             guid: self.guid.clone(),
@@ -669,23 +652,13 @@ impl<M: Model> Instance<M> {
             stop_time: self.stop_time,
             outputs_stale: self.outputs_stale,
             values: self.values.clone(),
-            model: self.model.clone(),
+            running: self.running.clone(),
         })
     }
 
     /// fmi2SetFMUstate.
     pub fn set_state(&mut self, s: &Snapshot<M>) -> Result<(), FmuError> {
-        self.require(
-            "fmi2SetFMUstate",
-            &[
-                Instantiated,
-                InitializationMode,
-                StepComplete,
-                StepFailed,
-                Terminated,
-                Error,
-            ],
-        )?;
+        self.require(Call::SetFmuState)?;
         if s.guid != self.guid {
             return Err(FmuError::State(format!(
                 "the state was saved by an FMU with GUID {}, this one is {}",
@@ -698,7 +671,7 @@ impl<M: Model> Instance<M> {
         self.stop_time = s.stop_time;
         self.outputs_stale = s.outputs_stale;
         self.values = s.values.clone();
-        self.model = s.model.clone();
+        self.running = s.running.clone();
         Ok(())
     }
 

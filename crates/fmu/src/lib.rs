@@ -10,7 +10,9 @@
 //!
 //! No global state: every instance owns its values, model and logger.
 
+pub mod calls;
 pub mod declare;
+pub mod docs;
 pub mod error;
 pub mod ffi;
 pub mod instance;
@@ -24,7 +26,7 @@ pub use declare::Handle;
 pub use error::FmuError;
 pub use fmi_sys;
 pub use instance::{Instance, State};
-pub use model::{Model, ModelInfo};
+pub use model::{Model, ModelInfo, Running};
 pub use variables::{
     BoolVar, Check, Decl, Dependencies, IntVar, RealVar, StrVar, TableBuilder, Values,
     VariableTable,

@@ -1,4 +1,9 @@
-//! The contract between a physical model and the FMI runtime.
+//! The contract between a physical model and the FMI runtime, as types: a [`Model`] is the
+//! configured model of one packaged variant (its variable table, the handles into it, the
+//! resources); [`Model::initialize`] reads the parameters and returns the [`Running`] model,
+//! the only thing that steps. The runtime ([`crate::Instance`]) holds the running model from
+//! fmi2ExitInitializationMode to fmi2Reset, so a wiring crate cannot step or read outputs of
+//! a model that was not initialised, and needs no `Option` of its own for it.
 
 use serde::Serialize;
 use serde::de::DeserializeOwned;
@@ -23,19 +28,26 @@ pub struct ModelInfo {
     pub default_step: f64,
 }
 
-/// A co-simulation model. Implementations hold handles into their [`VariableTable`] and read
-/// parameters and inputs from, and write outputs to, the [`Values`] store the runtime owns.
-///
-/// Every method that can fail must leave `self` unchanged when it returns an error.
-pub trait Model: Clone + Send + Serialize + DeserializeOwned + 'static {
+/// A co-simulation model as configured: the variable table's handles and whatever is fixed at
+/// instantiation. [`Model::initialize`] turns it, with the parameters in the [`Values`] store
+/// the runtime owns, into the [`Running`] model.
+pub trait Model: Send + 'static {
     /// Static facts.
     const INFO: ModelInfo;
+
+    /// The initialised model: steps and recomputes outputs.
+    type Running: Running;
 
     /// The variants this model is packaged for (e.g. mirror layouts); one .fmu each.
     fn variants() -> Vec<String>;
 
     /// The variable table and a fresh model for one variant.
-    fn new(variant: &str) -> Result<(VariableTable, Self), FmuError>;
+    ///
+    /// # Errors
+    /// An unknown variant, or a table that does not build.
+    fn new(variant: &str) -> Result<(VariableTable, Self), FmuError>
+    where
+        Self: Sized;
 
     /// Extra files for the archive's resources/ folder, as (relative path, bytes).
     fn resources(_variant: &str) -> Vec<(String, Vec<u8>)> {
@@ -47,14 +59,29 @@ pub trait Model: Clone + Send + Serialize + DeserializeOwned + 'static {
     /// right after [`Model::new`], before any parameter is set. The default ignores it.
     fn set_resource_dir(&mut self, _dir: &std::path::Path) {}
 
-    /// Reads parameters, checks their combination, prepares the computation and writes the
-    /// initial outputs. Called when outputs are read during initialisation mode and at
-    /// fmi2ExitInitializationMode.
-    fn initialize(&mut self, values: &mut Values, start_time: f64) -> Result<(), FmuError>;
+    /// Reads the parameters, checks their combination, prepares the computation, writes the
+    /// initial outputs (and calculated parameters) and returns the running model. Called at
+    /// fmi2ExitInitializationMode, and when outputs are read during initialisation mode (then
+    /// the running model is dropped: parameters may still change).
+    ///
+    /// # Errors
+    /// A parameter or a combination of parameters the model cannot run with, naming it.
+    fn initialize(&self, values: &mut Values, start_time: f64) -> Result<Self::Running, FmuError>;
+}
 
+/// An initialised model. Every method that can fail must leave `self` unchanged when it
+/// returns an error. It is cloned and serialised for fmi2GetFMUstate and
+/// fmi2SerializeFMUstate.
+pub trait Running: Clone + Send + Serialize + DeserializeOwned + 'static {
     /// Recomputes the outputs that depend directly on inputs, after inputs were set.
+    ///
+    /// # Errors
+    /// The model cannot evaluate its outputs on these inputs.
     fn update_outputs(&mut self, values: &mut Values) -> Result<(), FmuError>;
 
     /// Advances from `t` to `t + h` with the inputs held, then writes the outputs at `t + h`.
+    ///
+    /// # Errors
+    /// A step the model cannot take (its size, its inputs), naming the reason.
     fn do_step(&mut self, t: f64, h: f64, values: &mut Values) -> Result<(), FmuError>;
 }

@@ -1,6 +1,9 @@
-//! What every FMU's model wiring shares: the layouts an FMU is packaged for, and the mapping
-//! of physics errors ([`M1Error`]) to FMI errors ([`FmuError`]) naming the variable at fault.
+//! What every FMU's model wiring shares: the layouts an FMU is packaged for, the signals
+//! between the FMUs and the structural layout header ([`signals`]), and the mapping of physics
+//! errors ([`M1Error`]) to FMI errors ([`FmuError`]) naming the variable at fault.
 //! The `fmu` runtime knows nothing of mirrors and `m1` nothing of FMI, so this glue lives here.
+
+pub mod signals;
 
 use fmu::FmuError;
 use m1::M1Error;

@@ -12,7 +12,7 @@ use std::sync::Mutex;
 
 use fmu::fmi_sys::fmi2::*;
 use fmu::{
-    BoolVar, Check, Dependencies, FmuError, IntVar, Model, ModelInfo, RealVar, StrVar,
+    BoolVar, Check, Dependencies, FmuError, IntVar, Model, ModelInfo, RealVar, Running, StrVar,
     TableBuilder, Values, VariableTable, ffi,
 };
 use quick_xml::events::{BytesStart, Event};
@@ -204,10 +204,17 @@ pub fn lag_table(variant: &str, opts: Options) -> Result<(VariableTable, Vars), 
 
 /// y' = (u - y) / tau per element, integrated exactly over `substeps` sub-intervals; outputs
 /// `y`, `yd = y + gain u + bias` (direct feed-through), `total = sum y` and the step count.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+/// As configured: the handles and the length; [`LagRunning`] steps.
+#[derive(Debug, Clone)]
 pub struct Lag {
     vars: Vars,
     n: usize,
+}
+
+/// The initialised [`Lag`].
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct LagRunning {
+    vars: Vars,
     y: Vec<f64>,
     tau: f64,
     gain: f64,
@@ -216,7 +223,7 @@ pub struct Lag {
     steps: i32,
 }
 
-impl Lag {
+impl LagRunning {
     fn write(&self, v: &mut Values) {
         let vars = self.vars;
         let bias = v.scalar(vars.bias);
@@ -240,6 +247,8 @@ impl Model for Lag {
         default_step: 0.01,
     };
 
+    type Running = LagRunning;
+
     fn variants() -> Vec<String> {
         vec!["small".into(), "big".into()]
     }
@@ -247,34 +256,27 @@ impl Model for Lag {
     fn new(variant: &str) -> Result<(VariableTable, Self), FmuError> {
         let (table, vars) = lag_table(variant, Options::default())?;
         let n = vars.u.len;
-        Ok((
-            table,
-            Self {
-                vars,
-                n,
-                y: vec![0.0; n],
-                tau: 1.0,
-                gain: 0.0,
-                enabled: true,
-                substeps: 1,
-                steps: 0,
-            },
-        ))
+        Ok((table, Self { vars, n }))
     }
 
-    fn initialize(&mut self, v: &mut Values, _start_time: f64) -> Result<(), FmuError> {
+    fn initialize(&self, v: &mut Values, _start_time: f64) -> Result<LagRunning, FmuError> {
         let vars = self.vars;
-        self.tau = v.scalar(vars.tau);
-        self.gain = v.scalar(vars.gain);
-        self.enabled = v.boolean(vars.enabled);
-        self.substeps = v.integer(vars.substeps);
-        self.y = vec![v.scalar(vars.y0); self.n];
-        self.steps = 0;
-        v.real_mut(vars.corner)[0] = 1.0 / (2.0 * std::f64::consts::PI * self.tau);
-        self.write(v);
-        Ok(())
+        let running = LagRunning {
+            vars,
+            tau: v.scalar(vars.tau),
+            gain: v.scalar(vars.gain),
+            enabled: v.boolean(vars.enabled),
+            substeps: v.integer(vars.substeps),
+            y: vec![v.scalar(vars.y0); self.n],
+            steps: 0,
+        };
+        v.real_mut(vars.corner)[0] = 1.0 / (2.0 * std::f64::consts::PI * running.tau);
+        running.write(v);
+        Ok(running)
     }
+}
 
+impl Running for LagRunning {
     fn update_outputs(&mut self, v: &mut Values) -> Result<(), FmuError> {
         self.write(v);
         Ok(())
