@@ -8,8 +8,11 @@ pub enum M1Error {
     /// A parameter value is outside its physical range.
     #[error("parameter {name} = {value} is invalid: {reason}")]
     InvalidParameter {
+        /// The parameter's name (as the FMU variable or the CLI flag names it).
         name: &'static str,
+        /// The value given.
         value: f64,
+        /// What it must be.
         reason: &'static str,
     },
     /// A set of parameters gives an unstable closed loop.
@@ -17,15 +20,21 @@ pub enum M1Error {
         "the {channel} channel's closed loop is unstable (spectral radius {spectral_radius:.6} >= 1): {hint}"
     )]
     Unstable {
+        /// The channel (piston, tilt).
         channel: &'static str,
+        /// Spectral radius of the discrete closed loop (>= 1).
         spectral_radius: f64,
+        /// Which parameter to change.
         hint: &'static str,
     },
     /// Array arguments whose length disagrees with the model size.
     #[error("{what} has length {found}, expected {expected}")]
     SizeMismatch {
+        /// The argument.
         what: &'static str,
+        /// The length the model needs.
         expected: usize,
+        /// The length given.
         found: usize,
     },
     /// Input data that is malformed (an index out of range, a structure violated).

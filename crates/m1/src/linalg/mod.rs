@@ -1,7 +1,8 @@
 //! Numerical building blocks: SIMD kernels, Krylov estimates, the block Cholesky factor, the
-//! skyline Cholesky of the FE cell, the NPY/NPZ reader.
+//! skyline Cholesky of the FE cell, the NPY/NPZ reader, periodic cubic interpolation.
 
 pub mod blockchol;
+pub mod interpolation;
 pub mod kernels;
 pub mod krylov;
 pub mod npy;

@@ -28,7 +28,7 @@ use serde::{Deserialize, Serialize};
 use std::f64::consts::TAU;
 
 use crate::M1Error;
-use crate::loads::wind::periodic_stencil;
+use crate::linalg::interpolation::periodic_stencil;
 
 /// Noise sample rate over the upper band edge.
 pub const OVERSAMPLING: f64 = 8.0;

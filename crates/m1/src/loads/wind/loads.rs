@@ -1,0 +1,331 @@
+//! The tabulated wind loads of every segment in frozen flow.
+
+use super::*;
+use super::spectrum::inverse_fft_2d;
+use crate::linalg::interpolation::periodic_stencil;
+
+/// Tabulated wind loads of every segment over one screen period of frozen flow.
+#[derive(Debug, Clone)]
+pub struct WindLoads {
+    /// The tables, for a unit rms pressure (shared: [`WindLoads::with_flow`] reuses them).
+    screen: std::sync::Arc<UnitScreen>,
+    speed: f64,
+    pressure_rms: f64,
+}
+
+/// What the loads of a screen of unit rms pressure are made of (the screen is linear in its rms
+/// pressure, which scales them at the end).
+#[derive(Debug)]
+pub(super) struct UnitScreen {
+    samples: usize,
+    spacing: f64,
+    /// (cos theta, sin theta).
+    direction: [f64; 2],
+    /// Segment centre along the flow, in samples.
+    along: Vec<f64>,
+    /// Wind-frame integrals `[G_0, G_xi, G_eta]` -> `Q = [F, M_alpha, M_beta]`, per segment.
+    to_load: Vec<[[f64; 3]; 3]>,
+    /// Wind-frame integrals -> actuator forces (`P^-T` times `to_load`), per segment.
+    to_forces: Vec<[[f64; 3]; 3]>,
+    /// `tables[(3 i + q) N + n]`: integral `q` of segment `i` with the screen shifted by
+    /// `(along_i - n) dx`.
+    tables: Vec<f64>,
+    /// Expected rms of `G_0`.
+    force_rms: f64,
+    area: f64,
+}
+
+impl WindLoads {
+    /// Synthesises the screen and tabulates every segment's loads.
+    ///
+    /// Fails with [`M1Error::InvalidParameter`] for a bad screen ([`ScreenParams::check`]), a
+    /// negative or non-finite speed, a non-finite direction, or a screen narrower than the
+    /// mirror (`size` must exceed `2 max|c| + 2 a`: across the flow the screen repeats too).
+    ///
+    /// The tables are those of the screen of unit rms pressure (the screen is linear in
+    /// `pressure_rms`), and the integrals read from them are scaled by it: so
+    /// [`WindLoads::with_flow`] gives for another speed or rms pressure exactly what `new`
+    /// gives.
+    pub fn new(geometry: &Geometry, params: &WindParams) -> Result<WindLoads, M1Error> {
+        params.screen.check()?;
+        let unit = ScreenParams {
+            pressure_rms: 1.0,
+            ..params.screen.clone()
+        };
+        let sp = &unit;
+        if !(params.speed.is_finite() && params.speed >= 0.0) {
+            return Err(invalid(
+                "wind_speed",
+                params.speed,
+                "must be finite and >= 0",
+            ));
+        }
+        if !params.direction.is_finite() {
+            return Err(invalid(
+                "wind_direction",
+                params.direction,
+                "must be finite",
+            ));
+        }
+        let layout = &geometry.layout;
+        let nseg = layout.n_segments();
+        let a = layout.circumradius;
+        let extent = layout
+            .segments
+            .iter()
+            .map(|s| s.center[0].hypot(s.center[1]))
+            .fold(0.0, f64::max);
+        if sp.size <= 2.0 * (extent + a) {
+            return Err(invalid(
+                "screen_size",
+                sp.size,
+                "must exceed the mirror's diameter (2 max|centre| + 2 a): the screen repeats across the flow",
+            ));
+        }
+        let n = sp.samples;
+        let dx = sp.spacing();
+        let theta = params.direction.to_radians();
+        let (sin, cos) = theta.sin_cos();
+        let to_wind = |p: [f64; 2]| [cos * p[0] + sin * p[1], -sin * p[0] + cos * p[1]];
+
+        // The hexagon relative to its centre, in the wind frame (counter-clockwise).
+        let c0 = layout.segments[0].center;
+        let corners = layout.vertices(0).ok_or(M1Error::SizeMismatch {
+            what: "layout segments",
+            expected: 1,
+            found: 0,
+        })?;
+        let mut hexagon: Vec<[f64; 2]> = corners
+            .iter()
+            .map(|v| to_wind([v[0] - c0[0], v[1] - c0[1]]))
+            .collect();
+        let (area, _) = polygon_moments(&hexagon);
+        if area < 0.0 {
+            hexagon.reverse();
+        }
+        let area = area.abs();
+
+        // Filtered spectra: c H, c H_xi, c H_eta; and the expected variance of G_0.
+        let spectrum = ScreenSpectrum::new(sp)?;
+        let psd = sp.discrete_psd();
+        let mut b0 = spectrum.coefficients;
+        let mut b1 = vec![Complex64::ZERO; n * n];
+        let mut b2 = vec![Complex64::ZERO; n * n];
+        let variance: f64 = b0
+            .par_chunks_mut(n)
+            .zip(b1.par_chunks_mut(n))
+            .zip(b2.par_chunks_mut(n))
+            .enumerate()
+            .map(|(iy, ((r0, r1), r2))| {
+                let ky = psd.wavenumber(iy);
+                let mut var = 0.0;
+                for ix in 0..n {
+                    let c = r0[ix];
+                    if c == Complex64::ZERO {
+                        continue;
+                    }
+                    let kx = psd.wavenumber(ix);
+                    let [h, hx, hy] = polygon_transform(&hexagon, [kx, ky]);
+                    var += psd.bin(ix, iy) * h.norm_sqr();
+                    r0[ix] = c * h;
+                    r1[ix] = c * hx;
+                    r2[ix] = c * hy;
+                }
+                var
+            })
+            .sum();
+
+        // Segment positions in the wind frame, in samples.
+        let centres: Vec<[f64; 2]> = layout.segments.iter().map(|s| to_wind(s.center)).collect();
+        let along: Vec<f64> = centres.iter().map(|c| c[0] / dx).collect();
+        let mut tables = vec![0.0; 3 * nseg * n];
+        for (q, buf) in [b0, b1, b2].into_iter().enumerate() {
+            let mut buf = buf;
+            inverse_fft_2d(&mut buf, n);
+            for (i, c) in centres.iter().enumerate() {
+                let (rows, w) = periodic_stencil(c[1] / dx, n);
+                let out = &mut tables[(3 * i + q) * n..(3 * i + q + 1) * n];
+                for (r, wr) in rows.iter().zip(w) {
+                    let row = &buf[r * n..(r + 1) * n];
+                    for (o, v) in out.iter_mut().zip(row) {
+                        *o += wr * SQRT_2 * v.re;
+                    }
+                }
+            }
+        }
+
+        // Wind-frame integrals -> generalised forces -> actuator forces.
+        let mut to_load = Vec::with_capacity(nseg);
+        let mut to_forces = Vec::with_capacity(nseg);
+        for i in 0..nseg {
+            let s = &geometry.segments[i];
+            let g = 1.0 / s.normal[2];
+            let rad = unit2([s.radial[0], s.radial[1]]);
+            let az = unit2([s.azimuthal[0], s.azimuthal[1]]);
+            let (rad, az) = (to_wind(rad), to_wind(az));
+            let b = [
+                [-g, 0.0, 0.0],
+                [0.0, -g * az[0], -g * az[1]],
+                [0.0, g * g * rad[0], g * g * rad[1]],
+            ];
+            let pinv = geometry.ptt_inverse(i);
+            let m: [[f64; 3]; 3] = std::array::from_fn(|k| {
+                std::array::from_fn(|col| (0..3).map(|j| pinv[j][k] * b[j][col]).sum())
+            });
+            to_load.push(b);
+            to_forces.push(m);
+        }
+
+        let screen = std::sync::Arc::new(UnitScreen {
+            samples: n,
+            spacing: dx,
+            direction: [cos, sin],
+            along,
+            to_load,
+            to_forces,
+            tables,
+            force_rms: variance.sqrt(),
+            area,
+        });
+        WindLoads {
+            screen,
+            speed: 0.0,
+            pressure_rms: 0.0,
+        }
+        .with_flow(params.speed, params.screen.pressure_rms)
+    }
+
+    /// The same screen and direction at another wind `speed` (m/s, finite, >= 0) and rms
+    /// pressure `pressure_rms` (Pa, finite, >= 0), sharing the tables: identical to
+    /// [`WindLoads::new`] with those values (a sweep over wind speed builds the screen once).
+    ///
+    /// # Errors
+    /// [`M1Error::InvalidParameter`] for a bad speed or rms pressure.
+    pub fn with_flow(&self, speed: f64, pressure_rms: f64) -> Result<WindLoads, M1Error> {
+        if !(speed.is_finite() && speed >= 0.0) {
+            return Err(invalid("wind_speed", speed, "must be finite and >= 0"));
+        }
+        if !(pressure_rms.is_finite() && pressure_rms >= 0.0) {
+            return Err(invalid(
+                "pressure_rms",
+                pressure_rms,
+                "must be finite and >= 0",
+            ));
+        }
+        Ok(WindLoads {
+            screen: self.screen.clone(),
+            speed,
+            pressure_rms,
+        })
+    }
+
+    /// Mean wind speed (m/s).
+    pub fn speed(&self) -> f64 {
+        self.speed
+    }
+
+    /// Number of segments.
+    pub fn n_segments(&self) -> usize {
+        self.screen.along.len()
+    }
+
+    /// Number of actuators (3 per segment).
+    pub fn n_actuators(&self) -> usize {
+        3 * self.screen.along.len()
+    }
+
+    /// Screen spacing `dx` (m): the shift between table entries.
+    pub fn spacing(&self) -> f64 {
+        self.screen.spacing
+    }
+
+    /// Time after which the flow repeats, `L / U` (s); None for `U = 0`.
+    pub fn period(&self) -> Option<f64> {
+        (self.speed > 0.0).then(|| self.screen.samples as f64 * self.screen.spacing / self.speed)
+    }
+
+    /// Area of a segment's hexagon in the aperture plane (m^2).
+    pub fn segment_area(&self) -> f64 {
+        self.screen.area
+    }
+
+    /// The rms pressure `sigma_p` (Pa).
+    pub fn pressure_rms(&self) -> f64 {
+        self.pressure_rms
+    }
+
+    /// Expected rms of `int_Hex p dA` over the aperture-plane hexagon (N):
+    /// `sqrt(sum_k Phi_d(k) |H(k)|^2)`; compare with `sigma_p A` for the aperture attenuation.
+    pub fn expected_force_rms(&self) -> f64 {
+        self.pressure_rms * self.screen.force_rms
+    }
+
+    /// Bytes held by the tables and maps.
+    pub fn memory_bytes(&self) -> usize {
+        8 * (self.screen.tables.len() + self.screen.along.len() + 18 * self.screen.to_load.len())
+    }
+
+    /// Wind-frame integrals `[G_0, G_xi, G_eta]` of segment `i` at time `t` (the unit screen's,
+    /// times the rms pressure).
+    fn wind_integrals(&self, i: usize, t: f64) -> [f64; 3] {
+        let n = self.screen.samples;
+        let u = self.screen.along[i] - self.speed * t / self.screen.spacing;
+        let (idx, w) = periodic_stencil(u, n);
+        std::array::from_fn(|q| {
+            let tab = &self.screen.tables[(3 * i + q) * n..(3 * i + q + 1) * n];
+            self.pressure_rms * idx.iter().zip(w).map(|(&j, wj)| wj * tab[j]).sum::<f64>()
+        })
+    }
+
+    /// `[int p dA, int p (x - c_x) dA, int p (y - c_y) dA]` over segment `i`'s hexagon in the
+    /// aperture plane at time `t` (N, N.m), in the layout's axes (p the front-face pressure).
+    ///
+    /// # Panics
+    /// If `i >= n_segments()`.
+    pub fn integrals(&self, i: usize, t: f64) -> [f64; 3] {
+        let [g0, g1, g2] = self.wind_integrals(i, t);
+        let [c, s] = self.screen.direction;
+        [g0, c * g1 - s * g2, s * g1 + c * g2]
+    }
+
+    /// Generalised load `[F, M_alpha, M_beta]` on segment `i` at time `t`: the normal force
+    /// (N, along `+normal`) and the moments (N.m) about its radial and azimuthal axes.
+    ///
+    /// # Panics
+    /// If `i >= n_segments()`.
+    pub fn segment_load(&self, i: usize, t: f64) -> [f64; 3] {
+        let g = self.wind_integrals(i, t);
+        let b = &self.screen.to_load[i];
+        std::array::from_fn(|r| (0..3).map(|c| b[r][c] * g[c]).sum())
+    }
+
+    /// Equivalent forces at every actuator at time `t` (N, along each segment's normal;
+    /// actuator `k` of segment `i` at `3 i + k`).
+    pub fn forces(&self, t: f64, out: &mut [f64]) -> Result<(), M1Error> {
+        if out.len() != self.n_actuators() {
+            return Err(M1Error::SizeMismatch {
+                what: "f_wind",
+                expected: self.n_actuators(),
+                found: out.len(),
+            });
+        }
+        for (i, f) in out.chunks_exact_mut(3).enumerate() {
+            let g = self.wind_integrals(i, t);
+            let m = &self.screen.to_forces[i];
+            for (k, fk) in f.iter_mut().enumerate() {
+                *fk = m[k][0] * g[0] + m[k][1] * g[1] + m[k][2] * g[2];
+            }
+        }
+        Ok(())
+    }
+}
+
+pub(super) fn unit2(v: [f64; 2]) -> [f64; 2] {
+    let n = v[0].hypot(v[1]);
+    if n > 0.0 {
+        [v[0] / n, v[1] / n]
+    } else {
+        [1.0, 0.0]
+    }
+}
+

@@ -1,0 +1,147 @@
+//! The von Karman pressure screen: its discrete spectrum and its synthesis by inverse FFT.
+
+use super::*;
+
+/// The discrete pressure spectrum of a screen (see [`ScreenParams::discrete_psd`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DiscretePsd {
+    pub(super) n: usize,
+    pub(super) dk: f64,
+    /// (outer scale, factor on the unit-variance von Karman spectrum) per component.
+    pub(super) weights: Vec<(f64, f64)>,
+}
+
+impl DiscretePsd {
+    /// Variance (Pa^2) carried by the bin `(ix, iy)` of the FFT grid (0 at the mean and Nyquist).
+    pub fn bin(&self, ix: usize, iy: usize) -> f64 {
+        match bin_wavenumber(ix, iy, self.n, self.dk) {
+            Some((kx, ky)) => self.at(kx, ky),
+            None => 0.0,
+        }
+    }
+
+    /// Variance density times `dk^2` at wavenumber `(kx, ky)` (cycles/m), as for a grid bin.
+    pub fn at(&self, kx: f64, ky: f64) -> f64 {
+        let k = kx.hypot(ky);
+        self.weights
+            .iter()
+            .map(|&(l0, w)| w * von_karman_psd(k, 1.0, l0))
+            .sum()
+    }
+
+    /// Signed wavenumber (cycles/m) of FFT index `i` (`i - N` above `N / 2`).
+    pub fn wavenumber(&self, i: usize) -> f64 {
+        signed(i, self.n) as f64 * self.dk
+    }
+}
+
+/// Signed FFT frequency index.
+pub(super) fn signed(i: usize, n: usize) -> i64 {
+    if i < n / 2 {
+        i as i64
+    } else {
+        i as i64 - n as i64
+    }
+}
+
+/// Wavenumber of bin `(ix, iy)`, or None at the mean and on the Nyquist row and column.
+pub(super) fn bin_wavenumber(ix: usize, iy: usize, n: usize, dk: f64) -> Option<(f64, f64)> {
+    if (ix == 0 && iy == 0) || ix == n / 2 || iy == n / 2 {
+        return None;
+    }
+    Some((signed(ix, n) as f64 * dk, signed(iy, n) as f64 * dk))
+}
+
+/// The random Fourier coefficients `c_k` of a pressure screen.
+#[derive(Debug, Clone)]
+pub struct ScreenSpectrum {
+    params: ScreenParams,
+    /// `c[iy N + ix]`, bin `(kx, ky)` of FFT indices `(ix, iy)`.
+    pub(super) coefficients: Vec<Complex64>,
+}
+
+impl ScreenSpectrum {
+    /// Draws the coefficients (two standard normals per bin, in row-major bin order, from
+    /// `StdRng::seed_from_u64(seed)`).
+    pub fn new(params: &ScreenParams) -> Result<ScreenSpectrum, M1Error> {
+        params.check()?;
+        let n = params.samples;
+        let psd = params.discrete_psd();
+        let mut rng = StdRng::seed_from_u64(params.seed);
+        let mut coefficients = vec![Complex64::ZERO; n * n];
+        for iy in 0..n {
+            for ix in 0..n {
+                let g1: f64 = StandardNormal.sample(&mut rng);
+                let g2: f64 = StandardNormal.sample(&mut rng);
+                let a = (psd.bin(ix, iy) / 2.0).sqrt();
+                coefficients[iy * n + ix] = Complex64::new(a * g1, a * g2);
+            }
+        }
+        Ok(ScreenSpectrum {
+            params: params.clone(),
+            coefficients,
+        })
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &ScreenParams {
+        &self.params
+    }
+
+    /// The screen at any point `(x, y)` of its plane (Pa): the trigonometric polynomial
+    /// evaluated exactly, in `O(N^2)` (for checks; [`ScreenSpectrum::screen`] gives the grid).
+    pub fn value_at(&self, x: f64, y: f64) -> f64 {
+        let n = self.params.samples;
+        let dk = 1.0 / self.params.size;
+        let phase = |i: usize, r: f64| {
+            Complex64::cis(TAU * signed(i, n) as f64 * dk * r.rem_euclid(self.params.size))
+        };
+        let ex: Vec<Complex64> = (0..n).map(|i| phase(i, x)).collect();
+        let sum: Complex64 = self
+            .coefficients
+            .chunks_exact(n)
+            .enumerate()
+            .map(|(iy, row)| {
+                let inner: Complex64 = row.iter().zip(&ex).map(|(c, e)| c * e).sum();
+                inner * phase(iy, y)
+            })
+            .sum();
+        SQRT_2 * sum.re
+    }
+
+    /// The pressure screen on the grid (Pa), row-major: sample `[iy N + ix]` at
+    /// `(ix dx, iy dx)`.
+    pub fn screen(&self) -> Vec<f64> {
+        let n = self.params.samples;
+        let mut buf = self.coefficients.clone();
+        inverse_fft_2d(&mut buf, n);
+        buf.iter().map(|c| SQRT_2 * c.re).collect()
+    }
+}
+
+/// In-place unnormalised inverse 2-D FFT (`sum_k c_k exp(+2 pi i k.r)`) of a row-major
+/// `n x n` grid.
+pub(super) fn inverse_fft_2d(buf: &mut [Complex64], n: usize) {
+    let fft: std::sync::Arc<dyn Fft<f64>> = FftPlanner::new().plan_fft_inverse(n);
+    let mut scratch = vec![Complex64::ZERO; fft.get_inplace_scratch_len()];
+    fft.process_with_scratch(buf, &mut scratch);
+    transpose(buf, n);
+    fft.process_with_scratch(buf, &mut scratch);
+    transpose(buf, n);
+}
+
+/// In-place transpose of a square row-major matrix, by blocks.
+pub(super) fn transpose(buf: &mut [Complex64], n: usize) {
+    const B: usize = 32;
+    for bi in (0..n).step_by(B) {
+        for bj in (bi..n).step_by(B) {
+            for i in bi..(bi + B).min(n) {
+                let j0 = if bi == bj { i + 1 } else { bj };
+                for j in j0..(bj + B).min(n) {
+                    buf.swap(i * n + j, j * n + i);
+                }
+            }
+        }
+    }
+}
+
