@@ -8,12 +8,12 @@
 //!
 //! The only non-declarative items are tiny checked conversions from raw C integers into the
 //! Rust enums (`from_raw`), because a raw integer received from foreign code must never be
-//! transmuted into an enum unchecked.
+//! transmuted into an enum unchecked, and the XML spellings of the variable attributes
+//! ([`fmi2::attributes`]: causality, variability, initial), which exporters write and importers
+//! read, so that both use one vocabulary.
 //!
 //! Each FMI major version lives in its own module ([`fmi2`]; an `fmi3` module can be added
 //! beside it later). The target platform is Linux x86_64 with the standard's
 //! `"default"` types platform.
-
-#![warn(missing_docs)]
 
 pub mod fmi2;

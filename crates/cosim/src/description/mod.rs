@@ -17,48 +17,7 @@ mod raw;
 
 use raw::{RawModelDescription, RawScalarVariable, RawUnknownList};
 
-/// Causality of a variable.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Causality {
-    /// Independent parameter.
-    Parameter,
-    /// Parameter computed from others.
-    CalculatedParameter,
-    /// Input.
-    Input,
-    /// Output.
-    Output,
-    /// Local variable (default).
-    Local,
-    /// The independent variable (time).
-    Independent,
-}
-
-/// Variability of a variable.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Variability {
-    /// Never changes.
-    Constant,
-    /// Fixed after initialisation.
-    Fixed,
-    /// Changes only at event instants (parameters tuned between steps).
-    Tunable,
-    /// Changes only at discrete instants.
-    Discrete,
-    /// Real variables that may change continuously (default).
-    Continuous,
-}
-
-/// How a variable is initialised.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Initial {
-    /// The start value is used as given.
-    Exact,
-    /// The start value is a guess.
-    Approx,
-    /// Computed by the FMU.
-    Calculated,
-}
+pub use fmi_sys::fmi2::{Causality, Initial, Variability};
 
 /// The type of a variable.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -416,29 +375,15 @@ impl ModelDescription {
                     rv.value_reference
                 ))
             })?;
-        let causality = match rv.causality.as_deref().unwrap_or("local") {
-            "parameter" => Causality::Parameter,
-            "calculatedParameter" => Causality::CalculatedParameter,
-            "input" => Causality::Input,
-            "output" => Causality::Output,
-            "local" => Causality::Local,
-            "independent" => Causality::Independent,
-            other => return Err(e(format!("unknown causality {other:?}"))),
-        };
-        let variability = match rv.variability.as_deref().unwrap_or("continuous") {
-            "constant" => Variability::Constant,
-            "fixed" => Variability::Fixed,
-            "tunable" => Variability::Tunable,
-            "discrete" => Variability::Discrete,
-            "continuous" => Variability::Continuous,
-            other => return Err(e(format!("unknown variability {other:?}"))),
-        };
+        let unknown = |name: &str, text: &str| e(format!("unknown {name} {text:?}"));
+        let text = rv.causality.as_deref().unwrap_or("local");
+        let causality = Causality::from_xml(text).ok_or_else(|| unknown("causality", text))?;
+        let text = rv.variability.as_deref().unwrap_or("continuous");
+        let variability =
+            Variability::from_xml(text).ok_or_else(|| unknown("variability", text))?;
         let initial = match rv.initial.as_deref() {
             None => None,
-            Some("exact") => Some(Initial::Exact),
-            Some("approx") => Some(Initial::Approx),
-            Some("calculated") => Some(Initial::Calculated),
-            Some(other) => return Err(e(format!("unknown initial {other:?}"))),
+            Some(text) => Some(Initial::from_xml(text).ok_or_else(|| unknown("initial", text))?),
         };
         let typed = [
             (VarType::Real, rv.real),
