@@ -99,6 +99,17 @@ pub fn model_description(info: &ModelInfo, table: &VariableTable, guid: &str) ->
     };
     let _ =
         x.w.write_event(Event::Decl(BytesDecl::new("1.0", Some("UTF-8"), None)));
+    write_header(&mut x, info, guid);
+    write_unit_definitions(&mut x, table);
+    write_log_categories_and_experiment(&mut x, info);
+    write_model_variables(&mut x, table);
+    write_model_structure(&mut x, table);
+    x.close("fmiModelDescription");
+    String::from_utf8(x.w.into_inner().into_inner()).unwrap_or_default()
+}
+
+/// The root element's attributes and the co-simulation capabilities.
+fn write_header(x: &mut Xml, info: &ModelInfo, guid: &str) {
     let n_event = "0";
     x.open(
         "fmiModelDescription",
@@ -128,7 +139,10 @@ pub fn model_description(info: &ModelInfo, table: &VariableTable, guid: &str) ->
             ("providesDirectionalDerivative", "false"),
         ],
     );
+}
 
+/// UnitDefinitions: every unit the variables use, with its SI base-unit exponents and factor.
+fn write_unit_definitions(x: &mut Xml, table: &VariableTable) {
     let units: BTreeSet<&str> = table
         .variables()
         .iter()
@@ -158,7 +172,10 @@ pub fn model_description(info: &ModelInfo, table: &VariableTable, guid: &str) ->
         }
         x.close("UnitDefinitions");
     }
+}
 
+/// LogCategories and DefaultExperiment.
+fn write_log_categories_and_experiment(x: &mut Xml, info: &ModelInfo) {
     x.open("LogCategories", &[]);
     for (name, desc) in LOG_CATEGORIES {
         x.empty("Category", &[("name", name), ("description", desc)]);
@@ -175,7 +192,10 @@ pub fn model_description(info: &ModelInfo, table: &VariableTable, guid: &str) ->
             ("stepSize", &step),
         ],
     );
+}
 
+/// ModelVariables: every scalar of every variable, arrays in structured naming.
+fn write_model_variables(x: &mut Xml, table: &VariableTable) {
     x.open("ModelVariables", &[]);
     for v in table.variables() {
         for i in 0..v.len {
@@ -207,7 +227,10 @@ pub fn model_description(info: &ModelInfo, table: &VariableTable, guid: &str) ->
         }
     }
     x.close("ModelVariables");
+}
 
+/// ModelStructure: the outputs with their dependencies, and the initial unknowns.
+fn write_model_structure(x: &mut Xml, table: &VariableTable) {
     let first = scalar_indices(table);
     x.open("ModelStructure", &[]);
     let outputs: Vec<(usize, &Variable)> = table
@@ -248,8 +271,6 @@ pub fn model_description(info: &ModelInfo, table: &VariableTable, guid: &str) ->
         x.close("InitialUnknowns");
     }
     x.close("ModelStructure");
-    x.close("fmiModelDescription");
-    String::from_utf8(x.w.into_inner().into_inner()).unwrap_or_default()
 }
 
 /// The GUID of a model description: a hash of the description written without a GUID, so the
