@@ -22,6 +22,27 @@ pub fn preset(variant: &str) -> Result<Layout, FmuError> {
     Layout::preset(variant).map_err(|e| FmuError::Instantiate(e.to_string()))
 }
 
+/// Checks model `M`'s module documentation `doc` (its `lib.rs`, `include_str!`) against its
+/// variable table on the Keck and TMT layouts: the documented signals are the declared inputs
+/// and outputs, with their sizes (`na` = actuators, `ns` = edge sensors, or a number) and units
+/// ([`fmu::docs::check_signal_table`]). For the wiring crates' unit tests.
+///
+/// # Errors
+/// Every disagreement, naming the layout.
+pub fn check_documented_signals<M: fmu::Model>(doc: &str) -> Result<(), String> {
+    for variant in ["keck", "tmt"] {
+        let layout = preset(variant).map_err(|e| e.to_string())?;
+        let (table, _) = M::new(variant).map_err(|e| format!("{variant}: {e}"))?;
+        let size = |s: &str| match s {
+            "na" => Some(layout.n_actuators()),
+            "ns" => Some(layout.n_sensors()),
+            _ => None,
+        };
+        fmu::docs::check_signal_table(doc, &table, size).map_err(|e| format!("{variant}: {e}"))?;
+    }
+    Ok(())
+}
+
 /// An invalid parameter becomes [`FmuError::BadValue`] naming it; any other physics error a
 /// model error.
 pub fn model_error(e: M1Error) -> FmuError {
