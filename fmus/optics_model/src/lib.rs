@@ -4,11 +4,11 @@
 //! | variable | causality | size | unit |
 //! |---|---|---|---|
 //! | `z` | input | na | m |
-//! | `rms_surface` | output | 1 | m |
-//! | `focus_mode` | output | 1 | m |
-//! | `rms_surface_without_focus` | output | 1 | m |
-//! | `pssn` | output | 1 | 1 |
-//! | `focus_mode_coefficient` | output | 1 | m |
+//! | `rms_surface` | output (no direct dependency on inputs) | 1 | m |
+//! | `focus_mode` | output (no direct dependency on inputs) | 1 | m |
+//! | `rms_surface_without_focus` | output (no direct dependency on inputs) | 1 | m |
+//! | `pssn` | output (no direct dependency on inputs) | 1 | 1 |
+//! | `focus_mode_coefficient` | output (no direct dependency on inputs) | 1 | m |
 //!
 //! with na = 3 x the number of segments of the packaged layout (actuator k of segment i at
 //! index 3 i + k).
@@ -25,19 +25,20 @@
 //! ModelStructure declares no output dependency (no algebraic loop through this FMU), and the
 //! outputs are Real variables of discrete variability.
 
-use std::sync::Arc;
+use std::sync::{Arc, Mutex, PoisonError};
 
 use serde::{Deserialize, Serialize};
 
 use fmu::{
-    Dependencies, FmuError, IntVar, Model, ModelInfo, RealVar, StrVar, TableBuilder as T, Values,
-    VariableTable,
+    Decl, Dependencies, FmuError, IntVar, Model, ModelInfo, RealVar, Running, StrVar,
+    TableBuilder as T, Values, VariableTable,
 };
 use m1::M1Error;
 use m1::aperture::geometry::{Geometry, GeometryParams};
 use m1::aperture::layout::Layout;
 use m1::optics::metrics::MirrorMetrics;
 use m1::optics::pssn::{Pssn, PssnParams};
+use wiring::signals::{Z, layout_decl, n_segments_decl};
 
 /// Default samples across the aperture of the PSSN pupil grid (see the documentation).
 pub const DEFAULT_PSSN_SAMPLES: i32 = 256;
@@ -46,26 +47,61 @@ pub const DEFAULT_PSSN_SAMPLES: i32 = 256;
 /// reached (rounding of sums of steps).
 const INSTANT_TOLERANCE: f64 = 1e-9;
 
-/// Handles of every variable.
-#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
-struct Vars {
-    layout: StrVar,
-    n_segments: IntVar,
-    z: RealVar,
-    rms_surface: RealVar,
-    focus_mode: RealVar,
-    rms_surface_without_focus: RealVar,
-    pssn: RealVar,
-    focus_mode_coefficient: RealVar,
-    metrics_rate: RealVar,
-    pssn_rate: RealVar,
-    wavelength: RealVar,
-    r0: RealVar,
-    outer_scale: RealVar,
-    pssn_samples: IntVar,
-    actuator_radius: RealVar,
-    focus_rms_per_unit: RealVar,
-    pssn_grid_spacing: RealVar,
+fmu::variables! {
+    /// Handles of every variable.
+    #[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+    struct Vars(b, layout: &Layout) {
+        layout: StrVar = layout_decl(&layout.name),
+        n_segments: IntVar = n_segments_decl(layout),
+        z: RealVar = Z.input(layout),
+        rms_surface: RealVar = metric("rms_surface", "m")
+            .describe("Area-weighted rms surface error over the aperture, global piston/tip/tilt \
+                       removed (held between samples)"),
+        focus_mode: RealVar = metric("focus_mode", "m")
+            .describe("Focus-mode as rms surface: the rms of its component of the surface, signed \
+                       as its coefficient (rms_surface^2 = rms_surface_without_focus^2 + \
+                       focus_mode^2)"),
+        rms_surface_without_focus: RealVar = metric("rms_surface_without_focus", "m")
+            .describe("Rms surface error with global piston/tip/tilt and focus-mode removed"),
+        pssn: RealVar = metric("pssn", "1")
+            .describe("Normalised point-source sensitivity of the residual surface (0: not \
+                       computed)"),
+        focus_mode_coefficient: RealVar = metric("focus_mode_coefficient", "m")
+            .describe("Focus-mode coefficient: amplitude of the unit-norm focus-mode vector over \
+                       the actuators (actuator space; focus_mode = focus_mode_coefficient * \
+                       focus_rms_per_unit)"),
+        metrics_rate: RealVar = T::real("metrics_rate").parameter().unit("Hz").start(1000.0)
+            .positive().describe("Sample rate of the rms and focus-mode metrics"),
+        pssn_rate: RealVar = T::real("pssn_rate").parameter().unit("Hz").start(10.0)
+            .non_negative().describe("Sample rate of PSSN (0: PSSN disabled, output 0)"),
+        wavelength: RealVar = T::real("wavelength").parameter().unit("m").start(500e-9)
+            .check(fmu::Check::Range(1e-7, 1e-4)).describe("Wavelength of the PSSN evaluation"),
+        r0: RealVar = T::real("r0").parameter().unit("m").start(0.2).positive()
+            .describe("Fried parameter at 500 nm (scaled to the wavelength as lambda^(6/5))"),
+        outer_scale: RealVar = T::real("L0").parameter().unit("m").start(30.0).positive()
+            .describe("Von Karman outer scale of the atmosphere"),
+        pssn_samples: IntVar = T::integer("pssn_samples").parameter()
+            .start_int(DEFAULT_PSSN_SAMPLES).check(fmu::Check::Range(16.0, 1024.0))
+            .describe("Samples across the aperture of the PSSN pupil grid (cost ~ samples^2; \
+                       1 - PSSN about 7 % high at 256, see the documentation)"),
+        actuator_radius: RealVar = T::real("actuator_radius").parameter().unit("m")
+            .start(GeometryParams::for_layout(layout).actuator_radius).positive()
+            .describe("Radius of the actuator circle of a segment (less than the circumradius)"),
+        focus_rms_per_unit: RealVar = T::real("focus_rms_per_unit").calculated_parameter()
+            .unit("1").describe("Rms surface (m) of a unit focus_mode_coefficient (m)"),
+        pssn_grid_spacing: RealVar = T::real("pssn_grid_spacing").calculated_parameter()
+            .unit("m").describe("Spacing of the PSSN pupil grid (0 when PSSN is disabled)"),
+    }
+}
+
+/// An output metric: sampled (discrete), held between samples, with no direct dependency on
+/// the input.
+fn metric(name: &str, unit: &str) -> Decl {
+    T::real(name)
+        .output()
+        .discrete()
+        .unit(unit)
+        .depends(Dependencies::None)
 }
 
 /// The parameters the precomputation depends on.
@@ -106,20 +142,71 @@ impl Clock {
     }
 }
 
-/// The `optics` FMU.
-#[derive(Clone, Serialize, Deserialize)]
+/// The `optics` FMU as configured: the handles and the layout; [`OpticsRunning`] steps.
 pub struct Optics {
+    vars: Vars,
+    layout: String,
+    /// The evaluators of the last initialisation, reused while the parameters they depend on
+    /// stay the same (initialisation mode may evaluate the outputs several times).
+    last_engine: Mutex<Option<Arc<Engine>>>,
+}
+
+/// The initialised `optics` FMU: the evaluators and the sampling clocks.
+///
+/// An FMU state serialises the parameters the evaluators were made from, not the evaluators:
+/// they are rebuilt when it is read back.
+#[derive(Clone, Serialize, Deserialize)]
+#[serde(try_from = "OpticsState", into = "OpticsState")]
+pub struct OpticsRunning {
     vars: Vars,
     layout: String,
     start_time: f64,
     metrics_clock: Clock,
     pssn_clock: Clock,
-    /// Rebuilt from the parameters after a deserialised FMU state.
-    #[serde(skip)]
-    engine: Option<Arc<Engine>>,
+    engine: Arc<Engine>,
     /// Residual segment states fed to PSSN (scratch, length N).
-    #[serde(skip)]
     residual: Vec<[f64; 3]>,
+}
+
+/// What a serialised [`OpticsRunning`] holds.
+#[derive(Serialize, Deserialize)]
+struct OpticsState {
+    vars: Vars,
+    layout: String,
+    setup: Setup,
+    start_time: f64,
+    metrics_clock: Clock,
+    pssn_clock: Clock,
+}
+
+impl From<OpticsRunning> for OpticsState {
+    fn from(r: OpticsRunning) -> Self {
+        OpticsState {
+            vars: r.vars,
+            layout: r.layout,
+            setup: r.engine.setup,
+            start_time: r.start_time,
+            metrics_clock: r.metrics_clock,
+            pssn_clock: r.pssn_clock,
+        }
+    }
+}
+
+impl TryFrom<OpticsState> for OpticsRunning {
+    type Error = FmuError;
+
+    fn try_from(s: OpticsState) -> Result<Self, FmuError> {
+        let engine = Arc::new(Engine::new(&s.layout, s.setup)?);
+        Ok(OpticsRunning {
+            vars: s.vars,
+            layout: s.layout,
+            start_time: s.start_time,
+            metrics_clock: s.metrics_clock,
+            pssn_clock: s.pssn_clock,
+            residual: Vec::with_capacity(engine.metrics.n_segments()),
+            engine,
+        })
+    }
 }
 
 const DOC: &str = "<h2>Model</h2>\
@@ -182,194 +269,25 @@ fn model_error(e: M1Error) -> FmuError {
     })
 }
 
-fn table(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
-    let na = layout.n_actuators();
-    let mut b = T::new();
-    let layout_var = b.add_string(
-        T::string("layout")
-            .structural()
-            .start_str(&layout.name)
-            .describe("Mirror layout this FMU was packaged for"),
-    );
-    let n_segments = b.add_integer(
-        T::integer("n_segments")
-            .structural()
-            .start_int(i32::try_from(layout.n_segments()).unwrap_or(i32::MAX))
-            .describe("Number of segments (the input has 3 x n_segments elements)"),
-    );
-    let z = b.add_real(
-        T::real("z")
-            .input()
-            .len(na)
-            .unit("m")
-            .start(0.0)
-            .describe("Mirror displacement normal to the segment at each actuator"),
-    );
-    let out = |b: &mut T, name: &str, unit: &str, desc: &str| {
-        b.add_real(
-            T::real(name)
-                .output()
-                .discrete()
-                .unit(unit)
-                .depends(Dependencies::None)
-                .describe(desc),
+fn setup(x: &Vars, v: &Values) -> Setup {
+    let pssn = (v.scalar(x.pssn_rate) > 0.0).then(|| {
+        (
+            usize::try_from(v.integer(x.pssn_samples)).unwrap_or(0),
+            v.scalar(x.wavelength),
+            v.scalar(x.r0),
+            v.scalar(x.outer_scale),
         )
-    };
-    let rms_surface = out(
-        &mut b,
-        "rms_surface",
-        "m",
-        "Area-weighted rms surface error over the aperture, global piston/tip/tilt removed \
-         (held between samples)",
-    );
-    let focus_mode = out(
-        &mut b,
-        "focus_mode",
-        "m",
-        "Focus-mode as rms surface: the rms of its component of the surface, signed as its \
-         coefficient (rms_surface^2 = rms_surface_without_focus^2 + focus_mode^2)",
-    );
-    let rms_surface_without_focus = out(
-        &mut b,
-        "rms_surface_without_focus",
-        "m",
-        "Rms surface error with global piston/tip/tilt and focus-mode removed",
-    );
-    let pssn = out(
-        &mut b,
-        "pssn",
-        "1",
-        "Normalised point-source sensitivity of the residual surface (0: not computed)",
-    );
-    let focus_mode_coefficient = out(
-        &mut b,
-        "focus_mode_coefficient",
-        "m",
-        "Focus-mode coefficient: amplitude of the unit-norm focus-mode vector over the \
-         actuators (actuator space; focus_mode = focus_mode_coefficient * focus_rms_per_unit)",
-    );
-    let metrics_rate = b.add_real(
-        T::real("metrics_rate")
-            .parameter()
-            .unit("Hz")
-            .start(1000.0)
-            .positive()
-            .describe("Sample rate of the rms and focus-mode metrics"),
-    );
-    let pssn_rate = b.add_real(
-        T::real("pssn_rate")
-            .parameter()
-            .unit("Hz")
-            .start(10.0)
-            .non_negative()
-            .describe("Sample rate of PSSN (0: PSSN disabled, output 0)"),
-    );
-    let wavelength = b.add_real(
-        T::real("wavelength")
-            .parameter()
-            .unit("m")
-            .start(500e-9)
-            .check(fmu::Check::Range(1e-7, 1e-4))
-            .describe("Wavelength of the PSSN evaluation"),
-    );
-    let r0 = b.add_real(
-        T::real("r0")
-            .parameter()
-            .unit("m")
-            .start(0.2)
-            .positive()
-            .describe("Fried parameter at 500 nm (scaled to the wavelength as lambda^(6/5))"),
-    );
-    let outer_scale = b.add_real(
-        T::real("L0")
-            .parameter()
-            .unit("m")
-            .start(30.0)
-            .positive()
-            .describe("Von Karman outer scale of the atmosphere"),
-    );
-    let pssn_samples = b.add_integer(
-        T::integer("pssn_samples")
-            .parameter()
-            .start_int(DEFAULT_PSSN_SAMPLES)
-            .check(fmu::Check::Range(16.0, 1024.0))
-            .describe(
-                "Samples across the aperture of the PSSN pupil grid (cost ~ samples^2; \
-                 1 - PSSN about 7 % high at 256, see the documentation)",
-            ),
-    );
-    let actuator_radius = b.add_real(
-        T::real("actuator_radius")
-            .parameter()
-            .unit("m")
-            .start(GeometryParams::for_layout(layout).actuator_radius)
-            .positive()
-            .describe("Radius of the actuator circle of a segment (less than the circumradius)"),
-    );
-    let focus_rms_per_unit = b.add_real(
-        T::real("focus_rms_per_unit")
-            .calculated_parameter()
-            .unit("1")
-            .describe("Rms surface (m) of a unit focus_mode_coefficient (m)"),
-    );
-    let pssn_grid_spacing = b.add_real(
-        T::real("pssn_grid_spacing")
-            .calculated_parameter()
-            .unit("m")
-            .describe("Spacing of the PSSN pupil grid (0 when PSSN is disabled)"),
-    );
-    let table = b.build()?;
-    Ok((
-        table,
-        Vars {
-            layout: layout_var,
-            n_segments,
-            z,
-            rms_surface,
-            focus_mode,
-            rms_surface_without_focus,
-            pssn,
-            focus_mode_coefficient,
-            metrics_rate,
-            pssn_rate,
-            wavelength,
-            r0,
-            outer_scale,
-            pssn_samples,
-            actuator_radius,
-            focus_rms_per_unit,
-            pssn_grid_spacing,
-        },
-    ))
+    });
+    Setup {
+        actuator_radius: v.scalar(x.actuator_radius),
+        pssn,
+    }
 }
 
-impl Optics {
-    fn setup(&self, v: &Values) -> Setup {
-        let x = &self.vars;
-        let pssn = (v.scalar(x.pssn_rate) > 0.0).then(|| {
-            (
-                usize::try_from(v.integer(x.pssn_samples)).unwrap_or(0),
-                v.scalar(x.wavelength),
-                v.scalar(x.r0),
-                v.scalar(x.outer_scale),
-            )
-        });
-        Setup {
-            actuator_radius: v.scalar(x.actuator_radius),
-            pssn,
-        }
-    }
-
-    /// The evaluators for the current parameters, built unless already there.
-    fn engine(&mut self, v: &Values) -> Result<Arc<Engine>, FmuError> {
-        let setup = self.setup(v);
-        if let Some(e) = &self.engine
-            && e.setup == setup
-        {
-            return Ok(e.clone());
-        }
-        let layout =
-            Layout::preset(&self.layout).map_err(|e| FmuError::Instantiate(e.to_string()))?;
+impl Engine {
+    /// The evaluators of `layout` for `setup`.
+    fn new(layout: &str, setup: Setup) -> Result<Engine, FmuError> {
+        let layout = Layout::preset(layout).map_err(|e| FmuError::Instantiate(e.to_string()))?;
         let mut params = GeometryParams::for_layout(&layout);
         params.actuator_radius = setup.actuator_radius;
         let geometry = Geometry::new(&layout, params).map_err(model_error)?;
@@ -390,17 +308,39 @@ impl Optics {
             ),
             None => None,
         };
-        let engine = Arc::new(Engine {
+        Ok(Engine {
             setup,
             metrics,
             pssn,
-        });
-        self.engine = Some(engine.clone());
+        })
+    }
+}
+
+impl Optics {
+    /// The evaluators for the current parameters: those of the last initialisation when they
+    /// depend on the same, or built.
+    fn engine(&self, v: &Values) -> Result<Arc<Engine>, FmuError> {
+        let setup = setup(&self.vars, v);
+        // A poisoned lock only means a panic while it was held: the cached value is complete.
+        let mut last = self
+            .last_engine
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        if let Some(e) = last.as_ref()
+            && e.setup == setup
+        {
+            return Ok(e.clone());
+        }
+        let engine = Arc::new(Engine::new(&self.layout, setup)?);
+        *last = Some(engine.clone());
         Ok(engine)
     }
+}
 
-    fn sample_metrics(&self, e: &Engine, v: &mut Values) -> Result<(), FmuError> {
-        let m = e
+impl OpticsRunning {
+    fn sample_metrics(&self, v: &mut Values) -> Result<(), FmuError> {
+        let m = self
+            .engine
             .metrics
             .evaluate(v.real(self.vars.z))
             .map_err(model_error)?;
@@ -411,7 +351,8 @@ impl Optics {
         Ok(())
     }
 
-    fn sample_pssn(&mut self, e: &Engine, v: &mut Values) -> Result<(), FmuError> {
+    fn sample_pssn(&mut self, v: &mut Values) -> Result<(), FmuError> {
+        let e = &self.engine;
         let Some(pssn) = &e.pssn else {
             v.real_mut(self.vars.pssn)[0] = 0.0;
             return Ok(());
@@ -424,9 +365,9 @@ impl Optics {
         Ok(())
     }
 
-    /// The metrics evaluator, once initialised (for in-process use and tests).
-    pub fn metrics(&self) -> Option<&MirrorMetrics> {
-        self.engine.as_deref().map(|e| &e.metrics)
+    /// The metrics evaluator (for in-process use and tests).
+    pub fn metrics(&self) -> &MirrorMetrics {
+        &self.engine.metrics
     }
 }
 
@@ -442,6 +383,8 @@ impl Model for Optics {
         default_step: 1e-3,
     };
 
+    type Running = OpticsRunning;
+
     fn variants() -> Vec<String> {
         wiring::layout_variants()
     }
@@ -456,54 +399,59 @@ impl Model for Optics {
 
     fn new(variant: &str) -> Result<(VariableTable, Self), FmuError> {
         let layout = wiring::preset(variant)?;
-        let (table, vars) = table(&layout)?;
+        let (table, vars) = T::declare(|b| Vars::add_to(b, &layout))?;
         Ok((
             table,
             Optics {
                 vars,
                 layout: layout.name.clone(),
-                start_time: 0.0,
-                metrics_clock: Clock::default(),
-                pssn_clock: Clock::default(),
-                engine: None,
-                residual: Vec::with_capacity(layout.n_segments()),
+                last_engine: Mutex::new(None),
             },
         ))
     }
 
-    fn initialize(&mut self, v: &mut Values, start_time: f64) -> Result<(), FmuError> {
+    fn initialize(&self, v: &mut Values, start_time: f64) -> Result<OpticsRunning, FmuError> {
         let engine = self.engine(v)?;
-        self.start_time = start_time;
-        self.metrics_clock = Clock {
-            rate: v.scalar(self.vars.metrics_rate),
-            next: 1,
-        };
-        self.pssn_clock = Clock {
-            rate: v.scalar(self.vars.pssn_rate),
-            next: 1,
-        };
-        v.real_mut(self.vars.focus_rms_per_unit)[0] = engine.metrics.focus_rms_per_unit();
-        v.real_mut(self.vars.pssn_grid_spacing)[0] =
+        let x = self.vars;
+        v.real_mut(x.focus_rms_per_unit)[0] = engine.metrics.focus_rms_per_unit();
+        v.real_mut(x.pssn_grid_spacing)[0] =
             engine.pssn.as_ref().map_or(0.0, |p| p.grid().spacing());
-        self.sample_metrics(&engine, v)?;
-        self.sample_pssn(&engine, v)
+        let mut running = OpticsRunning {
+            vars: x,
+            layout: self.layout.clone(),
+            start_time,
+            metrics_clock: Clock {
+                rate: v.scalar(x.metrics_rate),
+                next: 1,
+            },
+            pssn_clock: Clock {
+                rate: v.scalar(x.pssn_rate),
+                next: 1,
+            },
+            residual: Vec::with_capacity(engine.metrics.n_segments()),
+            engine,
+        };
+        running.sample_metrics(v)?;
+        running.sample_pssn(v)?;
+        Ok(running)
     }
+}
 
+impl Running for OpticsRunning {
     fn update_outputs(&mut self, _v: &mut Values) -> Result<(), FmuError> {
         // No output depends directly on the input: they change only at sample instants.
         Ok(())
     }
 
     fn do_step(&mut self, t: f64, h: f64, v: &mut Values) -> Result<(), FmuError> {
-        let engine = self.engine(v)?;
         let end = t + h;
         // Work on copies of the clocks so that a failed step leaves the model unchanged.
         let (mut mc, mut pc) = (self.metrics_clock, self.pssn_clock);
         if mc.due(self.start_time, end) {
-            self.sample_metrics(&engine, v)?;
+            self.sample_metrics(v)?;
         }
         if pc.due(self.start_time, end) {
-            self.sample_pssn(&engine, v)?;
+            self.sample_pssn(v)?;
         }
         self.metrics_clock = mc;
         self.pssn_clock = pc;
@@ -515,6 +463,42 @@ impl Model for Optics {
 mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used)]
     use super::*;
+    use fmu::Instance;
+
+    /// An instance of `variant` through the runtime, in initialisation mode (start time 0).
+    fn instance(variant: &str) -> Instance<Optics> {
+        let (table, _) = Optics::new(variant).expect("table");
+        let guid = fmu::xml::guid(&Optics::INFO, &table);
+        let mut fmu = Instance::<Optics>::new("test", &guid, None, None, false).expect("instance");
+        fmu.setup_experiment(0.0, None).expect("setup");
+        fmu.enter_initialization_mode()
+            .expect("initialisation mode");
+        fmu
+    }
+
+    /// The value references of a variable's scalars.
+    fn vrs(fmu: &Instance<Optics>, name: &str) -> Vec<u32> {
+        let v = fmu.table().by_name(name).expect(name);
+        (v.vr..v.vr + v.len as u32).collect()
+    }
+
+    /// `steps` communication steps of 10 ms (`before(fmu, k)` first), then the values of `name`.
+    fn run(
+        fmu: &mut Instance<Optics>,
+        steps: usize,
+        before: impl Fn(&mut Instance<Optics>, usize),
+        name: &str,
+    ) -> Vec<f64> {
+        for k in 0..steps {
+            before(fmu, k);
+            let t = fmu.time();
+            fmu.do_step(t, 0.01).expect("step");
+        }
+        let vr = vrs(fmu, name);
+        let mut out = vec![f64::NAN; vr.len()];
+        fmu.get_real(&vr, &mut out).expect("get");
+        out
+    }
 
     #[test]
     fn clock_samples_its_own_instants() {
@@ -561,5 +545,53 @@ mod tests {
                 assert_eq!(t.by_name(name).unwrap().dependencies, Dependencies::None);
             }
         }
+    }
+
+    #[test]
+    fn the_module_documentation_lists_the_signals() {
+        assert_eq!(
+            wiring::check_documented_signals::<Optics>(include_str!("lib.rs")),
+            Ok(())
+        );
+    }
+
+    /// A serialised FMU state (the evaluators rebuilt from the parameters it holds, the
+    /// sampling clocks as they were) steps on exactly as the instance it was taken from.
+    #[test]
+    fn a_serialised_state_steps_on_as_the_original() {
+        let mut fmu = instance("keck");
+        fmu.set_integer(&vrs(&fmu, "pssn_samples"), &[32]).unwrap();
+        fmu.set_real(&vrs(&fmu, "pssn_rate"), &[40.0]).unwrap();
+        fmu.exit_initialization_mode().unwrap();
+        let n = Layout::preset("keck").unwrap().n_segments();
+        assert_eq!(fmu.running().unwrap().metrics().n_segments(), n);
+        // A different input every step.
+        let z = vrs(&fmu, "z");
+        let set_z = |fmu: &mut Instance<Optics>, k: usize| {
+            let v: Vec<f64> = (0..z.len())
+                .map(|i| 1e-8 * ((i * 7 + k * 3) as f64).sin())
+                .collect();
+            fmu.set_real(&z, &v).unwrap();
+        };
+        run(&mut fmu, 2, set_z, "pssn");
+        let bytes = Instance::<Optics>::serialize(&fmu.get_state().unwrap()).unwrap();
+        let outputs = [
+            "rms_surface",
+            "focus_mode",
+            "pssn",
+            "focus_mode_coefficient",
+        ];
+        let mut original = vec![run(&mut fmu, 5, set_z, "rms_surface")];
+        original.extend(outputs.iter().map(|o| run(&mut fmu, 0, set_z, o)));
+        let state = fmu.deserialize(&bytes).unwrap();
+        fmu.set_state(&state).unwrap();
+        let mut restored = vec![run(&mut fmu, 5, set_z, "rms_surface")];
+        restored.extend(outputs.iter().map(|o| run(&mut fmu, 0, set_z, o)));
+        assert!(
+            original[3][0] > 0.0 && original[3][0] < 1.0,
+            "pssn {:?}",
+            original[3]
+        );
+        assert_eq!(original, restored);
     }
 }

@@ -12,9 +12,12 @@
 use serde::{Deserialize, Serialize};
 
 use fmu::{
-    FmuError, IntVar, Model, ModelInfo, RealVar, StrVar, TableBuilder as T, Values, VariableTable,
+    Decl, FmuError, IntVar, Model, ModelInfo, RealVar, Running, StrVar, TableBuilder as T, Values,
+    VariableTable,
 };
+use m1::aperture::layout::Layout;
 use m1::loads::vibration::{NoiseParams, PierVibration, Tone};
+use wiring::signals::{PIER_Z, layout_decl};
 
 /// Number of tones.
 pub const N_TONES: usize = 3;
@@ -23,27 +26,64 @@ pub const N_TONES: usize = 3;
 /// amplitude *assumed*); tones 2 and 3 disabled.
 pub const DEFAULT_TONES: [(f64, f64); N_TONES] = [(29.6, 1e-8), (10.0, 0.0), (60.0, 0.0)];
 
-/// Handles of every variable.
-#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
-struct Vars {
-    layout: StrVar,
-    pier_z: RealVar,
-    tone_frequency: [RealVar; N_TONES],
-    tone_amplitude: [RealVar; N_TONES],
-    tone_phase: [RealVar; N_TONES],
-    noise_rms: RealVar,
-    noise_low_frequency: RealVar,
-    noise_high_frequency: RealVar,
-    noise_period: RealVar,
-    noise_seed: IntVar,
-    pier_z_rms: RealVar,
+fmu::variables! {
+    /// Handles of every variable.
+    #[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+    struct Vars(b, layout: &Layout) {
+        layout: StrVar = layout_decl(&layout.name)
+            .describe("Mirror layout this FMU was packaged for (the signal does not depend on it)"),
+        pier_z: RealVar = PIER_Z.output(layout),
+        tone_frequency: [RealVar; N_TONES] => per_tone(b, |j| {
+            T::real(&format!("tone_{}_frequency", j + 1)).parameter().unit("Hz")
+                .start(DEFAULT_TONES[j].0).non_negative()
+                .describe(&format!("Frequency of tone {}", j + 1))
+        }),
+        tone_amplitude: [RealVar; N_TONES] => per_tone(b, |j| {
+            T::real(&format!("tone_{}_amplitude", j + 1)).parameter().unit("m")
+                .start(DEFAULT_TONES[j].1).non_negative()
+                .describe(&format!("Amplitude of tone {} (0 disables it)", j + 1))
+        }),
+        tone_phase: [RealVar; N_TONES] => per_tone(b, |j| {
+            T::real(&format!("tone_{}_phase", j + 1)).parameter().unit("rad").start(0.0)
+                .describe(&format!("Phase of tone {}: A sin(2 pi f t + phase)", j + 1))
+        }),
+        noise_rms: RealVar = T::real("noise_rms").parameter().unit("m")
+            .start(NoiseParams::default().rms).non_negative()
+            .describe("rms of the band-limited noise (0 disables it)"),
+        noise_low_frequency: RealVar = T::real("noise_low_frequency").parameter().unit("Hz")
+            .start(NoiseParams::default().low).non_negative()
+            .describe("Lower edge of the noise band"),
+        noise_high_frequency: RealVar = T::real("noise_high_frequency").parameter().unit("Hz")
+            .start(NoiseParams::default().high).positive()
+            .describe("Upper edge of the noise band (> noise_low_frequency)"),
+        noise_period: RealVar = T::real("noise_period").parameter().unit("s")
+            .start(NoiseParams::default().period).positive()
+            .describe("Period after which the noise repeats (memory: 64 x noise_high_frequency \
+                       bytes per second)"),
+        noise_seed: IntVar = T::integer("noise_seed").parameter().start_int(1)
+            .describe("Seed of the noise"),
+        pier_z_rms: RealVar = T::real("pier_z_rms").calculated_parameter().unit("m")
+            .describe("Expected rms of pier_z, sqrt(sum A^2 / 2 + noise_rms^2)"),
+    }
 }
 
-/// The `pier_vibration` FMU.
-#[derive(Clone, Serialize, Deserialize)]
+/// One parameter per tone, `tone_1_...` to `tone_3_...` in this order (`decl(j)` declares tone
+/// j + 1): the three tones' frequencies come first, then their amplitudes, then their phases.
+fn per_tone(b: &mut T, decl: impl Fn(usize) -> Decl) -> [RealVar; N_TONES] {
+    std::array::from_fn(|j| b.add_real(decl(j)))
+}
+
+/// The `pier_vibration` FMU as configured: the handles; [`PierVibrationRunning`] steps.
+#[derive(Debug, Clone)]
 pub struct PierVibrationFmu {
     vars: Vars,
-    source: Option<PierVibration>,
+}
+
+/// The initialised `pier_vibration` FMU: the vibration source.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct PierVibrationRunning {
+    vars: Vars,
+    source: PierVibration,
 }
 
 const DOC: &str = "<h2>Model</h2>\
@@ -62,115 +102,10 @@ steps gives the same samples.</p>\
 <p><code>pier_z_rms</code> = &radic;(&sum; A<sub>j</sub><sup>2</sup>/2 + \
 noise_rms<sup>2</sup>) is the expected rms of the output (distinct tone frequencies).</p>";
 
-fn table(layout: &str) -> Result<(VariableTable, Vars), FmuError> {
-    let noise = NoiseParams::default();
-    let mut b = T::new();
-    let layout_var =
-        b.add_string(T::string("layout").structural().start_str(layout).describe(
-            "Mirror layout this FMU was packaged for (the signal does not depend on it)",
-        ));
-    let pier_z = b.add_real(
-        T::real("pier_z")
-            .output()
-            .unit("m")
-            .describe("Vertical pier displacement"),
-    );
-    let tone_frequency = std::array::from_fn(|j| {
-        b.add_real(
-            T::real(&format!("tone_{}_frequency", j + 1))
-                .parameter()
-                .unit("Hz")
-                .start(DEFAULT_TONES[j].0)
-                .non_negative()
-                .describe(&format!("Frequency of tone {}", j + 1)),
-        )
-    });
-    let tone_amplitude = std::array::from_fn(|j| {
-        b.add_real(
-            T::real(&format!("tone_{}_amplitude", j + 1))
-                .parameter()
-                .unit("m")
-                .start(DEFAULT_TONES[j].1)
-                .non_negative()
-                .describe(&format!("Amplitude of tone {} (0 disables it)", j + 1)),
-        )
-    });
-    let tone_phase = std::array::from_fn(|j| {
-        b.add_real(
-            T::real(&format!("tone_{}_phase", j + 1))
-                .parameter()
-                .unit("rad")
-                .start(0.0)
-                .describe(&format!("Phase of tone {}: A sin(2 pi f t + phase)", j + 1)),
-        )
-    });
-    let noise_rms = b.add_real(
-        T::real("noise_rms")
-            .parameter()
-            .unit("m")
-            .start(noise.rms)
-            .non_negative()
-            .describe("rms of the band-limited noise (0 disables it)"),
-    );
-    let noise_low_frequency = b.add_real(
-        T::real("noise_low_frequency")
-            .parameter()
-            .unit("Hz")
-            .start(noise.low)
-            .non_negative()
-            .describe("Lower edge of the noise band"),
-    );
-    let noise_high_frequency = b.add_real(
-        T::real("noise_high_frequency")
-            .parameter()
-            .unit("Hz")
-            .start(noise.high)
-            .positive()
-            .describe("Upper edge of the noise band (> noise_low_frequency)"),
-    );
-    let noise_period = b.add_real(
-        T::real("noise_period")
-            .parameter()
-            .unit("s")
-            .start(noise.period)
-            .positive()
-            .describe("Period after which the noise repeats (memory: 64 x noise_high_frequency bytes per second)"),
-    );
-    let noise_seed = b.add_integer(
-        T::integer("noise_seed")
-            .parameter()
-            .start_int(1)
-            .describe("Seed of the noise"),
-    );
-    let pier_z_rms = b.add_real(
-        T::real("pier_z_rms")
-            .calculated_parameter()
-            .unit("m")
-            .describe("Expected rms of pier_z, sqrt(sum A^2 / 2 + noise_rms^2)"),
-    );
-    let table = b.build()?;
-    Ok((
-        table,
-        Vars {
-            layout: layout_var,
-            pier_z,
-            tone_frequency,
-            tone_amplitude,
-            tone_phase,
-            noise_rms,
-            noise_low_frequency,
-            noise_high_frequency,
-            noise_period,
-            noise_seed,
-            pier_z_rms,
-        },
-    ))
-}
-
-impl PierVibrationFmu {
-    /// The vibration source, once initialised (for in-process use and tests).
-    pub fn source(&self) -> Option<&PierVibration> {
-        self.source.as_ref()
+impl PierVibrationRunning {
+    /// The vibration source (for in-process use and tests).
+    pub fn source(&self) -> &PierVibration {
+        &self.source
     }
 }
 
@@ -184,17 +119,23 @@ impl Model for PierVibrationFmu {
         default_step: 1e-3,
     };
 
+    type Running = PierVibrationRunning;
+
     fn variants() -> Vec<String> {
         wiring::layout_variants()
     }
 
     fn new(variant: &str) -> Result<(VariableTable, Self), FmuError> {
         let layout = wiring::preset(variant)?;
-        let (table, vars) = table(&layout.name)?;
-        Ok((table, PierVibrationFmu { vars, source: None }))
+        let (table, vars) = T::declare(|b| Vars::add_to(b, &layout))?;
+        Ok((table, PierVibrationFmu { vars }))
     }
 
-    fn initialize(&mut self, v: &mut Values, start_time: f64) -> Result<(), FmuError> {
+    fn initialize(
+        &self,
+        v: &mut Values,
+        start_time: f64,
+    ) -> Result<PierVibrationRunning, FmuError> {
         let x = self.vars;
         let s = |h: RealVar| v.scalar(h);
         let tones: Vec<Tone> = (0..N_TONES)
@@ -214,22 +155,18 @@ impl Model for PierVibrationFmu {
         let source = PierVibration::new(&tones, &noise).map_err(wiring::model_error)?;
         v.real_mut(x.pier_z_rms)[0] = source.expected_rms();
         v.real_mut(x.pier_z)[0] = source.at(start_time);
-        self.source = Some(source);
-        Ok(())
+        Ok(PierVibrationRunning { vars: x, source })
     }
+}
 
+impl Running for PierVibrationRunning {
     fn update_outputs(&mut self, _v: &mut Values) -> Result<(), FmuError> {
         // No inputs: the output only changes with time.
         Ok(())
     }
 
     fn do_step(&mut self, t: f64, h: f64, v: &mut Values) -> Result<(), FmuError> {
-        let Some(source) = &self.source else {
-            return Err(FmuError::Model(
-                "the pier vibration is not initialised".into(),
-            ));
-        };
-        v.real_mut(self.vars.pier_z)[0] = source.at(t + h);
+        v.real_mut(self.vars.pier_z)[0] = self.source.at(t + h);
         Ok(())
     }
 }
@@ -237,12 +174,78 @@ impl Model for PierVibrationFmu {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use fmu::Instance;
+
+    /// An instance of `variant` through the runtime, in initialisation mode (start time 0).
+    fn instance(variant: &str) -> Instance<PierVibrationFmu> {
+        let (table, _) = PierVibrationFmu::new(variant).expect("table");
+        let guid = fmu::xml::guid(&PierVibrationFmu::INFO, &table);
+        let mut fmu =
+            Instance::<PierVibrationFmu>::new("test", &guid, None, None, false).expect("instance");
+        fmu.setup_experiment(0.0, None).expect("setup");
+        fmu.enter_initialization_mode()
+            .expect("initialisation mode");
+        fmu
+    }
+
+    /// The value references of a variable's scalars.
+    fn vrs(fmu: &Instance<PierVibrationFmu>, name: &str) -> Vec<u32> {
+        let v = fmu.table().by_name(name).expect(name);
+        (v.vr..v.vr + v.len as u32).collect()
+    }
+
+    /// `steps` communication steps of 10 ms, then the values of `name`.
+    fn run(fmu: &mut Instance<PierVibrationFmu>, steps: usize, name: &str) -> Vec<f64> {
+        for _ in 0..steps {
+            let t = fmu.time();
+            fmu.do_step(t, 0.01).expect("step");
+        }
+        let vr = vrs(fmu, name);
+        let mut out = vec![f64::NAN; vr.len()];
+        fmu.get_real(&vr, &mut out).expect("get");
+        out
+    }
 
     #[test]
     fn tables_build_for_every_layout() {
-        for variant in m1::aperture::layout::Layout::PRESETS {
+        for variant in Layout::PRESETS {
             let (t, _) = PierVibrationFmu::new(variant).expect("table");
             assert_eq!(t.by_name("pier_z").map(|v| v.len), Some(1));
         }
+    }
+
+    /// `pier_z` stays the scalar `pier_z` (not the array `pier_z[1]`), with the vocabulary's
+    /// unit and description.
+    #[test]
+    fn pier_z_is_the_scalar_of_the_vocabulary() {
+        let (t, _) = PierVibrationFmu::new("keck").expect("table");
+        let v = t.by_name("pier_z").expect("pier_z");
+        assert_eq!(v.scalar_name(0), "pier_z");
+        assert_eq!(v.unit.as_deref(), Some(PIER_Z.unit));
+        assert_eq!(v.description, PIER_Z.description);
+    }
+
+    #[test]
+    fn the_module_documentation_lists_the_signals() {
+        assert_eq!(
+            wiring::check_documented_signals::<PierVibrationFmu>(include_str!("lib.rs")),
+            Ok(())
+        );
+    }
+
+    /// A serialised FMU state steps on exactly as the instance it was taken from.
+    #[test]
+    fn a_serialised_state_steps_on_as_the_original() {
+        let mut fmu = instance("keck");
+        fmu.exit_initialization_mode().expect("initialise");
+        assert!(fmu.running().expect("running").source().expected_rms() > 0.0);
+        run(&mut fmu, 2, "pier_z");
+        let bytes = Instance::<PierVibrationFmu>::serialize(&fmu.get_state().expect("state"))
+            .expect("serialise");
+        let original = run(&mut fmu, 3, "pier_z");
+        let state = fmu.deserialize(&bytes).expect("deserialise");
+        fmu.set_state(&state).expect("set state");
+        assert_eq!(run(&mut fmu, 3, "pier_z"), original);
+        assert_ne!(original, [0.0]);
     }
 }

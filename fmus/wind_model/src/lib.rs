@@ -14,66 +14,163 @@ use std::sync::{Arc, Mutex};
 use serde::{Deserialize, Serialize};
 
 use fmu::{
-    FmuError, IntVar, Model, ModelInfo, RealVar, StrVar, TableBuilder as T, Values, VariableTable,
+    Decl, FmuError, IntVar, Model, ModelInfo, RealVar, Running, StrVar, TableBuilder as T, Values,
+    VariableTable,
 };
 use m1::aperture::geometry::{Geometry, GeometryParams};
 use m1::aperture::layout::Layout;
 use m1::loads::wind::{
-    DEFAULT_AIR_DENSITY, OuterScale, ScreenParams, WindLoads, WindParams, pressure_rms_from_cp,
+    DEFAULT_AIR_DENSITY, DEFAULT_PRESSURE_COEFFICIENT, OuterScale, ScreenParams, WindLoads,
+    WindParams, pressure_rms_from_cp,
 };
+use wiring::signals::{F_WIND, layout_decl, n_segments_decl};
 
 /// Number of (outer scale, energy fraction) pairs.
 pub const N_SCALES: usize = 3;
 
-/// Handles of every variable.
-#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
-struct Vars {
-    layout: StrVar,
-    n_segments: IntVar,
-    f_wind: RealVar,
-    wind_speed: RealVar,
-    wind_direction: RealVar,
-    pressure_rms: RealVar,
-    pressure_coefficient: RealVar,
-    air_density: RealVar,
-    outer_scale: [RealVar; N_SCALES],
-    energy_fraction: [RealVar; N_SCALES],
-    seed: IntVar,
-    screen_size: RealVar,
-    screen_samples: IntVar,
-    actuator_radius: RealVar,
-    effective_pressure_rms: RealVar,
-    segment_force_rms: RealVar,
-    aperture_attenuation: RealVar,
-    flow_period: RealVar,
+/// Default (outer scale m, energy fraction) of each pair.
+const DEFAULT_SCALES: [(f64, f64); N_SCALES] = [(5.0, 0.75), (30.0, 0.25), (60.0, 0.0)];
+
+fmu::variables! {
+    /// Handles of every variable.
+    #[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+    struct Vars(b, layout: &Layout) {
+        layout: StrVar = layout_decl(&layout.name),
+        n_segments: IntVar = n_segments_decl(layout),
+        f_wind: RealVar = F_WIND.output(layout),
+        wind_speed: RealVar = T::real("wind_speed").parameter().unit("m/s").start(1.0)
+            .non_negative().describe("Mean wind speed across the mirror (frozen-flow speed)"),
+        wind_direction: RealVar = T::real("wind_direction").parameter().unit("deg").start(0.0)
+            .describe("Direction the wind blows towards, counter-clockwise from the layout's x \
+                       axis"),
+        pressure_rms: RealVar = T::real("pressure_rms").parameter().unit("Pa").start(0.0)
+            .non_negative()
+            .describe("rms pressure fluctuation; 0: use pressure_coefficient x 0.5 air_density \
+                       wind_speed^2"),
+        pressure_coefficient: RealVar = T::real("pressure_coefficient").parameter().unit("1")
+            .start(DEFAULT_PRESSURE_COEFFICIENT).non_negative()
+            .describe("rms pressure coefficient Cp (sigma_p = Cp q when pressure_rms is 0; \
+                       calibrated: the default TMT plant's open loop at 1 m/s is the seed paper's \
+                       Figure 12, 39 nm)"),
+        air_density: RealVar = T::real("air_density").parameter().unit("kg/m3")
+            .start(DEFAULT_AIR_DENSITY).positive()
+            .describe("Air density (0.82 kg/m3 at 4 km altitude)"),
+        outer_scale: [RealVar; N_SCALES] => per_scale(b, |j| {
+            T::real(&format!("outer_scale_{}", j + 1)).parameter().unit("m")
+                .start(DEFAULT_SCALES[j].0).positive()
+                .describe(&format!("Outer scale L0 of pressure component {}", j + 1))
+        }),
+        energy_fraction: [RealVar; N_SCALES] => per_scale(b, |j| {
+            T::real(&format!("energy_fraction_{}", j + 1)).parameter().unit("1")
+                .start(DEFAULT_SCALES[j].1).non_negative()
+                .describe(&format!("Variance share of component {} (normalised by the sum of the \
+                                    fractions; 0 disables it)", j + 1))
+        }),
+        seed: IntVar = T::integer("seed").parameter().start_int(1)
+            .describe("Seed of the pressure screen"),
+        screen_size: RealVar = T::real("screen_size").parameter().unit("m")
+            .start(ScreenParams::default().size).positive()
+            .describe("Side of the square periodic screen (> mirror diameter; a few outer scales)"),
+        screen_samples: IntVar = T::integer("screen_samples").parameter()
+            .start_int(i32::try_from(ScreenParams::default().samples).unwrap_or(1024))
+            .check(fmu::Check::Range(16.0, 4096.0))
+            .describe("Samples per side of the screen (even; spacing screen_size / \
+                       screen_samples)"),
+        actuator_radius: RealVar = T::real("actuator_radius").parameter().unit("m")
+            .start(GeometryParams::for_layout(layout).actuator_radius).positive()
+            .describe("Radius of the actuator circle (equivalent-force points; default a / 2)"),
+        effective_pressure_rms: RealVar = calculated("effective_pressure_rms", "Pa")
+            .describe("rms pressure sigma_p in use"),
+        segment_force_rms: RealVar = calculated("segment_force_rms", "N")
+            .describe("Expected rms of the force integrated over one segment (projected area)"),
+        aperture_attenuation: RealVar = calculated("aperture_attenuation", "1")
+            .describe("segment_force_rms / (sigma_p x segment area): the attenuation by the \
+                       integration"),
+        flow_period: RealVar = calculated("flow_period", "s")
+            .describe("Time after which the frozen flow repeats, screen_size / wind_speed (0 if \
+                       no wind)"),
+    }
+}
+
+/// One parameter per pair, `..._1` to `..._3` in this order (`decl(j)` declares pair j + 1):
+/// the three outer scales come first, then the three energy fractions.
+fn per_scale(b: &mut T, decl: impl Fn(usize) -> Decl) -> [RealVar; N_SCALES] {
+    std::array::from_fn(|j| b.add_real(decl(j)))
+}
+
+/// A calculated parameter with its unit.
+fn calculated(name: &str, unit: &str) -> Decl {
+    T::real(name).calculated_parameter().unit(unit)
 }
 
 /// What the tables depend on.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 struct Key {
     wind: WindParams,
     actuator_radius: f64,
 }
 
-/// How many screens' tables a process keeps ([`Wind::build`]).
+/// How many screens' tables a process keeps ([`build`]).
 const SCREEN_CACHE: usize = 2;
 
 /// The tables of the last [`SCREEN_CACHE`] screens built in this process, keyed by everything
 /// but the speed and the rms pressure (the tables are those of the unit screen: see
 /// [`WindLoads::with_flow`]). Instances share them while the library stays loaded: the
-/// runtime's copy in initialisation mode, the closed-loop run after the open one, the runs of
-/// a sweep over wind speed that reuses one extracted FMU.
+/// runtime's initialisation in initialisation mode, the closed-loop run after the open one, the
+/// runs of a sweep over wind speed that reuses one extracted FMU, a deserialised FMU state.
 static SCREENS: Mutex<Vec<(Key, Arc<WindLoads>)>> = Mutex::new(Vec::new());
 
-/// The `wind` FMU.
-#[derive(Clone, Serialize, Deserialize)]
+/// The `wind` FMU as configured: the handles and the layout; [`WindRunning`] steps.
+#[derive(Debug, Clone)]
 pub struct Wind {
     vars: Vars,
     layout: String,
     na: usize,
-    /// Rebuilt from the parameters after a deserialised FMU state (deterministic).
-    #[serde(skip)]
-    loads: Option<Arc<WindLoads>>,
+}
+
+/// The initialised `wind` FMU: the tables of the wind loads.
+///
+/// An FMU state serialises the parameters the tables were made from, not the tables: they are
+/// rebuilt (deterministic, from the process's cache when there) when it is read back.
+#[derive(Clone, Serialize, Deserialize)]
+#[serde(try_from = "WindState", into = "WindState")]
+pub struct WindRunning {
+    vars: Vars,
+    layout: String,
+    key: Key,
+    loads: Arc<WindLoads>,
+}
+
+/// What a serialised [`WindRunning`] holds.
+#[derive(Serialize, Deserialize)]
+struct WindState {
+    vars: Vars,
+    layout: String,
+    key: Key,
+}
+
+impl From<WindRunning> for WindState {
+    fn from(r: WindRunning) -> Self {
+        WindState {
+            vars: r.vars,
+            layout: r.layout,
+            key: r.key,
+        }
+    }
+}
+
+impl TryFrom<WindState> for WindRunning {
+    type Error = FmuError;
+
+    fn try_from(s: WindState) -> Result<Self, FmuError> {
+        let loads = build(&s.layout, &s.key)?;
+        Ok(WindRunning {
+            vars: s.vars,
+            layout: s.layout,
+            key: s.key,
+            loads,
+        })
+    }
 }
 
 const DOC: &str = "<h2>Model</h2>\
@@ -106,282 +203,99 @@ at time t is the load at t whatever the communication steps.</p>\
 (release build); memory 48 N<sup>2</sup> bytes during initialisation (48 MiB at N = 1024) and \
 24 N n_segments bytes of tables (11.5 MiB for TMT).</p>";
 
-fn table(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
-    let na = layout.n_actuators();
-    let screen = ScreenParams::default();
-    let geometry = GeometryParams::for_layout(layout);
-    let mut b = T::new();
-    let layout_var = b.add_string(
-        T::string("layout")
-            .structural()
-            .start_str(&layout.name)
-            .describe("Mirror layout this FMU was packaged for"),
-    );
-    let n_segments = b.add_integer(
-        T::integer("n_segments")
-            .structural()
-            .start_int(i32::try_from(layout.n_segments()).unwrap_or(i32::MAX))
-            .describe("Number of segments (f_wind has 3 x n_segments elements)"),
-    );
-    let f_wind = b.add_real(T::real("f_wind").output().len(na).unit("N").describe(
-        "Wind load as equivalent forces along the segment normal at the actuator points",
-    ));
-    let wind_speed = b.add_real(
-        T::real("wind_speed")
-            .parameter()
-            .unit("m/s")
-            .start(1.0)
-            .non_negative()
-            .describe("Mean wind speed across the mirror (frozen-flow speed)"),
-    );
-    let wind_direction = b.add_real(
-        T::real("wind_direction")
-            .parameter()
-            .unit("deg")
-            .start(0.0)
-            .describe(
-                "Direction the wind blows towards, counter-clockwise from the layout's x axis",
-            ),
-    );
-    let pressure_rms = b.add_real(
-        T::real("pressure_rms")
-            .parameter()
-            .unit("Pa")
-            .start(0.0)
-            .non_negative()
-            .describe("rms pressure fluctuation; 0: use pressure_coefficient x 0.5 air_density wind_speed^2"),
-    );
-    let pressure_coefficient = b.add_real(
-        T::real("pressure_coefficient")
-            .parameter()
-            .unit("1")
-            .start(m1::loads::wind::DEFAULT_PRESSURE_COEFFICIENT)
-            .non_negative()
-            .describe(
-                "rms pressure coefficient Cp (sigma_p = Cp q when pressure_rms is 0; calibrated: the \
-                 default TMT plant's open loop at 1 m/s is the seed paper's Figure 12, 39 nm)",
-            ),
-    );
-    let air_density = b.add_real(
-        T::real("air_density")
-            .parameter()
-            .unit("kg/m3")
-            .start(DEFAULT_AIR_DENSITY)
-            .positive()
-            .describe("Air density (0.82 kg/m3 at 4 km altitude)"),
-    );
-    let defaults = [(5.0, 0.75), (30.0, 0.25), (60.0, 0.0)];
-    let outer_scale = std::array::from_fn(|j| {
-        b.add_real(
-            T::real(&format!("outer_scale_{}", j + 1))
-                .parameter()
-                .unit("m")
-                .start(defaults[j].0)
-                .positive()
-                .describe(&format!("Outer scale L0 of pressure component {}", j + 1)),
-        )
-    });
-    let energy_fraction = std::array::from_fn(|j| {
-        b.add_real(
-            T::real(&format!("energy_fraction_{}", j + 1))
-                .parameter()
-                .unit("1")
-                .start(defaults[j].1)
-                .non_negative()
-                .describe(&format!(
-                    "Variance share of component {} (normalised by the sum of the fractions; 0 disables it)",
-                    j + 1
-                )),
-        )
-    });
-    let seed = b.add_integer(
-        T::integer("seed")
-            .parameter()
-            .start_int(1)
-            .describe("Seed of the pressure screen"),
-    );
-    let screen_size = b.add_real(
-        T::real("screen_size")
-            .parameter()
-            .unit("m")
-            .start(screen.size)
-            .positive()
-            .describe("Side of the square periodic screen (> mirror diameter; a few outer scales)"),
-    );
-    let screen_samples = b.add_integer(
-        T::integer("screen_samples")
-            .parameter()
-            .start_int(i32::try_from(screen.samples).unwrap_or(1024))
-            .check(fmu::Check::Range(16.0, 4096.0))
-            .describe(
-                "Samples per side of the screen (even; spacing screen_size / screen_samples)",
-            ),
-    );
-    let actuator_radius = b.add_real(
-        T::real("actuator_radius")
-            .parameter()
-            .unit("m")
-            .start(geometry.actuator_radius)
-            .positive()
-            .describe("Radius of the actuator circle (equivalent-force points; default a / 2)"),
-    );
-    let calc = |b: &mut T, name: &str, unit: &str, desc: &str| {
-        b.add_real(
-            T::real(name)
-                .calculated_parameter()
-                .unit(unit)
-                .describe(desc),
-        )
-    };
-    let effective_pressure_rms = calc(
-        &mut b,
-        "effective_pressure_rms",
-        "Pa",
-        "rms pressure sigma_p in use",
-    );
-    let segment_force_rms = calc(
-        &mut b,
-        "segment_force_rms",
-        "N",
-        "Expected rms of the force integrated over one segment (projected area)",
-    );
-    let aperture_attenuation = calc(
-        &mut b,
-        "aperture_attenuation",
-        "1",
-        "segment_force_rms / (sigma_p x segment area): the attenuation by the integration",
-    );
-    let flow_period = calc(
-        &mut b,
-        "flow_period",
-        "s",
-        "Time after which the frozen flow repeats, screen_size / wind_speed (0 if no wind)",
-    );
-    let table = b.build()?;
-    Ok((
-        table,
-        Vars {
-            layout: layout_var,
-            n_segments,
-            f_wind,
-            wind_speed,
-            wind_direction,
-            pressure_rms,
-            pressure_coefficient,
-            air_density,
-            outer_scale,
-            energy_fraction,
-            seed,
-            screen_size,
-            screen_samples,
-            actuator_radius,
-            effective_pressure_rms,
-            segment_force_rms,
-            aperture_attenuation,
-            flow_period,
+/// Reads and checks the parameters.
+fn key(x: &Vars, v: &Values) -> Result<Key, FmuError> {
+    let s = |h: RealVar| v.scalar(h);
+    let fractions: f64 = x.energy_fraction.iter().map(|&h| s(h)).sum();
+    if fractions <= 0.0 {
+        return Err(FmuError::BadValue {
+            variable: "energy_fraction_1".into(),
+            value: s(x.energy_fraction[0]).to_string(),
+            reason: "the energy fractions energy_fraction_1..3 must have a positive sum".into(),
+        });
+    }
+    let samples = v.integer(x.screen_samples);
+    if samples % 2 != 0 {
+        return Err(FmuError::BadValue {
+            variable: "screen_samples".into(),
+            value: samples.to_string(),
+            reason: "must be even".into(),
+        });
+    }
+    let speed = s(x.wind_speed);
+    let mut sigma = s(x.pressure_rms);
+    if sigma == 0.0 {
+        sigma = pressure_rms_from_cp(s(x.pressure_coefficient), s(x.air_density), speed);
+    }
+    Ok(Key {
+        wind: WindParams {
+            speed,
+            direction: s(x.wind_direction),
+            screen: ScreenParams {
+                pressure_rms: sigma,
+                outer_scales: (0..N_SCALES)
+                    .map(|j| OuterScale {
+                        outer_scale: s(x.outer_scale[j]),
+                        fraction: s(x.energy_fraction[j]),
+                    })
+                    .collect(),
+                size: s(x.screen_size),
+                samples: usize::try_from(samples).unwrap_or(0),
+                seed: u64::from(v.integer(x.seed) as u32),
+            },
         },
-    ))
+        actuator_radius: s(x.actuator_radius),
+    })
 }
 
-impl Wind {
-    /// Reads and checks the parameters.
-    fn key(&self, v: &Values) -> Result<Key, FmuError> {
-        let x = &self.vars;
-        let s = |h: RealVar| v.scalar(h);
-        let fractions: f64 = x.energy_fraction.iter().map(|&h| s(h)).sum();
-        if fractions <= 0.0 {
-            return Err(FmuError::BadValue {
-                variable: "energy_fraction_1".into(),
-                value: s(x.energy_fraction[0]).to_string(),
-                reason: "the energy fractions energy_fraction_1..3 must have a positive sum".into(),
-            });
-        }
-        let samples = v.integer(x.screen_samples);
-        if samples % 2 != 0 {
-            return Err(FmuError::BadValue {
-                variable: "screen_samples".into(),
-                value: samples.to_string(),
-                reason: "must be even".into(),
-            });
-        }
-        let speed = s(x.wind_speed);
-        let mut sigma = s(x.pressure_rms);
-        if sigma == 0.0 {
-            sigma = pressure_rms_from_cp(s(x.pressure_coefficient), s(x.air_density), speed);
-        }
-        Ok(Key {
-            wind: WindParams {
-                speed,
-                direction: s(x.wind_direction),
-                screen: ScreenParams {
-                    pressure_rms: sigma,
-                    outer_scales: (0..N_SCALES)
-                        .map(|j| OuterScale {
-                            outer_scale: s(x.outer_scale[j]),
-                            fraction: s(x.energy_fraction[j]),
-                        })
-                        .collect(),
-                    size: s(x.screen_size),
-                    samples: usize::try_from(samples).unwrap_or(0),
-                    seed: u64::from(v.integer(x.seed) as u32),
-                },
-            },
-            actuator_radius: s(x.actuator_radius),
-        })
+/// The tables of `layout` for `key`: the screen from the process's cache (at this speed and
+/// rms pressure), or built and cached.
+fn build(layout: &str, key: &Key) -> Result<Arc<WindLoads>, FmuError> {
+    let (speed, sigma) = (key.wind.speed, key.wind.screen.pressure_rms);
+    let mut screen_key = key.clone();
+    screen_key.wind.speed = 0.0;
+    screen_key.wind.screen.pressure_rms = 1.0;
+    // A poisoned lock only means another instance panicked while holding it: the cached
+    // entries are complete values, still valid.
+    let cached = SCREENS
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+        .iter()
+        .find(|(k, _)| *k == screen_key)
+        .map(|(_, l)| l.clone());
+    if let Some(loads) = cached {
+        let loads = loads.with_flow(speed, sigma).map_err(wiring::model_error)?;
+        return Ok(Arc::new(loads));
+    }
+    let layout = Layout::preset(layout).map_err(|e| FmuError::Model(e.to_string()))?;
+    let params = GeometryParams {
+        actuator_radius: key.actuator_radius,
+        ..GeometryParams::for_layout(&layout)
+    };
+    let geometry = Geometry::new(&layout, params).map_err(wiring::model_error)?;
+    let loads = Arc::new(WindLoads::new(&geometry, &key.wind).map_err(wiring::model_error)?);
+    let mut cache = SCREENS
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    cache.retain(|(k, _)| *k != screen_key);
+    cache.push((screen_key, loads.clone()));
+    if cache.len() > SCREEN_CACHE {
+        cache.remove(0);
+    }
+    Ok(loads)
+}
+
+impl WindRunning {
+    /// The wind loads (for in-process use and tests).
+    pub fn loads(&self) -> &WindLoads {
+        &self.loads
     }
 
-    /// The tables for the current parameters: the screen from the process's cache (at this
-    /// speed and rms pressure), or built and cached.
-    fn build(&self, v: &Values) -> Result<Arc<WindLoads>, FmuError> {
-        let key = self.key(v)?;
-        let (speed, sigma) = (key.wind.speed, key.wind.screen.pressure_rms);
-        let mut screen_key = key.clone();
-        screen_key.wind.speed = 0.0;
-        screen_key.wind.screen.pressure_rms = 1.0;
-        // A poisoned lock only means another instance panicked while holding it: the cached
-        // entries are complete values, still valid.
-        let cached = SCREENS
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner)
-            .iter()
-            .find(|(k, _)| *k == screen_key)
-            .map(|(_, l)| l.clone());
-        if let Some(loads) = cached {
-            let loads = loads.with_flow(speed, sigma).map_err(wiring::model_error)?;
-            return Ok(Arc::new(loads));
-        }
-        let layout = Layout::preset(&self.layout).map_err(|e| FmuError::Model(e.to_string()))?;
-        let params = GeometryParams {
-            actuator_radius: key.actuator_radius,
-            ..GeometryParams::for_layout(&layout)
-        };
-        let geometry = Geometry::new(&layout, params).map_err(wiring::model_error)?;
-        let loads = Arc::new(WindLoads::new(&geometry, &key.wind).map_err(wiring::model_error)?);
-        let mut cache = SCREENS
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner);
-        cache.retain(|(k, _)| *k != screen_key);
-        cache.push((screen_key, loads.clone()));
-        if cache.len() > SCREEN_CACHE {
-            cache.remove(0);
-        }
-        Ok(loads)
-    }
-
-    fn write_outputs(
-        loads: &WindLoads,
-        vars: &Vars,
-        t: f64,
-        v: &mut Values,
-    ) -> Result<(), FmuError> {
-        loads
-            .forces(t, v.real_mut(vars.f_wind))
+    /// Writes `f_wind` at time `t`.
+    fn write_outputs(&self, t: f64, v: &mut Values) -> Result<(), FmuError> {
+        self.loads
+            .forces(t, v.real_mut(self.vars.f_wind))
             .map_err(wiring::model_error)
-    }
-
-    /// The wind loads, once initialised (for in-process use and tests).
-    pub fn loads(&self) -> Option<&WindLoads> {
-        self.loads.as_deref()
     }
 }
 
@@ -397,26 +311,28 @@ impl Model for Wind {
         default_step: 1e-2,
     };
 
+    type Running = WindRunning;
+
     fn variants() -> Vec<String> {
         wiring::layout_variants()
     }
 
     fn new(variant: &str) -> Result<(VariableTable, Self), FmuError> {
         let layout = wiring::preset(variant)?;
-        let (table, vars) = table(&layout)?;
+        let (table, vars) = T::declare(|b| Vars::add_to(b, &layout))?;
         Ok((
             table,
             Wind {
                 vars,
                 layout: layout.name.clone(),
                 na: layout.n_actuators(),
-                loads: None,
             },
         ))
     }
 
-    fn initialize(&mut self, v: &mut Values, start_time: f64) -> Result<(), FmuError> {
-        let loads = self.build(v)?;
+    fn initialize(&self, v: &mut Values, start_time: f64) -> Result<WindRunning, FmuError> {
+        let key = key(&self.vars, v)?;
+        let loads = build(&self.layout, &key)?;
         if loads.n_actuators() != self.na {
             return Err(FmuError::Model(format!(
                 "the wind tables have {} actuators, the FMU {}",
@@ -436,32 +352,61 @@ impl Model for Wind {
             0.0
         };
         v.real_mut(x.flow_period)[0] = loads.period().unwrap_or(0.0);
-        Self::write_outputs(&loads, &x, start_time, v)?;
-        self.loads = Some(loads);
-        Ok(())
+        let running = WindRunning {
+            vars: x,
+            layout: self.layout.clone(),
+            key,
+            loads,
+        };
+        running.write_outputs(start_time, v)?;
+        Ok(running)
     }
+}
 
+impl Running for WindRunning {
     fn update_outputs(&mut self, _v: &mut Values) -> Result<(), FmuError> {
         // No inputs: the outputs only change with time.
         Ok(())
     }
 
     fn do_step(&mut self, t: f64, h: f64, v: &mut Values) -> Result<(), FmuError> {
-        let loads = match self.loads.take() {
-            Some(l) => l,
-            // After a deserialised FMU state: the tables are rebuilt from the parameters.
-            None => self.build(v)?,
-        };
-        // The tables go back whatever happens: an error leaves the model as it was.
-        let r = Self::write_outputs(&loads, &self.vars, t + h, v);
-        self.loads = Some(loads);
-        r
+        self.write_outputs(t + h, v)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use fmu::Instance;
+
+    /// An instance of `variant` through the runtime, in initialisation mode (start time 0).
+    fn instance(variant: &str) -> Instance<Wind> {
+        let (table, _) = Wind::new(variant).expect("table");
+        let guid = fmu::xml::guid(&Wind::INFO, &table);
+        let mut fmu = Instance::<Wind>::new("test", &guid, None, None, false).expect("instance");
+        fmu.setup_experiment(0.0, None).expect("setup");
+        fmu.enter_initialization_mode()
+            .expect("initialisation mode");
+        fmu
+    }
+
+    /// The value references of a variable's scalars.
+    fn vrs(fmu: &Instance<Wind>, name: &str) -> Vec<u32> {
+        let v = fmu.table().by_name(name).expect(name);
+        (v.vr..v.vr + v.len as u32).collect()
+    }
+
+    /// `steps` communication steps of 10 ms, then the values of `name`.
+    fn run(fmu: &mut Instance<Wind>, steps: usize, name: &str) -> Vec<f64> {
+        for _ in 0..steps {
+            let t = fmu.time();
+            fmu.do_step(t, 0.01).expect("step");
+        }
+        let vr = vrs(fmu, name);
+        let mut out = vec![f64::NAN; vr.len()];
+        fmu.get_real(&vr, &mut out).expect("get");
+        out
+    }
 
     #[test]
     fn tables_build_for_every_layout() {
@@ -471,5 +416,36 @@ mod tests {
             let f = t.by_name("f_wind").expect("f_wind");
             assert_eq!((f.len, f.unit.as_deref()), (na, Some("N")));
         }
+    }
+
+    #[test]
+    fn the_module_documentation_lists_the_signals() {
+        assert_eq!(
+            wiring::check_documented_signals::<Wind>(include_str!("lib.rs")),
+            Ok(())
+        );
+    }
+
+    /// A serialised FMU state (the tables rebuilt from the parameters it holds) steps on
+    /// exactly as the instance it was taken from.
+    #[test]
+    fn a_serialised_state_steps_on_as_the_original() {
+        let mut fmu = instance("keck");
+        fmu.set_integer(&vrs(&fmu, "screen_samples"), &[64])
+            .expect("screen_samples");
+        fmu.set_real(&vrs(&fmu, "wind_speed"), &[5.0])
+            .expect("wind_speed");
+        fmu.exit_initialization_mode().expect("initialise");
+        let na = Layout::preset("keck").expect("layout").n_actuators();
+        assert_eq!(fmu.running().expect("running").loads().n_actuators(), na);
+        run(&mut fmu, 1, "f_wind");
+        let bytes =
+            Instance::<Wind>::serialize(&fmu.get_state().expect("state")).expect("serialise");
+        let original = run(&mut fmu, 3, "f_wind");
+        let state = fmu.deserialize(&bytes).expect("deserialise");
+        fmu.set_state(&state).expect("set state");
+        let restored = run(&mut fmu, 3, "f_wind");
+        assert!(original.iter().any(|&f| f != 0.0));
+        assert_eq!(original, restored);
     }
 }

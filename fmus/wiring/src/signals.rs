@@ -60,14 +60,15 @@ pub struct Signal {
 impl Signal {
     /// The declaration without causality: name, length on `layout`, unit, description.
     pub fn decl(&self, layout: &Layout) -> Decl {
-        let d = T::real(self.name)
-            .len(self.length.of(layout))
-            .describe(self.description);
-        if self.unit.is_empty() {
-            d
-        } else {
-            d.unit(self.unit)
+        let mut d = T::real(self.name).describe(self.description);
+        // A scalar signal stays a scalar (`pier_z`, not the array `pier_z[1]`).
+        if self.length != Length::One {
+            d = d.len(self.length.of(layout));
         }
+        if !self.unit.is_empty() {
+            d = d.unit(self.unit);
+        }
+        d
     }
 
     /// The signal as an input of an FMU on `layout`, starting at 0.
@@ -211,6 +212,8 @@ mod tests {
             assert_eq!(var.len, s.length.of(&layout));
             assert_eq!(v.len, var.len);
             assert_eq!(var.unit.as_deref().unwrap_or(""), s.unit, "{}", s.name);
+            // Arrays are arrays (`z[1]`..), a scalar is named as it is.
+            assert_eq!(var.array, s.length != Length::One, "{}", s.name);
         }
         assert_eq!(Length::Actuators.of(&layout), 108);
         assert_eq!(Length::Sensors.of(&layout), layout.n_sensors());
