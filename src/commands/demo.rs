@@ -5,7 +5,7 @@
 
 use clap::{Args, ValueEnum};
 
-use fmu::{Model, Values, VariableTable};
+use fmu::{Model, Running, Values, VariableTable};
 use m1::analysis::step_response::{StepFigures, command_bandwidth};
 use m1::plant::segment::{ActuatorParams, Channel, SegmentModel};
 
@@ -77,16 +77,16 @@ impl Actuator {
 struct Sim<M: Model> {
     table: VariableTable,
     values: Values,
-    model: M,
+    model: M::Running,
     time: f64,
 }
 
 impl<M: Model> Sim<M> {
     fn new(layout: &str, setup: impl FnOnce(&VariableTable, &mut Values)) -> Result<Self, String> {
-        let (table, mut model) = M::new(layout).map_err(|e| e.to_string())?;
+        let (table, model) = M::new(layout).map_err(|e| e.to_string())?;
         let mut values = table.initial_values();
         setup(&table, &mut values);
-        model
+        let model = model
             .initialize(&mut values, 0.0)
             .map_err(|e| e.to_string())?;
         Ok(Self {

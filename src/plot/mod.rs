@@ -23,7 +23,6 @@
 //! labels. The figures, by kind: [`maps`] (mirror maps), [`lines`](mod@lines) (spectra and line plots),
 //! [`bars`] (histograms), all but the maps drawn by [`xy`] (axes, bars, curves, legend, marked
 //! points and their labels, a corner note).
-#![allow(dead_code)]
 
 mod bars;
 mod lines;

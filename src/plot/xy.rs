@@ -55,7 +55,8 @@ pub(super) struct XyPlot {
     pub(super) note: Vec<String>,
 }
 
-/// `v` with a few more digits than the axis ticks.
+/// `v` with a few more digits than the axis ticks (for the histogram's note).
+#[cfg_attr(not(test), allow(dead_code))]
 pub(super) fn significant(v: f64, step: f64, magnitude: f64) -> String {
     linear_tick(v, step / 100.0, magnitude)
 }

@@ -28,7 +28,7 @@
 //!
 //! A line may instead add a group of variables declared elsewhere (`field: Group => expr`),
 //! where `expr` uses the builder named before the arguments (`b` above), e.g.
-//! `segments: ParamVars => declare_params::<V>(b)`.
+//! `segments: ParamVars => ParamVars::add_to::<V>(b, &V::defaults())`.
 
 use crate::error::FmuError;
 use crate::variables::{BoolVar, Decl, IntVar, RealVar, StrVar, TableBuilder, VariableTable};

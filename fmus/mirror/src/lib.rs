@@ -26,14 +26,15 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use fmu::{
-    BoolVar, Dependencies, FmuError, IntVar, Model, ModelInfo, RealVar, StrVar, TableBuilder as T,
-    Values, VariableTable,
+    BoolVar, Dependencies, FmuError, IntVar, Model, ModelInfo, RealVar, Running, StrVar,
+    TableBuilder as T, Values, VariableTable,
 };
 use m1::aperture::layout::Layout;
 use m1::plant::mirror::CoupledMirror;
 use m1::plant::static_mirror::QuasiStaticMirror;
 use segments::{ParamVars, PiezoVariant, Variant, VoiceCoilVariant};
-use structure_model::{CellVars, declare_cell_params};
+use structure_model::CellVars;
+use wiring::signals::{F_CELL, F_WIND, PIER_Z, U_CMD, Z, Z_CELL, layout_decl, n_segments_decl};
 
 /// The facts of a mirror FMU of one actuator variant.
 pub trait MirrorVariant: Variant {
@@ -104,42 +105,63 @@ impl MirrorVariant for PiezoVariant {
     const COUPLING_SUBSTEPS: i32 = 2;
 }
 
-/// Handles of every variable.
-#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
-struct Vars {
-    layout: StrVar,
-    n_segments: IntVar,
-    u_cmd: RealVar,
-    f_wind: RealVar,
-    pier_z: RealVar,
-    z: RealVar,
-    z_cell: RealVar,
-    f_cell: RealVar,
-    substeps: IntVar,
-    segments: ParamVars,
-    cell: CellVars,
-    quasi_static: BoolVar,
+fmu::variables! {
+    /// Handles of every variable.
+    #[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+    struct Vars<V: MirrorVariant>(b, layout: &Layout) {
+        layout: StrVar = layout_decl(&layout.name),
+        n_segments: IntVar = n_segments_decl(layout),
+        u_cmd: RealVar = U_CMD.input(layout),
+        f_wind: RealVar = F_WIND.input(layout),
+        pier_z: RealVar = PIER_Z.input(layout),
+        z: RealVar = Z.output(layout).depends(Dependencies::None),
+        z_cell: RealVar = Z_CELL.output(layout).depends(Dependencies::None),
+        f_cell: RealVar = F_CELL.output(layout).depends(Dependencies::None),
+        substeps: IntVar = T::integer("coupling_substeps")
+            .parameter()
+            .start_int(V::COUPLING_SUBSTEPS)
+            .positive()
+            .describe(
+                "Coupled solves per servo period: 1 solves segments and structure together at \
+                 every servo sample; more also between samples (second order: each doubling \
+                 divides the coupling error by 4, for about twice the cost of a period)",
+            ),
+        segments: ParamVars => ParamVars::add_to::<V>(b, &V::defaults()),
+        cell: CellVars => CellVars::add_to(b, DEFAULT_MODES),
+        quasi_static: BoolVar = T::boolean("quasi_static")
+            .parameter()
+            .start_bool(false)
+            .describe(
+                "Quasi-static plant for wind studies: static structure, each segment chain \
+                 reduced to its low-frequency stiffness and servo integrator (any step; nothing \
+                 faster than about 1 Hz is modelled)",
+            ),
+    }
 }
 
-/// The solver behind a mirror FMU.
-#[derive(Clone, Serialize, Deserialize)]
+/// The solver behind a mirror FMU (boxed: their sizes differ by a factor of fifteen).
+#[derive(Debug, Clone, Serialize, Deserialize)]
 enum Solver {
-    Coupled(CoupledMirror),
-    QuasiStatic(QuasiStaticMirror),
+    Coupled(Box<CoupledMirror>),
+    QuasiStatic(Box<QuasiStaticMirror>),
 }
 
-/// The mirror FMU of one actuator variant.
-#[derive(Clone, Serialize, Deserialize)]
-#[serde(bound = "")]
+/// The mirror FMU of one actuator variant, as configured; [`MirrorRunning`] steps.
+#[derive(Debug, Clone)]
 pub struct Mirror<V: MirrorVariant> {
     vars: Vars,
     layout: String,
     n_segments: usize,
     resource_dir: Option<PathBuf>,
-    mirror: Option<Solver>,
-    z: Vec<f64>,
-    #[serde(skip)]
     _v: PhantomData<V>,
+}
+
+/// An initialised mirror FMU: the solver and the handles it reads and writes.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct MirrorRunning {
+    vars: Vars,
+    solver: Solver,
+    z: Vec<f64>,
 }
 
 /// The `mirror_voicecoil` FMU.
@@ -151,144 +173,36 @@ pub type Piezo = Mirror<PiezoVariant>;
 /// (measured on Keck), and the cost of a servo period grows linearly with the count.
 pub const DEFAULT_MODES: i32 = 60;
 
-fn table<V: MirrorVariant>(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
-    let na = layout.n_actuators();
-    let mut b = T::new();
-    let layout_var = b.add_string(
-        T::string("layout")
-            .structural()
-            .start_str(&layout.name)
-            .describe("Mirror layout this FMU was packaged for"),
-    );
-    let n_segments = b.add_integer(
-        T::integer("n_segments")
-            .structural()
-            .start_int(i32::try_from(layout.n_segments()).unwrap_or(i32::MAX))
-            .describe("Number of segments (array sizes are 3 x n_segments)"),
-    );
-    let u_cmd = b.add_real(
-        T::real("u_cmd")
-            .input()
-            .len(na)
-            .unit("m")
-            .start(0.0)
-            .describe("Actuator position command (stroke) from the global controller"),
-    );
-    let f_wind = b.add_real(
-        T::real("f_wind")
-            .input()
-            .len(na)
-            .unit("N")
-            .start(0.0)
-            .describe("Wind load on the mirror as equivalent forces at the actuator points"),
-    );
-    let pier_z = b.add_real(
-        T::real("pier_z")
-            .input()
-            .unit("m")
-            .start(0.0)
-            .describe("Vertical pier motion (base excitation through the pier spring)"),
-    );
-    let z = b.add_real(
-        T::real("z")
-            .output()
-            .len(na)
-            .unit("m")
-            .depends(Dependencies::None)
-            .describe("Mirror displacement normal to the segment at each actuator"),
-    );
-    let z_cell = b.add_real(
-        T::real("z_cell")
-            .output()
-            .len(na)
-            .unit("m")
-            .depends(Dependencies::None)
-            .describe("Cell displacement at each actuator attachment"),
-    );
-    let f_cell = b.add_real(
-        T::real("f_cell")
-            .output()
-            .len(na)
-            .unit("N")
-            .depends(Dependencies::None)
-            .describe("Force of each actuator on the mirror cell"),
-    );
-    let substeps = b.add_integer(
-        T::integer("coupling_substeps")
-            .parameter()
-            .start_int(V::COUPLING_SUBSTEPS)
-            .positive()
-            .describe(
-                "Coupled solves per servo period: 1 solves segments and structure together at \
-                 every servo sample; more also between samples (second order: each doubling \
-                 divides the coupling error by 4, for about twice the cost of a period)",
-            ),
-    );
-    let segments = segments::declare_params::<V>(&mut b);
-    let cell = declare_cell_params(&mut b, DEFAULT_MODES);
-    let quasi_static = b.add_boolean(
-        T::boolean("quasi_static")
-            .parameter()
-            .start_bool(false)
-            .describe(
-                "Quasi-static plant for wind studies: static structure, each segment chain \
-                 reduced to its low-frequency stiffness and servo integrator (any step; nothing \
-                 faster than about 1 Hz is modelled)",
-            ),
-    );
-    let table = b.build()?;
-    Ok((
-        table,
-        Vars {
-            layout: layout_var,
-            n_segments,
-            u_cmd,
-            f_wind,
-            pier_z,
-            z,
-            z_cell,
-            f_cell,
-            substeps,
-            segments,
-            cell,
-            quasi_static,
-        },
-    ))
-}
-
-impl<V: MirrorVariant> Mirror<V> {
-    fn write_outputs(&mut self, v: &mut Values) -> Result<(), FmuError> {
-        let (z_cell, f_cell) = match &self.mirror {
-            Some(Solver::Coupled(m)) => {
+impl MirrorRunning {
+    fn write_outputs(&mut self, v: &mut Values) {
+        let (z_cell, f_cell) = match &self.solver {
+            Solver::Coupled(m) => {
                 m.mirror(&mut self.z);
                 (m.cell_displacement(), m.cell_force())
             }
-            Some(Solver::QuasiStatic(m)) => {
+            Solver::QuasiStatic(m) => {
                 m.mirror(&mut self.z);
                 (m.cell_displacement(), m.cell_force())
             }
-            None => return Err(FmuError::Model("the mirror is not initialised".into())),
         };
         v.real_mut(self.vars.z_cell).copy_from_slice(z_cell);
         v.real_mut(self.vars.f_cell).copy_from_slice(f_cell);
         v.real_mut(self.vars.z).copy_from_slice(&self.z);
-        Ok(())
     }
 
-    /// The coupled solver, once initialised and unless `quasi_static` is set (for in-process
-    /// use and tests).
+    /// The coupled solver, unless `quasi_static` is set (for in-process use and tests).
     pub fn solver(&self) -> Option<&CoupledMirror> {
-        match &self.mirror {
-            Some(Solver::Coupled(m)) => Some(m),
-            _ => None,
+        match &self.solver {
+            Solver::Coupled(m) => Some(&**m),
+            Solver::QuasiStatic(_) => None,
         }
     }
 
-    /// The quasi-static solver, once initialised with `quasi_static` set.
+    /// The quasi-static solver, when `quasi_static` is set.
     pub fn quasi_static_solver(&self) -> Option<&QuasiStaticMirror> {
-        match &self.mirror {
-            Some(Solver::QuasiStatic(m)) => Some(m),
-            _ => None,
+        match &self.solver {
+            Solver::QuasiStatic(m) => Some(&**m),
+            Solver::Coupled(_) => None,
         }
     }
 }
@@ -296,33 +210,31 @@ impl<V: MirrorVariant> Mirror<V> {
 impl<V: MirrorVariant> Model for Mirror<V> {
     const INFO: ModelInfo = V::MIRROR_INFO;
 
+    type Running = MirrorRunning;
+
     fn variants() -> Vec<String> {
         wiring::layout_variants()
     }
 
     fn new(variant: &str) -> Result<(VariableTable, Self), FmuError> {
         let layout = wiring::preset(variant)?;
-        let (table, vars) = table::<V>(&layout)?;
-        Ok((
-            table,
-            Self {
-                vars,
-                layout: variant.to_string(),
-                n_segments: layout.n_segments(),
-                resource_dir: None,
-                mirror: None,
-                z: vec![0.0; layout.n_actuators()],
-                _v: PhantomData,
-            },
-        ))
+        let (table, vars) = T::declare(|b| Vars::add_to::<V>(b, &layout))?;
+        let model = Self {
+            vars,
+            layout: variant.to_string(),
+            n_segments: layout.n_segments(),
+            resource_dir: None,
+            _v: PhantomData,
+        };
+        Ok((table, model))
     }
 
     fn set_resource_dir(&mut self, dir: &Path) {
         self.resource_dir = Some(dir.to_path_buf());
     }
 
-    fn initialize(&mut self, v: &mut Values, _start_time: f64) -> Result<(), FmuError> {
-        let model = self.vars.segments.model::<V>(v);
+    fn initialize(&self, v: &mut Values, _start_time: f64) -> Result<MirrorRunning, FmuError> {
+        let model = self.vars.segments.model(v);
         let cell = self.vars.cell.modal_model(
             v,
             &self.layout,
@@ -335,7 +247,7 @@ impl<V: MirrorVariant> Model for Mirror<V> {
             let m = QuasiStaticMirror::new(self.n_segments, model.clone(), cell, n_modes)
                 .map_err(wiring::model_error)?;
             self.vars.cell.write_calculated(v, m.structure());
-            Solver::QuasiStatic(m)
+            Solver::QuasiStatic(Box::new(m))
         } else {
             let m = CoupledMirror::new(
                 self.n_segments,
@@ -347,16 +259,24 @@ impl<V: MirrorVariant> Model for Mirror<V> {
             )
             .map_err(wiring::model_error)?;
             self.vars.cell.write_calculated(v, m.structure());
-            Solver::Coupled(m)
+            Solver::Coupled(Box::new(m))
         };
         self.vars.segments.write_calculated(v, &model);
-        self.mirror = Some(solver);
-        self.write_outputs(v)
+        let mut running = MirrorRunning {
+            vars: self.vars,
+            solver,
+            z: vec![0.0; self.vars.z.len],
+        };
+        running.write_outputs(v);
+        Ok(running)
     }
+}
 
+impl Running for MirrorRunning {
     fn update_outputs(&mut self, v: &mut Values) -> Result<(), FmuError> {
         // No direct feedthrough: new inputs change nothing until the next step.
-        self.write_outputs(v)
+        self.write_outputs(v);
+        Ok(())
     }
 
     fn do_step(&mut self, _t: f64, h: f64, v: &mut Values) -> Result<(), FmuError> {
@@ -366,19 +286,20 @@ impl<V: MirrorVariant> Model for Mirror<V> {
             v.real(vars.f_wind),
             v.scalar(vars.pier_z),
         );
-        match &mut self.mirror {
-            Some(Solver::Coupled(m)) => m.advance(h, u, f, p),
-            Some(Solver::QuasiStatic(m)) => m.advance(h, u, f, p),
-            None => return Err(FmuError::Model("the mirror is not initialised".into())),
+        match &mut self.solver {
+            Solver::Coupled(m) => m.advance(h, u, f, p),
+            Solver::QuasiStatic(m) => m.advance(h, u, f, p),
         }
         .map_err(wiring::model_error)?;
-        self.write_outputs(v)
+        self.write_outputs(v);
+        Ok(())
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use fmu::Instance;
 
     #[test]
     fn tables_build_and_share_the_signals_for_every_layout() {
@@ -402,14 +323,55 @@ mod tests {
     }
 
     #[test]
+    fn the_module_documentation_lists_the_signals() {
+        let doc = include_str!("lib.rs");
+        assert_eq!(wiring::check_documented_signals::<VoiceCoil>(doc), Ok(()));
+        assert_eq!(wiring::check_documented_signals::<Piezo>(doc), Ok(()));
+    }
+
+    /// A serialised FMU state steps on exactly as the instance it was taken from.
+    #[test]
+    fn a_serialised_state_steps_on_as_the_original() {
+        let (table, _) = VoiceCoil::new("keck").expect("table");
+        let guid = fmu::xml::guid(&VoiceCoil::INFO, &table);
+        let mut fmu = Instance::<VoiceCoil>::new("test", &guid, None, None, false).expect("new");
+        fmu.setup_experiment(0.0, None).expect("setup");
+        fmu.enter_initialization_mode()
+            .expect("initialisation mode");
+        fmu.exit_initialization_mode().expect("initialise");
+        assert!(fmu.running().expect("running").solver().is_some());
+        let f = fmu.table().by_name("f_wind").expect("f_wind").vr;
+        fmu.set_real(&[f], &[10.0]).expect("set f_wind");
+        let z = fmu.table().by_name("z").expect("z");
+        let z: Vec<u32> = (z.vr..z.vr + z.len as u32).collect();
+        let run = |fmu: &mut Instance<VoiceCoil>, steps: usize| {
+            for _ in 0..steps {
+                let t = fmu.time();
+                fmu.do_step(t, 1e-3).expect("step");
+            }
+            let mut out = vec![f64::NAN; z.len()];
+            fmu.get_real(&z, &mut out).expect("get");
+            out
+        };
+        run(&mut fmu, 2);
+        let bytes =
+            Instance::<VoiceCoil>::serialize(&fmu.get_state().expect("state")).expect("serialise");
+        let original = run(&mut fmu, 3);
+        let state = fmu.deserialize(&bytes).expect("deserialise");
+        fmu.set_state(&state).expect("set state");
+        assert_eq!(run(&mut fmu, 3), original);
+        assert!(original.iter().any(|&x| x != 0.0));
+    }
+
+    #[test]
     fn keck_steps_and_refuses_a_step_off_the_servo_grid() {
-        let (t, mut m) = VoiceCoil::new("keck").expect("keck");
+        let (t, m) = VoiceCoil::new("keck").expect("keck");
         let mut v = t.initial_values();
-        m.initialize(&mut v, 0.0).expect("init");
+        let mut r = m.initialize(&mut v, 0.0).expect("init");
         v.real_mut(m.vars.f_wind).fill(10.0);
-        m.do_step(0.0, 1e-3, &mut v).expect("step");
+        r.do_step(0.0, 1e-3, &mut v).expect("step");
         assert!(v.real(m.vars.z)[0] > 0.0, "{}", v.real(m.vars.z)[0]);
-        let e = m
+        let e = r
             .do_step(1e-3, 3e-4, &mut v)
             .expect_err("0.3 ms is not a multiple of 0.2 ms")
             .to_string();
@@ -421,19 +383,19 @@ mod tests {
 
     #[test]
     fn quasi_static_settles_on_the_static_stiffness_at_any_step() {
-        let (t, mut m) = VoiceCoil::new("keck").expect("keck");
+        let (t, m) = VoiceCoil::new("keck").expect("keck");
         let mut v = t.initial_values();
         *v.boolean_mut(m.vars.quasi_static) = true;
-        m.initialize(&mut v, 0.0).expect("init");
-        assert!(m.solver().is_none());
+        let mut r = m.initialize(&mut v, 0.0).expect("init");
+        assert!(r.solver().is_none());
         // A uniform push on every actuator (piston pattern) of 1 N: once the integrators have
         // settled, the glass moves with the cell plus 1 / static stiffness.
         v.real_mut(m.vars.f_wind).fill(1.0);
         for k in 0..200 {
-            m.do_step(f64::from(k) * 0.07, 0.07, &mut v)
+            r.do_step(f64::from(k) * 0.07, 0.07, &mut v)
                 .expect("a 70 ms step");
         }
-        let model = m
+        let model = r
             .quasi_static_solver()
             .expect("quasi-static")
             .model()

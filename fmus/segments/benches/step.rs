@@ -23,11 +23,11 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{Criterion, SamplingMode, Throughput, criterion_group, criterion_main};
-use fmu::{Model, Values};
+use fmu::{Model, Running, Values};
 
 /// One model instance and a master's buffers around it.
 struct Rig<M: Model> {
-    model: M,
+    model: M::Running,
     values: Values,
     /// (slot, len) of u_cmd, z_cell, f_wind.
     inputs: [(usize, usize); 3],
@@ -44,9 +44,9 @@ struct Rig<M: Model> {
 
 impl<M: Model> Rig<M> {
     fn new(layout: &str) -> Self {
-        let (table, mut model) = M::new(layout).expect("model");
+        let (table, model) = M::new(layout).expect("model");
         let mut values = table.initial_values();
-        model.initialize(&mut values, 0.0).expect("initialize");
+        let model = model.initialize(&mut values, 0.0).expect("initialize");
         let slot = |name: &str| {
             let v = table.by_name(name).expect(name);
             (v.slot, v.len)

@@ -17,88 +17,186 @@ use serde::{Deserialize, Serialize};
 use std::marker::PhantomData;
 
 use fmu::{
-    BoolVar, Dependencies, FmuError, IntVar, Model, ModelInfo, RealVar, StrVar, TableBuilder as T,
-    Values, VariableTable,
+    BoolVar, Check, Decl, Dependencies, FmuError, IntVar, Model, ModelInfo, RealVar, Running,
+    StrVar, TableBuilder as T, Values, VariableTable,
 };
 use m1::aperture::layout::Layout;
 use m1::plant::segment::{
-    ActuatorParams, Channel, Drive, SegmentArray, SegmentModel, SegmentParams, ServoParams, Shunt,
+    ActuatorParams, Channel, Drive, PIEZO_STIFFNESS, SegmentArray, SegmentModel, SegmentParams,
+    ServoParams, Shunt,
 };
+use wiring::signals::{F_CELL, F_WIND, U_CMD, Z, Z_CELL, layout_decl, n_segments_decl};
 
-/// What differs between actuator variants: their parameters and how they map to the physics.
+/// What differs between actuator variants: their default parameters and their drive.
 pub trait Variant: Clone + Send + 'static {
     /// Static facts of the FMU.
     const INFO: ModelInfo;
-    /// Declares the variant's own parameters.
+    /// Units of the servo gains kp, ki and kd (the feedforward is in kp's): the drive's unit
+    /// per m, per m s and s per m.
+    const SERVO_UNITS: [&'static str; 3];
+    /// The physics' model of the variant with its default parameters: the start values.
+    fn defaults() -> SegmentModel;
+    /// Declares the variant's own (drive) parameters.
     fn declare(b: &mut T) -> DriveVars;
-    /// Reads them back into the physics' actuator description.
-    fn actuator(v: &Values, d: &DriveVars, servo: ServoParams, moving_mass: f64) -> ActuatorParams;
 }
 
-/// Handles of the drive parameters (the ones that apply to the variant are Some).
-#[derive(Debug, Clone, Copy, Serialize, Deserialize, Default)]
-pub struct DriveVars {
-    spring_stiffness: Option<RealVar>,
-    spring_damping: Option<RealVar>,
-    piezo_stiffness: Option<RealVar>,
-    piezo_damping_ratio: Option<RealVar>,
-    shunt_enabled: Option<BoolVar>,
-    shunt_coupling: Option<RealVar>,
-    shunt_frequency: Option<RealVar>,
-    shunt_damping_ratio: Option<RealVar>,
+fmu::variables! {
+    /// Handles of the voice-coil drive parameters.
+    #[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+    pub struct VoiceCoilDrive(b) {
+        spring_stiffness: RealVar = param("spring_stiffness", "N/m", 2.0e4).non_negative()
+            .describe("Offload spring stiffness of each voice-coil actuator"),
+        spring_damping: RealVar = param("spring_damping", "N.s/m", 50.0).non_negative()
+            .describe("Damping of the offload spring and coil"),
+    }
 }
 
-/// Handles of every variable.
+fmu::variables! {
+    /// Handles of the piezo drive parameters (stack and LR shunt).
+    #[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+    pub struct PiezoDrive(b) {
+        piezo_stiffness: RealVar = param("piezo_stiffness", "N/m", PIEZO_STIFFNESS).positive()
+            .describe("Open-circuit stiffness of each piezo stack"),
+        piezo_damping_ratio: RealVar = param("piezo_damping_ratio", "1", 0.01).non_negative()
+            .describe(
+                "Structural damping ratio of the stack, on the segment's piston mode \
+                 (c = 2 zeta sqrt(K (actuator_mass + segment_mass / 3)))",
+            ),
+        shunt_enabled: BoolVar = T::boolean("shunt_enabled").parameter().start_bool(false)
+            .describe("Connect the resonant LR shunt (true: damped hard actuator)"),
+        shunt_coupling: RealVar = param("shunt_coupling", "1", Shunt::default().coupling)
+            .check(Check::Range(0.0, 0.99))
+            .describe("Generalised electromechanical coupling factor of the stack"),
+        shunt_frequency: RealVar = param("shunt_frequency", "Hz", Shunt::default().frequency)
+            .positive()
+            .describe("Electrical resonance of the shunt, 1/(2 pi sqrt(L C))"),
+        shunt_damping_ratio: RealVar =
+            param("shunt_damping_ratio", "1", Shunt::default().damping_ratio).non_negative()
+            .describe("Electrical damping ratio of the shunt, R/(2 L omega_e)"),
+    }
+}
+
+/// Handles of the drive parameters of a variant.
 #[derive(Debug, Clone, Copy, Serialize, Deserialize)]
-struct Vars {
-    layout: StrVar,
-    n_segments: IntVar,
-    u_cmd: RealVar,
-    z_cell: RealVar,
-    f_wind: RealVar,
-    z: RealVar,
-    f_cell: RealVar,
-    params: ParamVars,
+pub enum DriveVars {
+    /// The voice coil's.
+    VoiceCoil(VoiceCoilDrive),
+    /// The piezo's.
+    Piezo(PiezoDrive),
 }
 
-/// Handles of the segment, actuator and servo parameters of a variant (shared with the FMUs
-/// that embed the segments, such as the coupled mirror).
-#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
-pub struct ParamVars {
-    segment_mass: RealVar,
-    segment_inertia: RealVar,
-    actuator_radius: RealVar,
-    support_piston_frequency: RealVar,
-    support_tilt_frequency: RealVar,
-    support_mass: RealVar,
-    whiffletree_frequency: RealVar,
-    support_damping_ratio: RealVar,
-    actuator_mass: RealVar,
-    servo_rate: RealVar,
-    servo_kp: RealVar,
-    servo_ki: RealVar,
-    servo_kd: RealVar,
-    derivative_cutoff: RealVar,
-    integrator_leak: RealVar,
-    setpoint_weight: RealVar,
-    servo_feedforward: RealVar,
-    static_stiffness_piston: RealVar,
-    static_stiffness_tilt: RealVar,
-    whiffletree_stiffness: RealVar,
-    drive: DriveVars,
+fmu::variables! {
+    /// Handles of the segment, actuator and servo parameters of a variant and of the calculated
+    /// static stiffnesses (shared with the FMUs that embed the segments, such as the coupled
+    /// mirror); `d` gives the start values, the variant's [`Variant::defaults`].
+    #[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+    pub struct ParamVars<V: Variant>(b, d: &SegmentModel) {
+        segment_mass: RealVar = param("segment_mass", "kg", d.segment.mass).positive().describe(
+            "Mass carried by the three actuators of a segment (glass and support module)",
+        ),
+        segment_inertia: RealVar = param("segment_inertia", "kg.m2", d.segment.inertia).positive()
+            .describe("Moment of inertia of a segment about an in-plane diameter"),
+        actuator_radius: RealVar = param("actuator_radius", "m", d.segment.actuator_radius)
+            .positive()
+            .describe("Radius of the actuator circle"),
+        support_piston_frequency: RealVar =
+            param("support_piston_frequency", "Hz", d.segment.support_piston_frequency).positive()
+            .describe("Piston mode of the glass on its flexures with the whiffletree clamped"),
+        support_tilt_frequency: RealVar =
+            param("support_tilt_frequency", "Hz", d.segment.support_tilt_frequency).positive()
+            .describe("Tip/tilt mode of the glass on its flexures with the whiffletree clamped"),
+        support_mass: RealVar = param("support_mass", "kg", d.segment.support_mass).non_negative()
+            .describe(
+                "Moving frame and whiffletrees between actuators and glass, part of segment_mass \
+                 (0: no whiffletree, the glass's flexures on the actuator node)",
+            ),
+        whiffletree_frequency: RealVar =
+            param("whiffletree_frequency", "Hz", d.segment.whiffletree_frequency).positive()
+            .describe(
+                "Lowest mode of the assembly with the actuators locked (tip/tilt on the \
+                 whiffletrees)",
+            ),
+        support_damping_ratio: RealVar =
+            param("support_damping_ratio", "1", d.segment.support_damping_ratio).non_negative()
+            .describe("Damping ratio of the support modes"),
+        actuator_mass: RealVar = param("actuator_mass", "kg", d.actuator.moving_mass).positive()
+            .describe("Moving mass of each actuator's output node"),
+        servo_rate: RealVar = param("servo_rate", "Hz", d.actuator.servo.rate).positive()
+            .describe("Sample rate of the encoder servo"),
+        servo_kp: RealVar = param("servo_kp", V::SERVO_UNITS[0], d.actuator.servo.kp).non_negative()
+            .describe("Proportional gain of the encoder servo"),
+        servo_ki: RealVar = param("servo_ki", V::SERVO_UNITS[1], d.actuator.servo.ki).non_negative()
+            .describe("Integral gain of the encoder servo"),
+        servo_kd: RealVar = param("servo_kd", V::SERVO_UNITS[2], d.actuator.servo.kd).non_negative()
+            .describe("Derivative gain of the encoder servo (on the measurement)"),
+        derivative_cutoff: RealVar =
+            param("derivative_cutoff", "Hz", d.actuator.servo.derivative_cutoff).positive()
+            .describe("Corner of the derivative's first-order filter"),
+        integrator_leak: RealVar =
+            param("integrator_leak", "Hz", d.actuator.servo.integrator_leak).non_negative()
+            .describe("Leak corner of the servo integrator (0: pure integrator)"),
+        setpoint_weight: RealVar =
+            param("setpoint_weight", "1", d.actuator.servo.setpoint_weight)
+            .check(Check::Range(0.0, 1.0))
+            .describe("Weight of the command in the proportional term (1: plain PID)"),
+        servo_feedforward: RealVar =
+            param("servo_feedforward", V::SERVO_UNITS[0], d.actuator.servo.feedforward)
+            .non_negative()
+            .describe("Command feedforward of the encoder servo (drive per metre of command)"),
+        drive: DriveVars => V::declare(b),
+        static_stiffness_piston: RealVar = stiffness("static_stiffness_piston")
+            .describe("Analytic static stiffness at the mirror per actuator, piston load pattern"),
+        static_stiffness_tilt: RealVar = stiffness("static_stiffness_tilt")
+            .describe("Analytic static stiffness at the mirror per actuator, tilt load pattern"),
+        whiffletree_stiffness: RealVar = stiffness("whiffletree_stiffness")
+            .describe(
+                "Stiffness of the whiffletree per actuator (from whiffletree_frequency; infinite \
+                 when support_mass is 0)",
+            ),
+    }
 }
 
-/// The segments FMU of one actuator variant.
-#[derive(Clone, Serialize, Deserialize)]
-#[serde(bound = "")]
+fmu::variables! {
+    /// Handles of every variable.
+    #[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+    struct Vars<V: Variant>(b, layout: &Layout) {
+        layout: StrVar = layout_decl(&layout.name),
+        n_segments: IntVar = n_segments_decl(layout),
+        u_cmd: RealVar = U_CMD.input(layout),
+        z_cell: RealVar = Z_CELL.input(layout),
+        f_wind: RealVar = F_WIND.input(layout),
+        z: RealVar = Z.output(layout),
+        f_cell: RealVar =
+            F_CELL.output(layout).depends(Dependencies::Elementwise("z_cell".into())),
+        params: ParamVars => ParamVars::add_to::<V>(b, &V::defaults()),
+    }
+}
+
+/// A Real parameter with its unit and start value.
+fn param(name: &str, unit: &str, start: f64) -> Decl {
+    T::real(name).parameter().unit(unit).start(start)
+}
+
+/// A calculated stiffness (N/m).
+fn stiffness(name: &str) -> Decl {
+    T::real(name).calculated_parameter().unit("N/m")
+}
+
+/// The segments FMU of one actuator variant, as configured; [`SegmentsRunning`] steps.
+#[derive(Debug, Clone)]
 pub struct Segments<V: Variant> {
     vars: Vars,
     n_segments: usize,
-    array: Option<SegmentArray>,
+    _v: PhantomData<V>,
+}
+
+/// An initialised segments FMU: the physics and the handles it reads and writes.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SegmentsRunning {
+    vars: Vars,
+    array: SegmentArray,
     z: Vec<f64>,
     f_cell: Vec<f64>,
-    #[serde(skip)]
-    _v: PhantomData<V>,
 }
 
 /// The baseline soft voice-coil variant.
@@ -147,43 +245,14 @@ impl Variant for VoiceCoilVariant {
         default_stop_time: 1.0,
         default_step: 1e-3,
     };
+    const SERVO_UNITS: [&'static str; 3] = ["N/m", "N/(m.s)", "N.s/m"];
 
-    fn declare(b: &mut T) -> DriveVars {
-        DriveVars {
-            spring_stiffness: Some(
-                b.add_real(
-                    T::real("spring_stiffness")
-                        .parameter()
-                        .unit("N/m")
-                        .start(2.0e4)
-                        .non_negative()
-                        .describe("Offload spring stiffness of each voice-coil actuator"),
-                ),
-            ),
-            spring_damping: Some(
-                b.add_real(
-                    T::real("spring_damping")
-                        .parameter()
-                        .unit("N.s/m")
-                        .start(50.0)
-                        .non_negative()
-                        .describe("Damping of the offload spring and coil"),
-                ),
-            ),
-            ..DriveVars::default()
-        }
+    fn defaults() -> SegmentModel {
+        SegmentModel::voice_coil()
     }
 
-    fn actuator(v: &Values, d: &DriveVars, servo: ServoParams, moving_mass: f64) -> ActuatorParams {
-        let get = |h: Option<RealVar>| h.map_or(0.0, |h| v.scalar(h));
-        ActuatorParams {
-            moving_mass,
-            drive: Drive::VoiceCoil {
-                spring_stiffness: get(d.spring_stiffness),
-                spring_damping: get(d.spring_damping),
-            },
-            servo,
-        }
+    fn declare(b: &mut T) -> DriveVars {
+        DriveVars::VoiceCoil(VoiceCoilDrive::add_to(b))
     }
 }
 
@@ -198,387 +267,46 @@ impl Variant for PiezoVariant {
         default_stop_time: 1.0,
         default_step: 1e-3,
     };
+    const SERVO_UNITS: [&'static str; 3] = ["1", "1/s", "s"];
 
-    fn declare(b: &mut T) -> DriveVars {
-        let s = Shunt::default();
-        DriveVars {
-            piezo_stiffness: Some(
-                b.add_real(
-                    T::real("piezo_stiffness")
-                        .parameter()
-                        .unit("N/m")
-                        .start(m1::plant::segment::PIEZO_STIFFNESS)
-                        .positive()
-                        .describe("Open-circuit stiffness of each piezo stack"),
-                ),
-            ),
-            piezo_damping_ratio: Some(
-                b.add_real(
-                    T::real("piezo_damping_ratio")
-                        .parameter()
-                        .unit("1")
-                        .start(0.01)
-                        .non_negative()
-                        .describe(
-                            "Structural damping ratio of the stack, on the segment's piston mode \
-                             (c = 2 zeta sqrt(K (actuator_mass + segment_mass / 3)))",
-                        ),
-                ),
-            ),
-            shunt_enabled: Some(
-                b.add_boolean(
-                    T::boolean("shunt_enabled")
-                        .parameter()
-                        .start_bool(false)
-                        .describe("Connect the resonant LR shunt (true: damped hard actuator)"),
-                ),
-            ),
-            shunt_coupling: Some(
-                b.add_real(
-                    T::real("shunt_coupling")
-                        .parameter()
-                        .unit("1")
-                        .start(s.coupling)
-                        .check(fmu::Check::Range(0.0, 0.99))
-                        .describe("Generalised electromechanical coupling factor of the stack"),
-                ),
-            ),
-            shunt_frequency: Some(
-                b.add_real(
-                    T::real("shunt_frequency")
-                        .parameter()
-                        .unit("Hz")
-                        .start(s.frequency)
-                        .positive()
-                        .describe("Electrical resonance of the shunt, 1/(2 pi sqrt(L C))"),
-                ),
-            ),
-            shunt_damping_ratio: Some(
-                b.add_real(
-                    T::real("shunt_damping_ratio")
-                        .parameter()
-                        .unit("1")
-                        .start(s.damping_ratio)
-                        .non_negative()
-                        .describe("Electrical damping ratio of the shunt, R/(2 L omega_e)"),
-                ),
-            ),
-            ..DriveVars::default()
-        }
+    fn defaults() -> SegmentModel {
+        SegmentModel::piezo()
     }
 
-    fn actuator(v: &Values, d: &DriveVars, servo: ServoParams, moving_mass: f64) -> ActuatorParams {
-        let get = |h: Option<RealVar>| h.map_or(0.0, |h| v.scalar(h));
-        let shunt = d
-            .shunt_enabled
-            .is_some_and(|h| v.boolean(h))
-            .then(|| Shunt {
-                coupling: get(d.shunt_coupling),
-                frequency: get(d.shunt_frequency),
-                damping_ratio: get(d.shunt_damping_ratio),
-            });
+    fn declare(b: &mut T) -> DriveVars {
+        DriveVars::Piezo(PiezoDrive::add_to(b))
+    }
+}
+
+impl DriveVars {
+    /// The physics' actuator from the drive parameter values, the servo and the moving mass.
+    fn actuator(&self, v: &Values, servo: ServoParams, moving_mass: f64) -> ActuatorParams {
+        let drive = match self {
+            DriveVars::VoiceCoil(d) => Drive::VoiceCoil {
+                spring_stiffness: v.scalar(d.spring_stiffness),
+                spring_damping: v.scalar(d.spring_damping),
+            },
+            DriveVars::Piezo(d) => Drive::Piezo {
+                stiffness: v.scalar(d.piezo_stiffness),
+                damping_ratio: v.scalar(d.piezo_damping_ratio),
+                shunt: v.boolean(d.shunt_enabled).then(|| Shunt {
+                    coupling: v.scalar(d.shunt_coupling),
+                    frequency: v.scalar(d.shunt_frequency),
+                    damping_ratio: v.scalar(d.shunt_damping_ratio),
+                }),
+            },
+        };
         ActuatorParams {
             moving_mass,
-            drive: Drive::Piezo {
-                stiffness: get(d.piezo_stiffness),
-                damping_ratio: get(d.piezo_damping_ratio),
-                shunt,
-            },
+            drive,
             servo,
         }
     }
 }
 
-fn servo_units(piezo: bool) -> [&'static str; 3] {
-    if piezo {
-        ["1", "1/s", "s"]
-    } else {
-        ["N/m", "N/(m.s)", "N.s/m"]
-    }
-}
-
-/// Declares the segment, actuator and servo parameters of variant `V` (and the calculated
-/// static stiffnesses) in `b`.
-pub fn declare_params<V: Variant>(b: &mut T) -> ParamVars {
-    let piezo = V::INFO.model_identifier.contains("piezo");
-    let defaults = if piezo {
-        SegmentModel::piezo()
-    } else {
-        SegmentModel::voice_coil()
-    };
-    let seg = SegmentParams::default();
-    let servo = &defaults.actuator.servo;
-    let [ukp, uki, ukd] = servo_units(piezo);
-    let p = |b: &mut T, name: &str, unit: &str, x: f64, positive: bool, desc: &str| {
-        let d = T::real(name).parameter().unit(unit).start(x).describe(desc);
-        b.add_real(if positive {
-            d.positive()
-        } else {
-            d.non_negative()
-        })
-    };
-    let segment_mass = p(
-        b,
-        "segment_mass",
-        "kg",
-        seg.mass,
-        true,
-        "Mass carried by the three actuators of a segment (glass and support module)",
-    );
-    let segment_inertia = p(
-        b,
-        "segment_inertia",
-        "kg.m2",
-        seg.inertia,
-        true,
-        "Moment of inertia of a segment about an in-plane diameter",
-    );
-    let actuator_radius = p(
-        b,
-        "actuator_radius",
-        "m",
-        seg.actuator_radius,
-        true,
-        "Radius of the actuator circle",
-    );
-    let support_piston_frequency = p(
-        b,
-        "support_piston_frequency",
-        "Hz",
-        seg.support_piston_frequency,
-        true,
-        "Piston mode of the glass on its flexures with the whiffletree clamped",
-    );
-    let support_tilt_frequency = p(
-        b,
-        "support_tilt_frequency",
-        "Hz",
-        seg.support_tilt_frequency,
-        true,
-        "Tip/tilt mode of the glass on its flexures with the whiffletree clamped",
-    );
-    let support_mass = p(
-        b,
-        "support_mass",
-        "kg",
-        seg.support_mass,
-        false,
-        "Moving frame and whiffletrees between actuators and glass, part of segment_mass \
-         (0: no whiffletree, the glass's flexures on the actuator node)",
-    );
-    let whiffletree_frequency = p(
-        b,
-        "whiffletree_frequency",
-        "Hz",
-        seg.whiffletree_frequency,
-        true,
-        "Lowest mode of the assembly with the actuators locked (tip/tilt on the whiffletrees)",
-    );
-    let support_damping_ratio = p(
-        b,
-        "support_damping_ratio",
-        "1",
-        seg.support_damping_ratio,
-        false,
-        "Damping ratio of the support modes",
-    );
-    let actuator_mass = p(
-        b,
-        "actuator_mass",
-        "kg",
-        defaults.actuator.moving_mass,
-        true,
-        "Moving mass of each actuator's output node",
-    );
-    let servo_rate = p(
-        b,
-        "servo_rate",
-        "Hz",
-        servo.rate,
-        true,
-        "Sample rate of the encoder servo",
-    );
-    let servo_kp = p(
-        b,
-        "servo_kp",
-        ukp,
-        servo.kp,
-        false,
-        "Proportional gain of the encoder servo",
-    );
-    let servo_ki = p(
-        b,
-        "servo_ki",
-        uki,
-        servo.ki,
-        false,
-        "Integral gain of the encoder servo",
-    );
-    let servo_kd = p(
-        b,
-        "servo_kd",
-        ukd,
-        servo.kd,
-        false,
-        "Derivative gain of the encoder servo (on the measurement)",
-    );
-    let derivative_cutoff = p(
-        b,
-        "derivative_cutoff",
-        "Hz",
-        servo.derivative_cutoff,
-        true,
-        "Corner of the derivative's first-order filter",
-    );
-    let integrator_leak = p(
-        b,
-        "integrator_leak",
-        "Hz",
-        servo.integrator_leak,
-        false,
-        "Leak corner of the servo integrator (0: pure integrator)",
-    );
-    let setpoint_weight = b.add_real(
-        T::real("setpoint_weight")
-            .parameter()
-            .unit("1")
-            .start(servo.setpoint_weight)
-            .check(fmu::Check::Range(0.0, 1.0))
-            .describe("Weight of the command in the proportional term (1: plain PID)"),
-    );
-    let servo_feedforward = p(
-        b,
-        "servo_feedforward",
-        ukp,
-        servo.feedforward,
-        false,
-        "Command feedforward of the encoder servo (drive per metre of command)",
-    );
-    let drive = V::declare(b);
-    let calc = |b: &mut T, name: &str, desc: &str| {
-        b.add_real(
-            T::real(name)
-                .calculated_parameter()
-                .unit("N/m")
-                .describe(desc),
-        )
-    };
-    let static_stiffness_piston = calc(
-        b,
-        "static_stiffness_piston",
-        "Analytic static stiffness at the mirror per actuator, piston load pattern",
-    );
-    let static_stiffness_tilt = calc(
-        b,
-        "static_stiffness_tilt",
-        "Analytic static stiffness at the mirror per actuator, tilt load pattern",
-    );
-    let whiffletree_stiffness = calc(
-        b,
-        "whiffletree_stiffness",
-        "Stiffness of the whiffletree per actuator (from whiffletree_frequency; infinite when \
-         support_mass is 0)",
-    );
-    ParamVars {
-        segment_mass,
-        segment_inertia,
-        actuator_radius,
-        support_piston_frequency,
-        support_tilt_frequency,
-        support_mass,
-        whiffletree_frequency,
-        support_damping_ratio,
-        actuator_mass,
-        servo_rate,
-        servo_kp,
-        servo_ki,
-        servo_kd,
-        derivative_cutoff,
-        integrator_leak,
-        setpoint_weight,
-        servo_feedforward,
-        static_stiffness_piston,
-        static_stiffness_tilt,
-        whiffletree_stiffness,
-        drive,
-    }
-}
-
-fn table<V: Variant>(layout: &Layout) -> Result<(VariableTable, Vars), FmuError> {
-    let n = layout.n_segments();
-    let na = layout.n_actuators();
-    let mut b = T::new();
-    let layout_var = b.add_string(
-        T::string("layout")
-            .structural()
-            .start_str(&layout.name)
-            .describe("Mirror layout this FMU was packaged for"),
-    );
-    let n_segments = b.add_integer(
-        T::integer("n_segments")
-            .structural()
-            .start_int(i32::try_from(n).unwrap_or(i32::MAX))
-            .describe("Number of segments (array sizes are 3 x n_segments)"),
-    );
-    let u_cmd = b.add_real(
-        T::real("u_cmd")
-            .input()
-            .len(na)
-            .unit("m")
-            .start(0.0)
-            .describe("Actuator position command (stroke) from the global controller"),
-    );
-    let z_cell = b.add_real(
-        T::real("z_cell")
-            .input()
-            .len(na)
-            .unit("m")
-            .start(0.0)
-            .describe("Mirror-cell displacement at each actuator attachment"),
-    );
-    let f_wind = b.add_real(
-        T::real("f_wind")
-            .input()
-            .len(na)
-            .unit("N")
-            .start(0.0)
-            .describe("Wind load on the mirror as equivalent forces at the actuator points"),
-    );
-    let z = b.add_real(
-        T::real("z")
-            .output()
-            .len(na)
-            .unit("m")
-            .describe("Mirror displacement normal to the segment at each actuator"),
-    );
-    let f_cell = b.add_real(
-        T::real("f_cell")
-            .output()
-            .len(na)
-            .unit("N")
-            .depends(Dependencies::Elementwise("z_cell".into()))
-            .describe("Force of each actuator on the mirror cell"),
-    );
-    let params = declare_params::<V>(&mut b);
-    let table = b.build()?;
-    Ok((
-        table,
-        Vars {
-            layout: layout_var,
-            n_segments,
-            u_cmd,
-            z_cell,
-            f_wind,
-            z,
-            f_cell,
-            params,
-        },
-    ))
-}
-
 impl ParamVars {
     /// The physics' segment model from the parameter values.
-    pub fn model<V: Variant>(&self, v: &Values) -> SegmentModel {
+    pub fn model(&self, v: &Values) -> SegmentModel {
         let x = self;
         let s = |h: RealVar| v.scalar(h);
         let servo = ServoParams {
@@ -602,7 +330,7 @@ impl ParamVars {
                 whiffletree_frequency: s(x.whiffletree_frequency),
                 support_damping_ratio: s(x.support_damping_ratio),
             },
-            actuator: V::actuator(v, &x.drive, servo, s(x.actuator_mass)),
+            actuator: x.drive.actuator(v, servo, s(x.actuator_mass)),
         }
     }
 
@@ -614,16 +342,9 @@ impl ParamVars {
     }
 }
 
-impl<V: Variant> Segments<V> {
-    fn physics(&self, v: &Values) -> SegmentModel {
-        self.vars.params.model::<V>(v)
-    }
-
+impl SegmentsRunning {
     fn write_outputs(&mut self, v: &mut Values) -> Result<(), FmuError> {
-        let Some(array) = &self.array else {
-            return Err(FmuError::Model("the segments are not initialised".into()));
-        };
-        array
+        self.array
             .outputs(v.real(self.vars.z_cell), &mut self.z, &mut self.f_cell)
             .map_err(wiring::model_error)?;
         v.real_mut(self.vars.z).copy_from_slice(&self.z);
@@ -631,14 +352,16 @@ impl<V: Variant> Segments<V> {
         Ok(())
     }
 
-    /// The physics of the segments, once initialised (for in-process use and tests).
-    pub fn array(&self) -> Option<&SegmentArray> {
-        self.array.as_ref()
+    /// The physics of the segments (for in-process use and tests).
+    pub fn array(&self) -> &SegmentArray {
+        &self.array
     }
 }
 
 impl<V: Variant> Model for Segments<V> {
     const INFO: ModelInfo = V::INFO;
+
+    type Running = SegmentsRunning;
 
     fn variants() -> Vec<String> {
         wiring::layout_variants()
@@ -646,40 +369,40 @@ impl<V: Variant> Model for Segments<V> {
 
     fn new(variant: &str) -> Result<(VariableTable, Self), FmuError> {
         let layout = wiring::preset(variant)?;
-        let (table, vars) = table::<V>(&layout)?;
-        let na = layout.n_actuators();
-        Ok((
-            table,
-            Self {
-                vars,
-                n_segments: layout.n_segments(),
-                array: None,
-                z: vec![0.0; na],
-                f_cell: vec![0.0; na],
-                _v: PhantomData,
-            },
-        ))
+        let (table, vars) = T::declare(|b| Vars::add_to::<V>(b, &layout))?;
+        let model = Self {
+            vars,
+            n_segments: layout.n_segments(),
+            _v: PhantomData,
+        };
+        Ok((table, model))
     }
 
-    fn initialize(&mut self, v: &mut Values, _start_time: f64) -> Result<(), FmuError> {
-        let model = self.physics(v);
+    fn initialize(&self, v: &mut Values, _start_time: f64) -> Result<SegmentsRunning, FmuError> {
+        let model = self.vars.params.model(v);
         let array =
             SegmentArray::new(self.n_segments, model.clone()).map_err(wiring::model_error)?;
         self.vars.params.write_calculated(v, &model);
-        self.array = Some(array);
-        self.write_outputs(v)
+        let na = self.vars.z.len;
+        let mut running = SegmentsRunning {
+            vars: self.vars,
+            array,
+            z: vec![0.0; na],
+            f_cell: vec![0.0; na],
+        };
+        running.write_outputs(v)?;
+        Ok(running)
     }
+}
 
+impl Running for SegmentsRunning {
     fn update_outputs(&mut self, v: &mut Values) -> Result<(), FmuError> {
         self.write_outputs(v)
     }
 
     fn do_step(&mut self, _t: f64, h: f64, v: &mut Values) -> Result<(), FmuError> {
         let vars = self.vars;
-        let Some(array) = &mut self.array else {
-            return Err(FmuError::Model("the segments are not initialised".into()));
-        };
-        array
+        self.array
             .advance(
                 h,
                 v.real(vars.u_cmd),
@@ -694,6 +417,7 @@ impl<V: Variant> Model for Segments<V> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use fmu::Instance;
 
     #[test]
     fn tables_build_for_every_layout() {
@@ -708,5 +432,47 @@ mod tests {
                 assert_eq!((a.len, a.vr, &a.unit), (na, b.vr, &b.unit));
             }
         }
+    }
+
+    #[test]
+    fn the_module_documentation_lists_the_signals() {
+        let doc = include_str!("lib.rs");
+        assert_eq!(wiring::check_documented_signals::<VoiceCoil>(doc), Ok(()));
+        assert_eq!(wiring::check_documented_signals::<Piezo>(doc), Ok(()));
+    }
+
+    /// A serialised FMU state steps on exactly as the instance it was taken from.
+    #[test]
+    fn a_serialised_state_steps_on_as_the_original() {
+        let (table, _) = Piezo::new("keck").expect("table");
+        let guid = fmu::xml::guid(&Piezo::INFO, &table);
+        let mut fmu = Instance::<Piezo>::new("test", &guid, None, None, false).expect("new");
+        fmu.setup_experiment(0.0, None).expect("setup");
+        fmu.enter_initialization_mode()
+            .expect("initialisation mode");
+        fmu.exit_initialization_mode().expect("initialise");
+        let running = fmu.running().expect("running");
+        assert_eq!(running.array().n_segments(), Layout::keck().n_segments());
+        let u = fmu.table().by_name("u_cmd").expect("u_cmd").vr;
+        fmu.set_real(&[u], &[1e-6]).expect("set u_cmd");
+        let z = fmu.table().by_name("z").expect("z");
+        let z: Vec<u32> = (z.vr..z.vr + z.len as u32).collect();
+        let run = |fmu: &mut Instance<Piezo>, steps: usize| {
+            for _ in 0..steps {
+                let t = fmu.time();
+                fmu.do_step(t, 1e-3).expect("step");
+            }
+            let mut out = vec![f64::NAN; z.len()];
+            fmu.get_real(&z, &mut out).expect("get");
+            out
+        };
+        run(&mut fmu, 2);
+        let bytes =
+            Instance::<Piezo>::serialize(&fmu.get_state().expect("state")).expect("serialise");
+        let original = run(&mut fmu, 3);
+        let state = fmu.deserialize(&bytes).expect("deserialise");
+        fmu.set_state(&state).expect("set state");
+        assert_eq!(run(&mut fmu, 3), original);
+        assert!(original.iter().any(|&x| x != 0.0));
     }
 }
