@@ -20,6 +20,8 @@ use fmu::FmuError;
 struct FmuCrate {
     name: &'static str,
     write: fn(&str, &Path, &Path) -> Result<PathBuf, FmuError>,
+    /// Read by the test of the README's FMU table.
+    #[cfg_attr(not(test), allow(dead_code))]
     describe: fn(&str) -> Result<fmu::package::Description, FmuError>,
 }
 

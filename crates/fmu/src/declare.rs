@@ -1,4 +1,4 @@
-//! One declaration per variable: [`variables!`](crate::variables) writes a model's handle struct
+//! One declaration per variable: [`variables!`](crate::variables!) writes a model's handle struct
 //! and the function that adds its variables to a [`TableBuilder`], from one list.
 //!
 //! Each line of the list names a field, its handle type and the declaration of the variable

@@ -88,7 +88,7 @@ pub(super) fn von_karman_shape(x: f64) -> f64 {
 
 /// Phase structure function `D(r)` (rad^2) of the atmosphere at the separation `r` (m) for the
 /// Fried parameter `r0` (m, at the wavelength of interest) and outer scale `l0` (m;
-/// `f64::INFINITY` gives Kolmogorov). See the [module documentation](self).
+/// `f64::INFINITY` gives Kolmogorov). See the [module documentation](super).
 pub fn phase_structure_function(r: f64, r0: f64, l0: f64) -> f64 {
     let r = r.abs();
     if r == 0.0 {
