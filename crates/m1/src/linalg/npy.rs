@@ -1,5 +1,8 @@
 //! Reading NumPy `.npy` arrays and `.npz` archives (little-endian float64, C or Fortran order):
-//! the import format of the structure's modal models.
+//! the import format of the structure's modal models. The `.npy` format is read by the `npyz`
+//! crate; an `.npz` is a zip archive of them, opened with the `zip` crate. What is ours: the
+//! checks and messages that name the array at fault, and the reordering of a Fortran-order
+//! array into C order.
 
 use std::collections::BTreeMap;
 use std::io::Read;
@@ -16,124 +19,73 @@ pub struct NpyArray {
     pub data: Vec<f64>,
 }
 
-fn header_value<'a>(header: &'a str, key: &str) -> Option<&'a str> {
-    let pos = header
-        .find(&format!("'{key}'"))
-        .or_else(|| header.find(&format!("\"{key}\"")))?;
-    let rest = &header[pos + key.len() + 2..];
-    let colon = rest.find(':')?;
-    Some(rest[colon + 1..].trim_start())
-}
-
-/// Parses the bytes of one `.npy` file (format 1.0, 2.0 or 3.0; little-endian float64 only).
+/// Parses the bytes of one `.npy` file (any format version; little-endian float64 only) with
+/// the `npyz` crate.
 ///
 /// # Errors
 /// A message saying what is wrong (the caller adds the file and array names).
 pub fn parse_npy(bytes: &[u8]) -> Result<NpyArray, String> {
-    if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
-        return Err("not an NPY array (missing the \\x93NUMPY magic)".into());
-    }
-    let major = bytes[6];
-    let (hlen, start) = match major {
-        1 => (usize::from(u16::from_le_bytes([bytes[8], bytes[9]])), 10),
-        2 | 3 => {
-            if bytes.len() < 12 {
-                return Err("truncated NPY header".into());
-            }
-            let l = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
-            (l as usize, 12)
+    let mut rest = bytes;
+    let file =
+        npyz::NpyFile::new(&mut rest).map_err(|e| format!("not a readable NPY array: {e}"))?;
+    match file.dtype() {
+        npyz::DType::Plain(ty) if ty.to_string() == "<f8" => {}
+        other => {
+            return Err(format!(
+                "dtype {}, expected little-endian float64 '<f8' (write it with \
+                 numpy.asarray(a, dtype='<f8'))",
+                other.descr()
+            ));
         }
-        v => return Err(format!("unsupported NPY format version {v}.{}", bytes[7])),
-    };
-    let end = start + hlen;
-    if bytes.len() < end {
-        return Err(format!(
-            "truncated NPY header ({hlen} bytes announced, {} present)",
-            bytes.len() - start
-        ));
     }
-    let header = std::str::from_utf8(&bytes[start..end])
-        .map_err(|_| "the NPY header is not text".to_string())?;
-    let descr = header_value(header, "descr").ok_or("the NPY header has no 'descr'")?;
-    let quote = descr.chars().next().ok_or("empty 'descr'")?;
-    if quote != '\'' && quote != '"' {
-        return Err(format!("unsupported dtype description {descr}"));
-    }
-    let descr = descr[1..]
-        .split(quote)
-        .next()
-        .ok_or("unterminated 'descr'")?;
-    if descr != "<f8" {
-        return Err(format!(
-            "dtype '{descr}', expected little-endian float64 '<f8' (write it with \
-             numpy.asarray(a, dtype='<f8'))"
-        ));
-    }
-    let fortran = header_value(header, "fortran_order").ok_or("no 'fortran_order'")?;
-    let fortran = if fortran.starts_with("True") {
-        true
-    } else if fortran.starts_with("False") {
-        false
-    } else {
-        return Err(format!("bad 'fortran_order' {fortran}"));
-    };
-    let shape_text = header_value(header, "shape").ok_or("no 'shape'")?;
-    let close = shape_text.find(')').ok_or("bad 'shape'")?;
-    if !shape_text.starts_with('(') {
-        return Err(format!("bad 'shape' {shape_text}"));
-    }
-    let mut shape = Vec::new();
-    for part in shape_text[1..close].split(',') {
-        let p = part.trim();
-        if p.is_empty() {
-            continue;
-        }
-        shape.push(
-            p.parse::<usize>()
-                .map_err(|_| format!("bad dimension '{p}' in 'shape'"))?,
-        );
-    }
-    let count = shape
+    let shape = file
+        .shape()
         .iter()
-        .try_fold(1usize, |a, &d| a.checked_mul(d))
+        .map(|&d| usize::try_from(d).map_err(|_| format!("dimension {d} is too large")))
+        .collect::<Result<Vec<usize>, String>>()?;
+    let bytes_needed = shape
+        .iter()
+        .try_fold(8usize, |a, &d| a.checked_mul(d))
         .ok_or("the shape is too large")?;
-    let body = &bytes[end..];
-    if body.len() != count * 8 {
+    let fortran = file.order() == npyz::Order::Fortran;
+    let raw: Vec<f64> = file.into_vec().map_err(|e| {
+        format!("shape {shape:?} needs {bytes_needed} data bytes, the array has fewer ({e})")
+    })?;
+    if !rest.is_empty() {
         return Err(format!(
-            "shape {shape:?} needs {} data bytes, the array has {}",
-            count * 8,
-            body.len()
+            "shape {shape:?} needs {bytes_needed} data bytes, the array has {}",
+            bytes_needed + rest.len()
         ));
     }
-    let raw: Vec<f64> = body
-        .chunks_exact(8)
-        .map(|c| f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]))
-        .collect();
     let data = if fortran && shape.len() > 1 {
-        // Element (i_0, .., i_{d-1}) is at sum i_k stride_k with Fortran strides.
-        let d = shape.len();
-        let mut fstride = vec![1usize; d];
-        for k in 1..d {
-            fstride[k] = fstride[k - 1] * shape[k - 1];
-        }
-        let mut out = Vec::with_capacity(count);
-        let mut idx = vec![0usize; d];
-        for _ in 0..count {
-            let off: usize = idx.iter().zip(&fstride).map(|(i, s)| i * s).sum();
-            out.push(raw[off]);
-            for k in (0..d).rev() {
-                idx[k] += 1;
-                if idx[k] < shape[k] {
-                    break;
-                }
-                idx[k] = 0;
-            }
-        }
-        out
+        c_order_from_fortran(&raw, &shape)
     } else {
         raw
     };
     Ok(NpyArray { shape, data })
+}
+
+/// The elements of a Fortran-order array of `shape` in C order: element `(i_0, .., i_{d-1})`
+/// sits at `sum i_k s_k` with the Fortran strides `s_0 = 1`, `s_k = s_{k-1} n_{k-1}`.
+fn c_order_from_fortran(raw: &[f64], shape: &[usize]) -> Vec<f64> {
+    let d = shape.len();
+    let mut stride = vec![1usize; d];
+    for k in 1..d {
+        stride[k] = stride[k - 1] * shape[k - 1];
+    }
+    let mut out = Vec::with_capacity(raw.len());
+    let mut idx = vec![0usize; d];
+    for _ in 0..raw.len() {
+        out.push(raw[idx.iter().zip(&stride).map(|(i, s)| i * s).sum::<usize>()]);
+        for k in (0..d).rev() {
+            idx[k] += 1;
+            if idx[k] < shape[k] {
+                break;
+            }
+            idx[k] = 0;
+        }
+    }
+    out
 }
 
 /// A `.npz` archive open for reading arrays by name.
