@@ -172,7 +172,10 @@ fn test(extra: &[String]) -> Result<(), String> {
 /// `cargo doc` for the workspace with the maths rendered (KaTeX, docs/rustdoc/katex-header.html)
 /// and every rustdoc warning an error.
 fn doc(extra: &[String]) -> Result<(), String> {
-    let header = root().join("docs").join("rustdoc").join("katex-header.html");
+    let header = root()
+        .join("docs")
+        .join("rustdoc")
+        .join("katex-header.html");
     run(cargo()
         .args(["doc", "--release", "--no-deps", "--workspace"])
         .args(extra)
@@ -308,7 +311,8 @@ mod tests {
                         "ns" => layout.n_sensors(),
                         n => n.parse().unwrap_or_else(|_| panic!("size {n}")),
                     };
-                    for (causality, listed) in [(Causality::Input, &ins), (Causality::Output, &outs)]
+                    for (causality, listed) in
+                        [(Causality::Input, &ins), (Causality::Output, &outs)]
                     {
                         let declared: Vec<_> = table
                             .variables()

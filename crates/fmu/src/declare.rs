@@ -174,7 +174,10 @@ mod tests {
         let u = table.by_name("u").expect("u");
         assert_eq!((u.len, u.vr as usize), (4, vars.u.slot));
         assert_eq!(table.by_name("y").expect("y").vr as usize, vars.y.slot);
-        assert_eq!(table.by_name("gain").expect("gain").vr as usize, vars.group.gain.slot);
+        assert_eq!(
+            table.by_name("gain").expect("gain").vr as usize,
+            vars.group.gain.slot
+        );
         let values = table.initial_values();
         assert_eq!(values.scalar(vars.group.gain), 2.0);
         assert!(values.boolean(vars.group.on));

@@ -50,7 +50,11 @@ pub fn check_signal_table(
     let mut errors = Vec::new();
     let documented: Vec<String> = rows
         .iter()
-        .map(|r| r.first().map(|c| c.trim_matches('`').to_string()).unwrap_or_default())
+        .map(|r| {
+            r.first()
+                .map(|c| c.trim_matches('`').to_string())
+                .unwrap_or_default()
+        })
         .collect();
     let declared: Vec<String> = signals.iter().map(|v| v.name.clone()).collect();
     if documented != declared {
@@ -109,7 +113,14 @@ mod tests {
     fn table() -> VariableTable {
         let mut b = T::new();
         b.add_real(T::real("k").parameter().start(1.0).describe("Gain"));
-        b.add_real(T::real("u").input().len(3).unit("m").start(0.0).describe("In"));
+        b.add_real(
+            T::real("u")
+                .input()
+                .len(3)
+                .unit("m")
+                .start(0.0)
+                .describe("In"),
+        );
         b.add_real(
             T::real("y")
                 .output()
@@ -131,10 +142,22 @@ mod tests {
         assert_eq!(check_signal_table(GOOD, &table(), n), Ok(()));
         for (from, to, says) in [
             ("| m |", "| mm |", "documented in \"mm\", declared in \"m\""),
-            ("| input |", "| output |", "u: documented as output, declared input"),
-            ("| 3 | N |", "| 4 | N |", "documented size 4 = 4, declared 3"),
+            (
+                "| input |",
+                "| output |",
+                "u: documented as output, declared input",
+            ),
+            (
+                "| 3 | N |",
+                "| 4 | N |",
+                "documented size 4 = 4, declared 3",
+            ),
             ("| n | m |", "| q | m |", "unknown size \"q\""),
-            ("//! | `u` | input | n | m |\n", "", "are not the table's inputs and outputs"),
+            (
+                "//! | `u` | input | n | m |\n",
+                "",
+                "are not the table's inputs and outputs",
+            ),
         ] {
             let doc = GOOD.replace(from, to);
             let e = check_signal_table(&doc, &table(), n).expect_err(from);

@@ -8,8 +8,8 @@ use std::ffi::{CStr, CString};
 
 use fmi_sys::fmi2::{fmi2CallbackFunctions, fmi2Status};
 
-use crate::error::FmuError;
 use crate::calls::Call;
+use crate::error::FmuError;
 use crate::model::{Model, Running};
 use crate::variables::{Causality, Values, VarType, Variability, Variable, VariableTable};
 
@@ -221,7 +221,6 @@ impl<M: Model> Instance<M> {
     pub fn running(&self) -> Option<&M::Running> {
         self.running.as_ref()
     }
-
 
     /// Sends a message through the importer's logger (errors always, others when logging is on).
     pub fn log(&self, status: fmi2Status, category: &CStr, msg: &str) {

@@ -45,7 +45,10 @@ fn bench(c: &mut Criterion) {
     llt.solve_in_place(y.as_mut());
     let scale = x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     let diff = (0..n).fold(0.0f64, |m, i| m.max((x[i] - y[(i, 0)]).abs()));
-    assert!(diff <= 1e-9 * scale, "skyline and faer disagree: {diff:e} of {scale:e}");
+    assert!(
+        diff <= 1e-9 * scale,
+        "skyline and faer disagree: {diff:e} of {scale:e}"
+    );
     eprintln!(
         "TMT cell: n = {n}, non-zeros in the lower triangle {}, skyline envelope {}",
         sparse.compute_nnz(),

@@ -204,7 +204,11 @@ mod tests {
     fn every_signal_declares_its_name_length_and_unit() {
         let layout = Layout::preset("keck").expect("keck");
         for (i, s) in ALL.iter().enumerate() {
-            assert!(ALL[..i].iter().all(|o| o.name != s.name), "{} twice", s.name);
+            assert!(
+                ALL[..i].iter().all(|o| o.name != s.name),
+                "{} twice",
+                s.name
+            );
             let mut b = T::new();
             let v = b.add_real(s.input(&layout));
             let table = b.build().expect("table");

@@ -1,9 +1,13 @@
 //! Running the systems of `m1cs run`: open the FMUs once, record every run, summarise.
 
-use super::*;
 use super::figures::{draw_z_plots, mirror_spectrum};
+use super::*;
 
-pub(super) fn execute(a: &RunCmd, runs: Vec<(String, System)>, metrics: &[&str]) -> Result<(), String> {
+pub(super) fn execute(
+    a: &RunCmd,
+    runs: Vec<(String, System)>,
+    metrics: &[&str],
+) -> Result<(), String> {
     // Every FMU opened once for all the runs: they share its unpacked files and loaded library
     // (and so its caches, e.g. the structure's modes), instead of unpacking it per run.
     let _open = open_fmus(&runs)?;
@@ -130,7 +134,11 @@ pub(super) fn summary_row(o: &Outcome, duration: f64) -> serde_json::Value {
 }
 
 /// One plot per metric over time, all runs overlaid (nm, PSSN as is).
-pub(super) fn plot_metrics(a: &RunCmd, outcomes: &[Outcome], metrics: &[&str]) -> Result<(), String> {
+pub(super) fn plot_metrics(
+    a: &RunCmd,
+    outcomes: &[Outcome],
+    metrics: &[&str],
+) -> Result<(), String> {
     for m in metrics {
         let data: Vec<(String, Vec<(f64, f64)>)> = outcomes
             .iter()

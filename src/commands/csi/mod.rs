@@ -10,8 +10,8 @@
 //! `mod.rs` the arguments and the computation, `report.rs` what is printed, `plots.rs` the
 //! figures.
 
-mod report;
 mod plots;
+mod report;
 
 use plots::{write_global_plot, write_plots};
 use report::{print_global, print_servo, q_allowance};

@@ -1,7 +1,7 @@
 //! The figures of `m1cs csi`.
 
-use super::*;
 use super::report::family;
+use super::*;
 
 /// Draws `labels[k]` over `data[k]` with each `((f, value), text)` of `peaks` circled and
 /// labelled, into `dir/file`.

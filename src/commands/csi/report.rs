@@ -110,7 +110,10 @@ pub(super) struct QAllowance {
     median_sigma_gamma_q: f64,
 }
 
-pub(super) fn q_allowance(geometry: &Geometry, realizations: usize) -> Result<Option<QAllowance>, String> {
+pub(super) fn q_allowance(
+    geometry: &Geometry,
+    realizations: usize,
+) -> Result<Option<QAllowance>, String> {
     if realizations == 0 {
         return Ok(None);
     }

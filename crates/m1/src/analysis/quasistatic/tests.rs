@@ -1,5 +1,5 @@
-use super::*;
 use super::robustness::metrics;
+use super::*;
 
 #[test]
 fn sensor_gain_errors_never_destabilise_and_scale_with_the_error() {

@@ -1,7 +1,7 @@
 //! The tabulated wind loads of every segment in frozen flow.
 
-use super::*;
 use super::spectrum::inverse_fft_2d;
+use super::*;
 use crate::linalg::interpolation::periodic_stencil;
 
 /// Tabulated wind loads of every segment over one screen period of frozen flow.
@@ -328,4 +328,3 @@ pub(super) fn unit2(v: [f64; 2]) -> [f64; 2] {
         [1.0, 0.0]
     }
 }
-

@@ -301,4 +301,3 @@ impl Default for WindParams {
         }
     }
 }
-

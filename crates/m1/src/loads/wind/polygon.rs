@@ -81,4 +81,3 @@ pub fn equivalent_forces(geometry: &Geometry, i: usize, q: [f64; 3]) -> [f64; 3]
     // (P^-T)_{kj} = (P^-1)_{jk}.
     std::array::from_fn(|k| (0..3).map(|j| pinv[j][k] * q[j]).sum())
 }
-

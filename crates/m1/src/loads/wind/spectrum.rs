@@ -144,4 +144,3 @@ pub(super) fn transpose(buf: &mut [Complex64], n: usize) {
         }
     }
 }
-

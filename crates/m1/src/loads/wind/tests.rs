@@ -73,4 +73,3 @@ fn moment_transforms_are_regular_near_zero() {
         "{hx} {hy}"
     );
 }
-

@@ -67,9 +67,9 @@ pub use atmosphere::{
 };
 pub use pupil::PupilGrid;
 
-use atmosphere::otf_weights;
 #[cfg(test)]
 use atmosphere::LagWeight;
+use atmosphere::otf_weights;
 use pupil::check_ptt;
 
 use std::f64::consts::PI;
