@@ -374,6 +374,9 @@ pub struct RobustnessArgs {
     /// Realizations per random case.
     #[arg(long, default_value_t = RobustnessParams::default().realizations)]
     pub realizations: usize,
+    /// Realizations of the element-error cases (their instability risk, to 1 in this many).
+    #[arg(long, default_value_t = RobustnessParams::default().risk_realizations)]
+    pub risk_realizations: usize,
     /// Focus-mode gain reduction factor of Gamma.
     #[arg(long, default_value_t = RobustnessParams::default().focus_gain_factor)]
     pub focus_gain_factor: f64,
@@ -390,8 +393,8 @@ pub struct RobustnessArgs {
 
 /// Runs `m1cs robustness`.
 pub fn robustness(a: &RobustnessArgs) -> Result<(), String> {
-    if a.realizations == 0 {
-        return Err("--realizations must be at least 1".into());
+    if a.realizations == 0 || a.risk_realizations == 0 {
+        return Err("--realizations and --risk-realizations must be at least 1".into());
     }
     if !(a.focus_gain_factor.is_finite() && a.focus_gain_factor >= 1.0) {
         return Err(format!(
@@ -409,6 +412,8 @@ pub fn robustness(a: &RobustnessArgs) -> Result<(), String> {
         focus_gain_factor: a.focus_gain_factor,
         seed: a.seed,
         krylov_dim: a.krylov,
+        risk_realizations: a.risk_realizations,
+        ..RobustnessParams::default()
     };
     let cases = Case::defaults();
     let bar = indicatif::ProgressBar::new(0);

@@ -352,10 +352,7 @@ fn time_robustness() {
     let cases = Case::defaults();
     let counts: Vec<usize> = cases
         .iter()
-        .map(|c| match c.perturbation {
-            Perturbation::Leff { .. } => 1,
-            _ => params.realizations,
-        })
+        .map(|c| params.realizations_of(&c.perturbation))
         .collect();
     let cumulative: Vec<usize> = counts
         .iter()

@@ -6,7 +6,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use faer::Mat;
-use m1::analysis::quasistatic::{Case, Perturbation, RobustnessParams, robustness};
+use m1::analysis::quasistatic::{Case, ElementBasis, Perturbation, RobustnessParams, robustness};
 use m1::aperture::geometry::{Geometry, GeometryParams};
 use m1::aperture::layout::Layout;
 use m1::control::nominal::Nominal;
@@ -24,11 +24,15 @@ fn krylov_estimates_equal_dense_eigen_and_singular_values_on_keck() {
     let rms = 0.05;
     let params = RobustnessParams {
         realizations: 16,
+        risk_realizations: 16,
         ..RobustnessParams::default()
     };
     let cases = vec![Case {
         name: "A elements 5%".into(),
-        perturbation: Perturbation::ElementErrors { rms },
+        perturbation: Perturbation::ElementErrors {
+            rms,
+            basis: ElementBasis::Actuator,
+        },
     }];
     let res = robustness(&nominal, &cases, &params, &|_, _| {}).expect("robustness");
     let r0 = &res[0];

@@ -6,5 +6,6 @@ pub mod coupling;
 pub mod csi;
 pub mod defaults;
 pub mod global_csi;
+pub mod overall;
 pub mod quasistatic;
 pub mod step_response;

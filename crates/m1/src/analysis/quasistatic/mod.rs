@@ -40,7 +40,10 @@ mod robustness;
 mod tests;
 
 pub use calibration::{CalibrationMonteCarlo, CalibrationResult, ShearEstimator, calibration};
-pub use robustness::{Case, CaseResult, Perturbation, RobustnessParams, Stats, robustness};
+pub use robustness::{
+    Case, CaseResult, ElementBasis, INSTALL_DEFAULTS, Perturbation, RobustnessParams, Stats,
+    robustness,
+};
 
 use faer::Mat;
 use faer::sparse::SparseColMat;

@@ -1,6 +1,21 @@
 //! Robustness of the control to errors in the interaction matrix: the seed paper's Table 1.
 
 use super::*;
+use crate::loads::deformation::{Deformation, DeformationParams, ParametricDeformation};
+use crate::sensing::installed::{GapLaw, HeightSplit, Installation};
+use rand::Rng;
+
+/// Where the random errors of [`Perturbation::ElementErrors`] are applied.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ElementBasis {
+    /// Every non-zero of A in the actuator basis (six per row).
+    Actuator,
+    /// Every non-zero of A in the segment piston/tip/tilt basis, `A P` with `P` the
+    /// block-diagonal map from segment (p, alpha, beta) to actuator heights; the perturbed matrix
+    /// is mapped back with `P^-1`.
+    Ptt,
+}
 
 /// One source of interaction-matrix error.
 #[derive(Debug, Clone, Serialize)]
@@ -16,27 +31,59 @@ pub enum Perturbation {
         /// The ratio.
         factor: f64,
     },
-    /// Every non-zero element of A multiplied by (1 + N(0, rms)).
+    /// Every non-zero element of A (in `basis`) multiplied by (1 + N(0, rms)).
     ElementErrors {
         /// rms relative error.
         rms: f64,
+        /// The basis whose non-zeros are perturbed.
+        basis: ElementBasis,
     },
     /// Sensor installation: each sensor point moved in-plane (gap and shear directions) by
-    /// N(0, position_rms) and its height axis tilted by N(0, tilt_rms) about both in-plane axes.
+    /// N(0, position_rms), its frame tilted by N(0, tilt_rms) about both in-plane axes, and its
+    /// own gap offset by N(0, gap_rms), which changes its gain and L_eff by the gap law. With
+    /// `gap_correction` the controller knows each sensor's gap (it measures it) and rebuilds its
+    /// reconstructor from the A of the measured gaps.
     SensorInstall {
         /// m.
         position_rms: f64,
         /// rad.
         tilt_rms: f64,
+        /// m.
+        gap_rms: f64,
+        /// Reconstructor recomputed from the measured gaps.
+        gap_correction: bool,
     },
-    /// Segment installation: each segment's actuators moved in-plane by N(0, position_rms) and
-    /// clocked by N(0, clocking_rms) about its normal (sensors stay where they are).
+    /// Segment installation: each segment placed in-plane with an error N(0, position_rms)
+    /// (radial and azimuthal) and clocked by N(0, clocking_rms); it carries its sensor halves
+    /// and actuators, so the gaps at its sensors change and with them the sensors' gains and
+    /// L_eff (gap law).
     SegmentInstall {
         /// m.
         position_rms: f64,
         /// rad.
         clocking_rms: f64,
     },
+    /// The mirror at another zenith angle than the baseline at which A was computed: the
+    /// deformation model's in-plane motion changes the gaps (deterministic).
+    Zenith {
+        /// deg.
+        deg: f64,
+    },
+    /// The mirror at another temperature than the baseline (deterministic).
+    Temperature {
+        /// degC relative to the baseline.
+        delta: f64,
+    },
+}
+
+impl Perturbation {
+    /// Deterministic perturbations are computed once.
+    pub fn is_deterministic(&self) -> bool {
+        matches!(
+            self,
+            Self::Leff { .. } | Self::Zenith { .. } | Self::Temperature { .. }
+        )
+    }
 }
 
 /// A named robustness case.
@@ -55,30 +102,78 @@ impl Case {
             name: name.into(),
             perturbation: p,
         };
+        let d = &INSTALL_DEFAULTS;
+        let sensor = |gap_correction| Perturbation::SensorInstall {
+            position_rms: d.sensor_position_rms,
+            tilt_rms: d.sensor_tilt_rms,
+            gap_rms: d.sensor_gap_rms,
+            gap_correction,
+        };
         vec![
+            c("zenith 0 deg", Perturbation::Zenith { deg: 0.0 }),
+            c("zenith 15 deg", Perturbation::Zenith { deg: 15.0 }),
+            c("zenith 25 deg", Perturbation::Zenith { deg: 25.0 }),
+            c("zenith 65 deg", Perturbation::Zenith { deg: 65.0 }),
+            c(
+                "temperature -5 C",
+                Perturbation::Temperature { delta: -5.0 },
+            ),
+            c("temperature +5 C", Perturbation::Temperature { delta: 5.0 }),
+            c(
+                "segment install",
+                Perturbation::SegmentInstall {
+                    position_rms: d.segment_position_rms,
+                    clocking_rms: d.segment_clocking_rms,
+                },
+            ),
+            c("sensor install", sensor(false)),
+            c("sensor install, gap corr.", sensor(true)),
             c("sensor gain 0.1%", Perturbation::SensorGain { rms: 1e-3 }),
             c("sensor gain 1%", Perturbation::SensorGain { rms: 1e-2 }),
             c("Leff +10%", Perturbation::Leff { factor: 1.1 }),
             c("Leff -10%", Perturbation::Leff { factor: 0.9 }),
             c(
-                "sensor install",
-                Perturbation::SensorInstall {
-                    position_rms: 0.5e-3,
-                    tilt_rms: 1e-3,
+                "A elements 2%",
+                Perturbation::ElementErrors {
+                    rms: 0.02,
+                    basis: ElementBasis::Actuator,
                 },
             ),
             c(
-                "segment install",
-                Perturbation::SegmentInstall {
-                    position_rms: 1e-3,
-                    clocking_rms: 1e-3,
+                "A elements 5%",
+                Perturbation::ElementErrors {
+                    rms: 0.05,
+                    basis: ElementBasis::Actuator,
                 },
             ),
-            c("A elements 2%", Perturbation::ElementErrors { rms: 0.02 }),
-            c("A elements 5%", Perturbation::ElementErrors { rms: 0.05 }),
+            c(
+                "A(ptt) elements 2%",
+                Perturbation::ElementErrors {
+                    rms: 0.02,
+                    basis: ElementBasis::Ptt,
+                },
+            ),
+            c(
+                "A(ptt) elements 5%",
+                Perturbation::ElementErrors {
+                    rms: 0.05,
+                    basis: ElementBasis::Ptt,
+                },
+            ),
         ]
     }
 }
+
+/// The installation errors of Table 1's install rows: *calibrated* to the rows
+/// (segment install 3.81, sensor install 1.91 and 1.24 with gap correction, worst of 100).
+pub const INSTALL_DEFAULTS: Installation = Installation {
+    segment_position_rms: 9e-6,
+    segment_clocking_rms: 9e-6,
+    sensor_position_rms: 0.15e-3,
+    sensor_tilt_rms: 0.4e-3,
+    sensor_gap_rms: 4e-6,
+    seed: 1,
+};
 
 /// Distribution of a metric over the realizations.
 #[derive(Debug, Clone, Serialize)]
@@ -129,124 +224,256 @@ pub struct CaseResult {
 /// Settings of the robustness analysis.
 #[derive(Debug, Clone, Serialize)]
 pub struct RobustnessParams {
-    /// Realizations per random case (default: 100).
+    /// Realizations per random case (default: 100, as the seed paper's Table 1).
     pub realizations: usize,
+    /// Realizations of the random element-error cases, whose instability risk is to be
+    /// resolved to 1 in 1000 (default: 1000).
+    pub risk_realizations: usize,
     /// Focus-mode gain reduction factor of Gamma (default: 4).
     pub focus_gain_factor: f64,
     /// Seed (default: 1).
     pub seed: u64,
     /// Krylov dimension of the estimates (default: 60).
     pub krylov_dim: usize,
+    /// The deformation model of the zenith and temperature cases.
+    pub deformation: DeformationParams,
+    /// How the sensors' gain and L_eff depend on their gap.
+    pub gap_law: GapLaw,
 }
 
 impl Default for RobustnessParams {
     fn default() -> Self {
         Self {
             realizations: 100,
+            risk_realizations: 1000,
             focus_gain_factor: 4.0,
             seed: 1,
             krylov_dim: 60,
+            deformation: DeformationParams::default(),
+            gap_law: GapLaw::default(),
         }
     }
 }
 
-pub(super) fn rotate_about(v: [f64; 3], axis: [f64; 3], angle: f64) -> [f64; 3] {
-    // Small rotation: v + angle axis x v (first order), renormalised.
-    let c = [
-        axis[1] * v[2] - axis[2] * v[1],
-        axis[2] * v[0] - axis[0] * v[2],
-        axis[0] * v[1] - axis[1] * v[0],
-    ];
-    let r = [
-        v[0] + angle * c[0],
-        v[1] + angle * c[1],
-        v[2] + angle * c[2],
-    ];
-    let n = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
-    [r[0] / n, r[1] / n, r[2] / n]
+impl RobustnessParams {
+    /// Realizations of `p`: 1 if deterministic, `risk_realizations` for element errors, else
+    /// `realizations`.
+    pub fn realizations_of(&self, p: &Perturbation) -> usize {
+        match p {
+            p if p.is_deterministic() => 1,
+            Perturbation::ElementErrors { .. } => self.risk_realizations,
+            _ => self.realizations,
+        }
+    }
+}
+
+/// What a realization needs beyond the nominal setup: the A-matrix split and the baseline
+/// deformation model, built once per analysis.
+pub(super) struct Context<'a> {
+    pub nominal: &'a Nominal,
+    pub split: HeightSplit,
+    pub deformation: ParametricDeformation,
+    pub gap_law: GapLaw,
+    pub a_gw: SparseColMat<usize, f64>,
+    /// Gamma's focus-mode gain.
+    pub focus_gain: f64,
+}
+
+impl<'a> Context<'a> {
+    pub fn new(nominal: &'a Nominal, params: &RobustnessParams) -> Result<Self, M1Error> {
+        let g = &nominal.geometry;
+        Ok(Self {
+            nominal,
+            split: HeightSplit::new(g),
+            deformation: ParametricDeformation::new(g, params.deformation)?,
+            gap_law: params.gap_law,
+            a_gw: interaction_matrices(g).a_gw,
+            focus_gain: 1.0 / params.focus_gain_factor,
+        })
+    }
+
+    /// A of the nominal sensors with the gap changes `dgap` (gap law).
+    fn with_gaps(
+        &self,
+        split: &HeightSplit,
+        dgap: &[f64],
+    ) -> Result<SparseColMat<usize, f64>, M1Error> {
+        let (g, l) = self.gap_law.factors(dgap);
+        split.assemble(&g, &l)
+    }
+
+    /// A at the deformation state (zenith, temperature) relative to the baseline.
+    fn deformed(&self, zenith: f64, temperature: f64) -> Result<SparseColMat<usize, f64>, M1Error> {
+        let n3 = self.nominal.geometry.n_actuators();
+        let mut d = Deformation {
+            w: vec![0.0; n3],
+            z_cell: vec![0.0; n3],
+        };
+        let p = self.deformation.params();
+        self.deformation
+            .evaluate_into(zenith, p.baseline_temperature + temperature, &mut d)?;
+        let mut dgap = vec![0.0; self.nominal.a.nrows()];
+        sparse_mul(&self.a_gw, &d.w, &mut dgap);
+        self.with_gaps(&self.split, &dgap)
+    }
+}
+
+/// One realization: the true A, the sensor gains and, if the controller rebuilt its
+/// reconstructor (gap correction), the rebuilt B0 and Gamma.
+pub(super) struct Realized {
+    pub a: SparseColMat<usize, f64>,
+    pub gains: Vec<f64>,
+    pub rebuilt: Option<(SparseReconstructor, SparseReconstructor)>,
+}
+
+/// `A P` in the segment piston/tip/tilt basis, perturbed element-wise by `1 + N(0, rms)`, and
+/// mapped back to the actuator basis.
+fn ptt_element_errors(
+    geometry: &Geometry,
+    a: &SparseColMat<usize, f64>,
+    rms: f64,
+    rng: &mut StdRng,
+) -> SparseColMat<usize, f64> {
+    let n = geometry.n_segments();
+    let ns = a.nrows();
+    let dense = a.to_dense();
+    let mut triplets = Vec::with_capacity(a.val().len());
+    for i in 0..n {
+        let p = geometry.ptt_matrix(i);
+        let pinv = geometry.ptt_inverse(i);
+        for r in 0..ns {
+            let row = [
+                dense[(r, 3 * i)],
+                dense[(r, 3 * i + 1)],
+                dense[(r, 3 * i + 2)],
+            ];
+            if row.iter().all(|v| *v == 0.0) {
+                continue;
+            }
+            // (A P)_r = row . P[:, c]
+            let mut ap: [f64; 3] = std::array::from_fn(|c| (0..3).map(|k| row[k] * p[k][c]).sum());
+            for v in &mut ap {
+                if *v != 0.0 {
+                    let x: f64 = StandardNormal.sample(rng);
+                    *v *= 1.0 + rms * x;
+                }
+            }
+            for k in 0..3 {
+                let v: f64 = (0..3).map(|c| ap[c] * pinv[c][k]).sum();
+                triplets.push(faer::sparse::Triplet::new(r, 3 * i + k, v));
+            }
+        }
+    }
+    SparseColMat::try_new_from_triplets(ns, a.ncols(), &triplets).unwrap_or_else(|_| a.clone())
 }
 
 /// The true A and sensor gains of one realization.
 pub(super) fn realize(
-    nominal: &Nominal,
+    ctx: &Context<'_>,
     p: &Perturbation,
     rng: &mut StdRng,
-) -> Result<(SparseColMat<usize, f64>, Vec<f64>), M1Error> {
+) -> Result<Realized, M1Error> {
+    let nominal = ctx.nominal;
     let ns = nominal.a.nrows();
     let gauss = |s: f64, rng: &mut StdRng| -> f64 {
         let x: f64 = StandardNormal.sample(rng);
         s * x
     };
+    let plain = |a| Realized {
+        a,
+        gains: vec![1.0; ns],
+        rebuilt: None,
+    };
     match p {
-        Perturbation::SensorGain { rms } => Ok((
-            nominal.a.clone(),
-            (0..ns).map(|_| 1.0 + gauss(*rms, rng)).collect(),
-        )),
+        Perturbation::SensorGain { rms } => Ok(Realized {
+            a: nominal.a.clone(),
+            gains: (0..ns).map(|_| 1.0 + gauss(*rms, rng)).collect(),
+            rebuilt: None,
+        }),
         Perturbation::Leff { factor } => {
             let mut params = nominal.geometry.params;
             params.leff *= factor;
             let g = Geometry::new(&nominal.geometry.layout, params)?;
-            Ok((a_matrix(&g), vec![1.0; ns]))
+            Ok(plain(a_matrix(&g)))
         }
-        Perturbation::ElementErrors { rms } => {
-            let mut a = nominal.a.clone();
-            for v in a.val_mut() {
-                *v *= 1.0 + gauss(*rms, rng);
+        Perturbation::ElementErrors { rms, basis } => match basis {
+            ElementBasis::Actuator => {
+                let mut a = nominal.a.clone();
+                for v in a.val_mut() {
+                    *v *= 1.0 + gauss(*rms, rng);
+                }
+                Ok(plain(a))
             }
-            Ok((a, vec![1.0; ns]))
-        }
+            ElementBasis::Ptt => Ok(plain(ptt_element_errors(
+                &nominal.geometry,
+                &nominal.a,
+                *rms,
+                rng,
+            ))),
+        },
         Perturbation::SensorInstall {
             position_rms,
             tilt_rms,
+            gap_rms,
+            gap_correction,
         } => {
-            let mut g = nominal.geometry.clone();
-            for s in &mut g.sensors {
-                let (a, b) = (gauss(*position_rms, rng), gauss(*position_rms, rng));
-                for k in 0..3 {
-                    s.point[k] += a * s.gap[k] + b * s.shear[k];
-                }
-                let (t1, t2) = (gauss(*tilt_rms, rng), gauss(*tilt_rms, rng));
-                s.height = rotate_about(rotate_about(s.height, s.gap, t1), s.shear, t2);
+            let inst = Installation {
+                sensor_position_rms: *position_rms,
+                sensor_tilt_rms: *tilt_rms,
+                sensor_gap_rms: *gap_rms,
+                seed: rng.next_u64(),
+                ..Installation::default()
             }
-            Ok((a_matrix(&g), vec![1.0; ns]))
+            .install(&nominal.geometry)?;
+            let split = HeightSplit::new(&inst.geometry);
+            let a = ctx.with_gaps(&split, &inst.dgap)?;
+            let rebuilt = if *gap_correction {
+                // The controller measures each sensor's gap and uses the nominal geometry's A
+                // with the gain and L_eff of the measured gaps.
+                let a0 = ctx.with_gaps(&ctx.split, &inst.dgap)?;
+                let null = nominal.b0.null_space();
+                let b0 = SparseReconstructor::new(&a0, null, Vec::new())?;
+                let gamma = SparseReconstructor::new(
+                    &a0,
+                    null,
+                    vec![crate::control::reconstructor::ModalGain {
+                        mode: nominal.focus.clone(),
+                        gain: ctx.focus_gain,
+                    }],
+                )?;
+                Some((b0, gamma))
+            } else {
+                None
+            };
+            Ok(Realized {
+                a,
+                gains: vec![1.0; ns],
+                rebuilt,
+            })
         }
         Perturbation::SegmentInstall {
             position_rms,
             clocking_rms,
         } => {
-            let mut g = nominal.geometry.clone();
-            for f in &mut g.segments {
-                let (a, b, c) = (
-                    gauss(*position_rms, rng),
-                    gauss(*position_rms, rng),
-                    gauss(*clocking_rms, rng),
-                );
-                for act in &mut f.actuators {
-                    let d = [
-                        act[0] - f.centre[0],
-                        act[1] - f.centre[1],
-                        act[2] - f.centre[2],
-                    ];
-                    let n = f.normal;
-                    // Clock by c about the normal (first order), then shift in-plane.
-                    let cross = [
-                        n[1] * d[2] - n[2] * d[1],
-                        n[2] * d[0] - n[0] * d[2],
-                        n[0] * d[1] - n[1] * d[0],
-                    ];
-                    for k in 0..3 {
-                        act[k] += c * cross[k] + a * f.radial[k] + b * f.azimuthal[k];
-                    }
-                }
+            let inst = Installation {
+                segment_position_rms: *position_rms,
+                segment_clocking_rms: *clocking_rms,
+                seed: rng.next_u64(),
+                ..Installation::default()
             }
-            Ok((a_matrix(&g), vec![1.0; ns]))
+            .install(&nominal.geometry)?;
+            Ok(plain(ctx.with_gaps(&ctx.split, &inst.dgap)?))
         }
+        Perturbation::Zenith { deg } => Ok(plain(ctx.deformed(*deg, 0.0)?)),
+        Perturbation::Temperature { delta } => Ok(plain(
+            ctx.deformed(ctx.deformation.params().baseline_zenith_deg, *delta)?,
+        )),
     }
 }
 
 /// The metrics of one realization.
 pub(super) fn metrics(
-    nominal: &Nominal,
+    b0: &SparseReconstructor,
     gamma: &SparseReconstructor,
     a: &SparseColMat<usize, f64>,
     gains: &[f64],
@@ -254,7 +481,7 @@ pub(super) fn metrics(
     seed: u64,
 ) -> [f64; 4] {
     let (na, ns) = (a.ncols(), a.nrows());
-    let null = nominal.b0.null_space();
+    let null = b0.null_space();
     let mut v0: Vec<f64> = {
         let mut r = StdRng::seed_from_u64(seed);
         (0..na).map(|_| StandardNormal.sample(&mut r)).collect()
@@ -281,7 +508,7 @@ pub(super) fn metrics(
     let q = |x: &[f64], out: &mut [f64]| {
         let mut xp = x.to_vec();
         project_out(null, &mut xp);
-        out.copy_from_slice(&nominal.b0.apply(&sa(&xp)));
+        out.copy_from_slice(&b0.apply(&sa(&xp)));
     };
     // (Q - I) restricted to the observable subspace: P (Q P - I) P, so round-off in the
     // projected-out directions cannot show up as spurious eigenvalues -1.
@@ -298,7 +525,7 @@ pub(super) fn metrics(
         .map(|l| l.re + 1.0)
         .fold(f64::INFINITY, f64::min);
     let sigma = krylov::largest_singular_value(na, m, &v0, q, |x, out| {
-        let mut y = nominal.b0.apply_transpose(x);
+        let mut y = b0.apply_transpose(x);
         out.copy_from_slice(&at_s(&mut y));
     });
     let qg = |x: &[f64], out: &mut [f64]| {
@@ -313,8 +540,9 @@ pub(super) fn metrics(
     [rho, sigma, sigma_g, min_re]
 }
 
-/// Runs the robustness cases: deterministic cases (Leff) once, random ones `realizations` times,
-/// each realization with its own seed derived from `params.seed`.
+/// Runs the robustness cases: deterministic cases once, element errors
+/// `params.risk_realizations` times, the other random ones `params.realizations` times, each
+/// realization with its own seed derived from `params.seed`.
 pub fn robustness(
     nominal: &Nominal,
     cases: &[Case],
@@ -323,20 +551,15 @@ pub fn robustness(
 ) -> Result<Vec<CaseResult>, M1Error> {
     use rayon::prelude::*;
     let gamma = nominal.with_focus_gain(1.0 / params.focus_gain_factor)?;
+    let ctx = Context::new(nominal, params)?;
     let total: usize = cases
         .iter()
-        .map(|c| match c.perturbation {
-            Perturbation::Leff { .. } => 1,
-            _ => params.realizations,
-        })
+        .map(|c| params.realizations_of(&c.perturbation))
         .sum();
     let done = std::sync::atomic::AtomicUsize::new(0);
     let mut out = Vec::new();
     for case in cases {
-        let n = match case.perturbation {
-            Perturbation::Leff { .. } => 1,
-            _ => params.realizations,
-        };
+        let n = params.realizations_of(&case.perturbation);
         let results: Result<Vec<[f64; 4]>, M1Error> = (0..n)
             .into_par_iter()
             .map(|r| {
@@ -344,12 +567,16 @@ pub fn robustness(
                 // cases of one kind differ only by their amplitude.
                 let seed = params.seed.wrapping_mul(1_000_003).wrapping_add(r as u64);
                 let mut rng = StdRng::seed_from_u64(seed);
-                let (a, gains) = realize(nominal, &case.perturbation, &mut rng)?;
+                let real = realize(&ctx, &case.perturbation, &mut rng)?;
+                let (b0, g) = match &real.rebuilt {
+                    Some((b, g)) => (b, g),
+                    None => (&nominal.b0, &gamma),
+                };
                 let m = metrics(
-                    nominal,
-                    &gamma,
-                    &a,
-                    &gains,
+                    b0,
+                    g,
+                    &real.a,
+                    &real.gains,
                     params.krylov_dim,
                     seed ^ 0x5eed,
                 );

@@ -40,7 +40,7 @@ fn no_error_gives_the_identity() {
     let nominal = Nominal::new(g).expect("nominal");
     let gains = vec![1.0; nominal.a.nrows()];
     let gamma = nominal.with_focus_gain(0.25).expect("gamma");
-    let m = metrics(&nominal, &gamma, &nominal.a, &gains, 40, 3);
+    let m = metrics(&nominal.b0, &gamma, &nominal.a, &gains, 40, 3);
     assert!(m[0] < 1e-9, "rho(Q - I) = {}", m[0]);
     assert!((m[1] - 1.0).abs() < 1e-9, "sigma(Q) = {}", m[1]);
     assert!((m[2] - 1.0).abs() < 1e-9, "sigma(GQ) = {}", m[2]);
