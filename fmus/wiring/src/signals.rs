@@ -16,6 +16,9 @@
 //! | `y_ref` | m | ns | desired edge-sensor readings (set-points) |
 //! | `gap` | m | ns | gap between the segments at each sensor |
 //! | `w` | m, m, rad | na | in-plane segment motion: radial, azimuthal (m), clocking (rad) per segment |
+//! | `u_lo` | m | na | low-order actuator command from the optical feedback (global piston/tip/tilt) |
+//! | `zenith_angle` | deg | 1 | telescope zenith angle |
+//! | `temperature` | K | 1 | mirror-cell temperature change from the alignment baseline |
 //!
 //! na = 3 x the number of segments, ns = the number of edge sensors of the layout.
 
@@ -162,8 +165,48 @@ pub const W: Signal = Signal {
     description: "In-plane segment motion along the prescription: w[3i+1] radial (m), w[3i+2] azimuthal (m), w[3i+3] clocking (rad) of segment i",
 };
 
+/// `u_lo`: low-order actuator command from the optical feedback, added to the controller's
+/// output.
+pub const U_LO: Signal = Signal {
+    name: "u_lo",
+    unit: "m",
+    length: Length::Actuators,
+    description: "Low-order actuator command from the optical feedback (global piston/tip/tilt), added to the global controller's output",
+};
+
+/// `zenith_angle`: telescope zenith angle.
+pub const ZENITH_ANGLE: Signal = Signal {
+    name: "zenith_angle",
+    unit: "deg",
+    length: Length::One,
+    description: "Telescope zenith angle",
+};
+
+/// `temperature`: mirror-cell temperature change from the alignment baseline (a difference, so
+/// in K: 1 K = 1 degC of change).
+pub const TEMPERATURE: Signal = Signal {
+    name: "temperature",
+    unit: "K",
+    length: Length::One,
+    description: "Mirror-cell temperature change from the alignment baseline (1 K = 1 degC of change)",
+};
+
 /// Every signal of the vocabulary.
-pub const ALL: [Signal; 10] = [U_CMD, Z, F_CELL, Z_CELL, F_WIND, PIER_Z, Y, Y_REF, GAP, W];
+pub const ALL: [Signal; 13] = [
+    U_CMD,
+    Z,
+    F_CELL,
+    Z_CELL,
+    F_WIND,
+    PIER_Z,
+    Y,
+    Y_REF,
+    GAP,
+    W,
+    U_LO,
+    ZENITH_ANGLE,
+    TEMPERATURE,
+];
 
 /// The structural `layout` string every FMU starts with: the layout it was packaged for.
 pub fn layout_decl(layout: &str) -> Decl {
