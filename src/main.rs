@@ -36,6 +36,9 @@ enum Cmd {
     Clocking(commands::quasistatic::ClockingArgs),
     /// Shear estimated from gap readings (eq. 2): the unobservable torsion mode and gap noise.
     Calibration(commands::quasistatic::CalibrationArgs),
+    /// The overall quasi-static simulation: a month of nights with gravity and thermal
+    /// deformation, installed sensors, calibration, APS and optical feedback (four variants).
+    Overall(commands::overall::OverallArgs),
     /// Zernike basis on the segmented aperture and its segment piston/tip/tilt projection.
     Zernike(commands::optics::ZernikeArgs),
     /// PSSN of a seeded random segment piston/tip/tilt state.
@@ -88,6 +91,7 @@ fn main() -> ExitCode {
         Cmd::Noise(a) => commands::quasistatic::noise(&a),
         Cmd::Clocking(a) => commands::quasistatic::clocking(&a),
         Cmd::Calibration(a) => commands::quasistatic::calibration(&a),
+        Cmd::Overall(a) => commands::overall::overall(&a),
         Cmd::Zernike(a) => commands::optics::run_zernike(&a),
         Cmd::Pssn(a) => commands::optics::run_pssn(&a),
     };

@@ -8,6 +8,7 @@ pub mod demo;
 pub mod dynamics;
 pub mod geometry;
 pub mod optics;
+pub mod overall;
 pub mod quasistatic;
 pub mod report;
 pub mod wind;

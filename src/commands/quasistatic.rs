@@ -484,12 +484,39 @@ pub fn robustness(a: &RobustnessArgs) -> Result<(), String> {
         layout.name, a.realizations, a.focus_gain_factor
     );
     println!(
-        "{:<20} {:>12} {:>12} {:>12} {:>12} {:>12} {:>10}",
-        "case", "rho(Q-I)", "sigma(Q)", "sigma(GQ)", "median sQ", "min Re eig", "unstable"
+        "{:<26} {:>10} {:>8} {:>8} {:>9} {:>10} {:>8} | {:>8} {:>6} {:>6} {:>7}",
+        "case",
+        "rho(Q-I)",
+        "sig(Q)",
+        "sig(GQ)",
+        "median sQ",
+        "min Re eig",
+        "unstable",
+        "paper: rho",
+        "sig(Q)",
+        "sig(GQ)",
+        "risk"
     );
     for r in &results {
+        let paper = match r.case.published {
+            Some(quasistatic::Published::Metrics([a, b, c])) => {
+                format!("{a:>10.1e} {b:>6.2} {c:>6.2} {:>7}", "")
+            }
+            Some(quasistatic::Published::Risk { fraction, at_least }) => format!(
+                "{:>10} {:>6} {:>6} {:>7}",
+                "",
+                "",
+                "",
+                format!(
+                    "{}{:.1}%",
+                    if at_least { ">" } else { "" },
+                    100.0 * fraction
+                )
+            ),
+            None => String::new(),
+        };
         println!(
-            "{:<20} {:>12.3e} {:>12.3} {:>12.3} {:>12.3} {:>12.3} {:>9.1}%",
+            "{:<26} {:>10.2e} {:>8.3} {:>8.3} {:>9.3} {:>10.3} {:>7.1}% | {paper}",
             r.case.name,
             r.rho_q_minus_i.worst,
             r.sigma_q.worst,

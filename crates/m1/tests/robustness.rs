@@ -33,6 +33,7 @@ fn krylov_estimates_equal_dense_eigen_and_singular_values_on_keck() {
             rms,
             basis: ElementBasis::Actuator,
         },
+        published: None,
     }];
     let res = robustness(&nominal, &cases, &params, &|_, _| {}).expect("robustness");
     let r0 = &res[0];

@@ -121,6 +121,7 @@ pub(super) fn q_allowance(
     let case = Case {
         name: "sensor gain 0.1%".into(),
         perturbation: Perturbation::SensorGain { rms: 1e-3 },
+        published: None,
     };
     let params = RobustnessParams {
         realizations,

@@ -11,9 +11,11 @@
 //! cross-axis component points along `y`), `dT = T - T_0`, `rho_max` the outermost segment
 //! radius and `(x, y)` aperture coordinates:
 //!
-//! - **thermal expansion** of the cell relative to the glass: the segment supports move
-//!   radially, `d = alpha dT (x, y)`, opening every gap by `alpha dT` times the pitch;
-//! - **axial gravity**: a radial strain `d = epsilon_a c (x, y)` and a sag
+//! - **thermal expansion** of the cell relative to the glass: an isotropic strain about the
+//!   vertex, every support point `p` moving by `d = alpha dT p` (3-D), which opens every gap by
+//!   about `alpha dT` times the pitch and moves each attachment along the segment normal by
+//!   `alpha dT p . n` (a focus-like change of the cell's curvature, which the loop takes out);
+//! - **axial gravity**: an isotropic strain `d = epsilon_a c p` and a sag
 //!   `z_cell = sag_a c (rho / rho_max)^2`;
 //! - **lateral gravity**: a shear of the cell `d_y = shear_l s (1 - (rho / rho_max)^2)` and a
 //!   coma-like motion `z_cell = sag_l s (rho / rho_max)^2 y / rho_max`;
@@ -21,8 +23,9 @@
 //!   amount, a seeded draw `N(0, local_a)` per g along the axis and `N(0, local_l)` per g across
 //!   it, on each in-plane axis (and clocking of the same size over the circumradius).
 //!
-//! Each segment's `w` is the slide along the surface whose aperture-plane projection is `d` at
-//! its centre (on its radial and azimuthal axes), plus its local draw. The sizes are parameters ([`DeformationParams`]); the defaults are *assumed* or
+//! Each segment's `w` is `d` at its centre projected on its radial and azimuthal tangents, plus
+//! its local draw; `z_cell` is the normal part of `d` at each actuator attachment plus the sag
+//! patterns. The sizes are parameters ([`DeformationParams`]); the defaults are *assumed* or
 //! *calibrated* to the zenith and temperature rows of the seed paper's Table 1, as each field's
 //! documentation says.
 //!
@@ -197,13 +200,13 @@ impl ParametricDeformation {
             .fold(0.0, f64::max)
             .max(f64::MIN_POSITIVE);
         let a = geometry.layout.circumradius;
-        let project = |i: usize, d: [f64; 2], clock: f64, w: &mut [f64]| {
-            // The slide along the surface whose aperture-plane projection is `d`'s component
-            // on that axis: divide by the axis's squared horizontal length.
+        // A displacement `d` (3-D) of segment i's support: its components along the segment's
+        // radial and azimuthal tangents are the in-plane slide (the normal part is out of plane).
+        let project = |i: usize, d: [f64; 3], clock: f64, w: &mut [f64]| {
             let s = &geometry.segments[i];
-            let (r, a) = (s.radial, s.azimuthal);
-            w[3 * i] += (d[0] * r[0] + d[1] * r[1]) / (r[0] * r[0] + r[1] * r[1]);
-            w[3 * i + 1] += (d[0] * a[0] + d[1] * a[1]) / (a[0] * a[0] + a[1] * a[1]);
+            let dot = |a: [f64; 3]| d[0] * a[0] + d[1] * a[1] + d[2] * a[2];
+            w[3 * i] += dot(s.radial);
+            w[3 * i + 1] += dot(s.azimuthal);
             w[3 * i + 2] += clock;
         };
         let mut rng = StdRng::seed_from_u64(params.seed);
@@ -215,13 +218,21 @@ impl ParametricDeformation {
                 for i in 0..n {
                     let c = geometry.segments[i].centre;
                     let r2 = (c[0] * c[0] + c[1] * c[1]) / (rho_max * rho_max);
-                    let d = [strain * c[0], strain * c[1] + shear * (1.0 - r2)];
+                    // The strain is isotropic (3-D, about the vertex); the shear is lateral.
+                    let d = [
+                        strain * c[0],
+                        strain * c[1] + shear * (1.0 - r2),
+                        strain * c[2],
+                    ];
                     project(i, d, 0.0, &mut w);
                     let (dx, dy, dc) = (local * gauss(), local * gauss(), local / a * gauss());
-                    project(i, [dx, dy], dc, &mut w);
+                    project(i, [dx, dy, 0.0], dc, &mut w);
+                    let nrm = geometry.segments[i].normal;
                     for k in 0..3 {
                         let p = geometry.segments[i].actuators[k];
-                        z_cell[3 * i + k] = z_of(p[0] / rho_max, p[1] / rho_max);
+                        // The strain's normal displacement of the attachment, plus the sag.
+                        let along = strain * (p[0] * nrm[0] + p[1] * nrm[1] + p[2] * nrm[2]);
+                        z_cell[3 * i + k] = along + z_of(p[0] / rho_max, p[1] / rho_max);
                     }
                 }
                 Deformation { w, z_cell }
@@ -274,7 +285,8 @@ impl ParametricDeformation {
         let dt = (temperature - self.params.baseline_temperature) * self.params.thermal_expansion;
         for k in 0..n3 {
             out.w[k] = dt * self.thermal.w[k] + c * self.axial.w[k] + s * self.lateral.w[k];
-            out.z_cell[k] = c * self.axial.z_cell[k] + s * self.lateral.z_cell[k];
+            out.z_cell[k] =
+                dt * self.thermal.z_cell[k] + c * self.axial.z_cell[k] + s * self.lateral.z_cell[k];
         }
         Ok(())
     }
@@ -587,7 +599,8 @@ mod tests {
             // curved surface, longer by up to 1 / cos(slope) (Keck's rim: 2 %).
             assert!((x / expected - 1.0).abs() < 3e-2, "{x} vs {expected}");
         }
-        assert!(d.z_cell.iter().all(|x| *x == 0.0));
+        // The attachments move along the normal by alpha dT p . n: about -alpha dT x sag.
+        assert!(d.z_cell.iter().any(|x| x.abs() > 1e-7));
         // Gravity is linear in (cos, sin) changes: zenith 0 and 60 are symmetric about 30 in
         // neither, but the sag follows cos: z_cell(0) / z_cell(60) = (1 - c30) / (c60 - c30).
         let (a, b) = (

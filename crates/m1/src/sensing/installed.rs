@@ -54,7 +54,7 @@ pub const DEFAULT_HEIGHT_GAIN_PER_GAP: f64 = -210.0;
 
 /// Default `kappa`, the relative change of `L_eff` per metre of gap change (1/m): *calibrated*
 /// so that the same temperature change gives Table 1's `sigma(Q) = 1.13`.
-pub const DEFAULT_LEFF_PER_GAP: f64 = 16.0;
+pub const DEFAULT_LEFF_PER_GAP: f64 = 6.0;
 
 /// How a sensor's height gain and moment arm depend on its gap (see the
 /// [module documentation](self)).

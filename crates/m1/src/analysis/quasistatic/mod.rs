@@ -41,8 +41,8 @@ mod tests;
 
 pub use calibration::{CalibrationMonteCarlo, CalibrationResult, ShearEstimator, calibration};
 pub use robustness::{
-    Case, CaseResult, ElementBasis, INSTALL_DEFAULTS, Perturbation, RobustnessParams, Stats,
-    robustness,
+    Case, CaseResult, ElementBasis, INSTALL_DEFAULTS, Perturbation, Published, RobustnessParams,
+    Stats, robustness,
 };
 
 use faer::Mat;

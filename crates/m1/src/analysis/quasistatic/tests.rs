@@ -13,10 +13,12 @@ fn sensor_gain_errors_never_destabilise_and_scale_with_the_error() {
         Case {
             name: "0.1%".into(),
             perturbation: Perturbation::SensorGain { rms: 1e-3 },
+            published: None,
         },
         Case {
             name: "1%".into(),
             perturbation: Perturbation::SensorGain { rms: 1e-2 },
+            published: None,
         },
     ];
     let r = robustness(&nominal, &cases, &params, &|_, _| {}).expect("robustness");
@@ -40,7 +42,7 @@ fn no_error_gives_the_identity() {
     let nominal = Nominal::new(g).expect("nominal");
     let gains = vec![1.0; nominal.a.nrows()];
     let gamma = nominal.with_focus_gain(0.25).expect("gamma");
-    let m = metrics(&nominal.b0, &gamma, &nominal.a, &gains, 40, 3);
+    let m = metrics(&nominal.b0, &gamma, &nominal.a, &gains, 40, 3, false);
     assert!(m[0] < 1e-9, "rho(Q - I) = {}", m[0]);
     assert!((m[1] - 1.0).abs() < 1e-9, "sigma(Q) = {}", m[1]);
     assert!((m[2] - 1.0).abs() < 1e-9, "sigma(GQ) = {}", m[2]);
