@@ -62,6 +62,8 @@ fn robustness_sensor_gains_never_destabilise() {
         "keck",
         "--realizations",
         "5",
+        "--risk-realizations",
+        "20",
         "--json",
     ]);
     for case in v["cases"].as_array().unwrap() {
