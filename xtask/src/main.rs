@@ -62,6 +62,21 @@ const FMUS: &[FmuCrate] = &[
         describe: fmu::package::describe::<pier_vibration_model::PierVibrationFmu>,
     },
     FmuCrate {
+        name: "deformation",
+        write: fmu::package::write_fmu::<deformation_model::DeformationFmu>,
+        describe: fmu::package::describe::<deformation_model::DeformationFmu>,
+    },
+    FmuCrate {
+        name: "aps",
+        write: fmu::package::write_fmu::<aps_model::ApsFmu>,
+        describe: fmu::package::describe::<aps_model::ApsFmu>,
+    },
+    FmuCrate {
+        name: "optical_feedback",
+        write: fmu::package::write_fmu::<optical_feedback_model::OpticalFeedbackFmu>,
+        describe: fmu::package::describe::<optical_feedback_model::OpticalFeedbackFmu>,
+    },
+    FmuCrate {
         name: "optics",
         write: fmu::package::write_fmu::<optics_model::Optics>,
         describe: fmu::package::describe::<optics_model::Optics>,

@@ -329,6 +329,18 @@ impl OpticalFeedback {
         self.c = [0.0; 4];
     }
 
+    /// The integrator state: the coefficients and the number of updates taken (which seeds the
+    /// next update's noise), for saving.
+    pub fn state(&self) -> ([f64; 4], u64) {
+        (self.c, self.updates)
+    }
+
+    /// Restores a state read by [`OpticalFeedback::state`], exactly.
+    pub fn set_state(&mut self, coefficients: [f64; 4], updates: u64) {
+        self.c = coefficients;
+        self.updates = updates;
+    }
+
     /// The low-order actuator command `u_lo = N c_ptt` into `u` (length `na`).
     pub fn low_order_command_into(&self, u: &mut [f64]) {
         for (i, v) in u.iter_mut().enumerate() {
