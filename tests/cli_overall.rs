@@ -146,3 +146,55 @@ fn robustness_has_the_deformation_and_installation_rows() {
         3.81
     );
 }
+
+fn fmu_dir() -> String {
+    std::env::var("M1CS_FMU_DIR")
+        .unwrap_or_else(|_| concat!(env!("CARGO_MANIFEST_DIR"), "/target/fmu").to_string())
+}
+
+/// The deformation, APS and optical-feedback FMUs plug into the standard closed-loop system:
+/// the deformation at the baseline zenith angle changes nothing; away from it, its in-plane
+/// motion reaches the sensors; the optical FMUs run in the loop through `y_ref` and `u_lo`.
+#[test]
+fn deformation_and_optical_fmus_run_in_the_standard_system() {
+    let dir = std::env::temp_dir().join(format!("m1cs-cli-optical-{}", std::process::id()));
+    let out = dir.to_string_lossy().into_owned();
+    let fmus = fmu_dir();
+    let closed_rms = |extra: &[&str]| {
+        let mut args = vec![
+            "run",
+            "--layout",
+            "keck",
+            "--duration",
+            "1",
+            "--fmu-dir",
+            &fmus,
+            "--out",
+            &out,
+            "--json",
+        ];
+        args.extend_from_slice(extra);
+        let v = json(&args);
+        f(&v["runs"][1]["rms_surface_m"])
+    };
+    let plain = closed_rms(&[]);
+    assert_eq!(closed_rms(&["--zenith", "30"]), plain);
+    let tilted = closed_rms(&["--zenith", "60", "--temperature", "5"]);
+    assert!(tilted != plain && tilted.is_finite());
+    let optical = closed_rms(&["--optical"]);
+    assert!(
+        optical.is_finite() && (optical / plain - 1.0).abs() < 0.5,
+        "{optical} vs {plain}"
+    );
+    let (ok, _, err) = m1cs(&[
+        "run",
+        "--layout",
+        "keck",
+        "--zenith",
+        "95",
+        "--fmu-dir",
+        &fmus,
+    ]);
+    assert!(!ok && err.contains("--zenith 95"), "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -180,6 +180,9 @@ fn base_system(a: &WindArgs) -> SystemArgs {
         structure_modes: a.structure_modes,
         structure: a.structure.clone(),
         uniform: false,
+        optical: false,
+        zenith: None,
+        temperature: 0.0,
         duration: a.duration,
         step: a.step,
     }

@@ -1,7 +1,8 @@
 """The edge_sensors FMU driven by fmpy: single-segment pistons read only on their own edges with
 opposite signs across an edge, a global piston reads (almost) nothing, in-plane motion changes
 the gap, readings are sampled and held with seeded noise independent of the communication step
-and no direct feedthrough, and bad parameters are refused with the variable named."""
+and no direct feedthrough, a gap law scales the readings as the gaps open, the temperature
+drives the drift, and bad parameters are refused with the variable named."""
 import numpy as np
 import pytest
 from fmpy import read_model_description, simulate_fmu
@@ -152,10 +153,72 @@ def test_installation_errors_are_reported():
     ideal.close()
 
 
+def test_a_gap_law_scales_the_readings_as_the_gaps_open():
+    """height_gain_per_gap = gamma (leff_per_gap 0): with a constant uniform radial slide of
+    every segment (w) the gaps open, and each reading is (1 + gamma dg) times that of the same
+    sensors without the law, dg = gap - g0 the gap change at the sensor; the gap readings are
+    those without the law."""
+    path = fmu_path("keck", "edge_sensors")
+    gamma = -210.0
+
+    def run(**params):
+        s = Slave(path)
+        s.set(**params)
+        s.start()
+        g0 = s.get("gap")  # the initial sample reads z = w = 0: the nominal gap
+        na = s.size("z")
+        z = P * np.sin(1.7 * np.arange(na))
+        w = np.zeros(na)
+        w[0::3] = 2e-5  # every segment slides 20 um radially outward
+        y = read(s, z=z, w=w)
+        gap = s.get("gap")
+        s.close()
+        return g0, y, gap
+
+    g0, y0, gap0 = run()
+    _, y, gap = run(height_gain_per_gap=gamma)
+    assert np.array_equal(gap, gap0)
+    dg = gap - g0
+    # Every gap opens or stays (the pistons couple into the gap on the curved mirror at the
+    # 1e-2 level only).
+    assert np.all(dg > -0.01 * np.max(dg)) and np.mean(dg) > 1e-6, "the gaps open"
+    scale = np.max(np.abs(y0))
+    assert scale > 0.5 * P
+    assert np.allclose(y, (1 + gamma * dg) * y0, rtol=0, atol=1e-12 * scale)
+    # The law is visible: readings shrink by 1e-3 and more where the gaps open most.
+    opened = dg > 0.5 * np.max(dg)
+    ratio = y[opened] / y0[opened]
+    assert np.all(ratio < 1 - 1e-3), ratio
+    # Off by default: an explicit 0 is the default.
+    _, y_off, _ = run(height_gain_per_gap=0.0, leff_per_gap=0.0)
+    assert np.array_equal(y_off, y0)
+
+
+def test_the_temperature_drives_the_drift():
+    """drift_per_degc = c: each reading moves by c_n T with |c_n| <= c; the gap does not."""
+    path = fmu_path("keck", "edge_sensors")
+    out = {}
+    for t in (0.0, 3.0):
+        s = Slave(path)
+        s.set(drift_per_degc=1e-9)
+        s.start()
+        s.set(temperature=t)
+        s.step(1e-3)
+        out[t] = (s.get("y"), s.get("gap"))
+        s.close()
+    assert np.all(out[0.0][0] == 0.0)
+    dy = out[3.0][0] - out[0.0][0]
+    assert np.all(np.abs(dy) <= 3e-9 * (1 + 1e-12)) and np.max(np.abs(dy)) > 2e-9
+    assert np.array_equal(out[3.0][1], out[0.0][1])
+
+
 @pytest.mark.parametrize("name,value", [
     ("noise_rms", -1e-9),
     ("gain_error_rms", -0.01),
     ("install_tilt_rms", -1e-3),
+    ("install_segment_position_rms", -1e-4),
+    ("install_sensor_gap_rms", -1e-5),
+    ("drift_per_week", -1e-9),
     ("sample_rate", 0.0),
     ("leff", -0.1),
     ("seed", -1),

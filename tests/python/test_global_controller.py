@@ -1,6 +1,7 @@
 """The global_controller FMU driven by fmpy: the command steps only at the loop's 50 ms instants
-whatever the communication step, it does not feed y through, the loop closed through the
-edge_sensors FMU on a perfect plant removes a disturbance, the calculated loop gains follow
+whatever the communication step, it does not feed y through, the low-order command u_lo passes
+straight to u_cmd without touching the integrator, the loop closed through the edge_sensors FMU
+on a perfect plant removes a disturbance, the calculated loop gains follow
 g = 1 - exp(-2 pi f / rate), and bad parameters are refused with the variable named."""
 import math
 
@@ -43,12 +44,45 @@ def run(h, t_end, y, **params):
 
 
 def test_u_cmd_has_no_direct_dependency_on_y():
+    """u_cmd[i] depends directly on u_lo[i] only (the pass-through), never on y."""
     md = read_model_description(str(fmu_path("keck", "global_controller")))
     outputs = md.outputs
     assert outputs and all(o.variable.name.startswith("u_cmd[") for o in outputs)
     for o in outputs:
-        assert o.dependencies == [], o.variable.name
+        i = o.variable.name[len("u_cmd["):-1]
+        assert [d.name for d in o.dependencies] == [f"u_lo[{i}]"], o.variable.name
         assert o.variable.variability == "discrete"
+
+
+def test_u_lo_passes_to_u_cmd_at_once_and_leaves_the_integrator_alone():
+    y = readings("keck")
+    path = fmu_path("keck", "global_controller")
+    with_lo, without = Slave(path, name="with"), Slave(path, name="without")
+    for c in (with_lo, without):
+        c.start()
+        c.set(y=y)
+    na = with_lo.size("u_lo")
+    lo = 1e-6 * np.cos(0.3 * np.arange(na))
+    h = 10e-3
+    for _ in range(7):
+        with_lo.step(h)
+        without.step(h)
+    u = without.get("u_cmd")
+    assert np.any(u != 0.0)
+    assert np.array_equal(with_lo.get("u_cmd"), u)
+    # Set between two samples: u_cmd follows at once, before any step.
+    with_lo.set(u_lo=lo)
+    assert np.array_equal(with_lo.get("u_cmd"), u + lo)
+    for _ in range(13):
+        with_lo.step(h)
+        without.step(h)
+        # The integrator goes on as without u_lo (same samples, same command), u_lo on top.
+        assert np.array_equal(with_lo.get("u_cmd"), without.get("u_cmd") + lo)
+    assert not np.array_equal(without.get("u_cmd"), u), "the integrator moved on"
+    with_lo.set(u_lo=np.zeros(na))
+    assert np.array_equal(with_lo.get("u_cmd"), without.get("u_cmd"))
+    with_lo.close()
+    without.close()
 
 
 def test_command_steps_only_at_the_50_ms_instants():
@@ -175,19 +209,34 @@ def test_bandwidth_at_or_above_nyquist_is_refused_at_initialisation(name):
     c.close()
 
 
-@pytest.mark.parametrize("name", ["global_controller", "edge_sensors"])
-def test_restored_and_deserialised_states_continue_identically(name):
+@pytest.mark.parametrize("name,extras", [
+    ("global_controller", False),
+    ("global_controller", True),
+    ("edge_sensors", False),
+    ("edge_sensors", True),
+])
+def test_restored_and_deserialised_states_continue_identically(name, extras):
     """The reconstructor and sensor matrices are not serialised: a deserialised state rebuilds
-    them from its parameters and continues exactly."""
+    them from its parameters and continues exactly; with extras, the controller has a low-order
+    command and the sensors the installed-sensor errors (gap law, segment and sensor-gap
+    installation, drift at a temperature change)."""
     s = Slave(fmu_path("keck", name))
     if name == "edge_sensors":
         s.set(noise_rms=5e-9, sample_rate=100.0)
+        if extras:
+            s.set(height_gain_per_gap=-210.0, leff_per_gap=6.0,
+                  install_segment_position_rms=1e-4, install_segment_clocking_rms=1e-4,
+                  install_sensor_gap_rms=1e-5, drift_per_degc=1e-9, drift_per_week=1e-9)
     s.start()
     out = "u_cmd" if name == "global_controller" else "y"
     if name == "global_controller":
         s.set(y=readings("keck"))
+        if extras:
+            s.set(u_lo=1e-7 * np.sin(np.arange(s.size("u_lo"))))
     else:
         s.set(z=np.linspace(-1e-6, 1e-6, s.size("z")))
+        if extras:
+            s.set(temperature=2.5)
     for _ in range(40):
         s.step(1e-3)
     state = s.fmu.getFMUstate()

@@ -7,10 +7,25 @@
 //! | `w` | input | na | m (radial, azimuthal), rad (clocking) |
 //! | `y` | output | ns | m |
 //! | `gap` | output | ns | m |
+//! | `temperature` | input | 1 | K |
 //!
 //! with na = 3 x the number of segments (actuator k of segment i at index 3 i + k; in-plane
 //! coordinates of segment i at 3 i (radial), 3 i + 1 (azimuthal), 3 i + 2 (clocking)) and ns = 2 x
-//! the number of shared edges of the packaged layout.
+//! the number of shared edges of the packaged layout. `temperature` (the temperature change from
+//! the alignment baseline) only drives the sensors' temperature drift (`drift_per_degc`).
+//!
+//! # Installed sensors
+//!
+//! Off by default (every parameter below starts at 0, so the readings are those of ideal
+//! sensors with the errors above): the gap law `height_gain_per_gap`, `leff_per_gap` (the
+//! height gain and the moment arm as linear functions of the current gap change at the sensor,
+//! [`m1::sensing::installed::GapLaw`]; the values calibrated to the quasi-static Table 1 are
+//! [`m1::sensing::installed::DEFAULT_HEIGHT_GAIN_PER_GAP`] and
+//! [`m1::sensing::installed::DEFAULT_LEFF_PER_GAP`]), the segments' placement errors
+//! (`install_segment_position_rms`, `install_segment_clocking_rms`: added to `w` for the gap and
+//! the height readings) and the sensors' own gap offsets (`install_sensor_gap_rms`), and the
+//! drift `c_n temperature + d_n t / week` of each reading (`drift_per_degc`, `drift_per_week`),
+//! with `t` the simulation time of the sample instant.
 //!
 //! # Sampling
 //!
@@ -36,8 +51,9 @@ use fmu::{
 use m1::aperture::geometry::{DEFAULT_LEFF, Geometry, GeometryParams};
 use m1::aperture::layout::Layout;
 use m1::control::controller::SampleClock;
+use m1::sensing::installed::{DEFAULT_HEIGHT_GAIN_PER_GAP, DEFAULT_LEFF_PER_GAP, GapLaw};
 use m1::sensing::sensors::{EdgeSensors, SensorErrors};
-use wiring::signals::{GAP, W, Y, Z, layout_decl, n_segments_decl, n_sensors_decl};
+use wiring::signals::{GAP, TEMPERATURE, W, Y, Z, layout_decl, n_segments_decl, n_sensors_decl};
 
 /// Default sample rate of the edge sensors (Hz).
 pub const DEFAULT_SAMPLE_RATE: f64 = 1000.0;
@@ -58,8 +74,28 @@ white noise drawn once per sample.</p>\
 N(0, <code>install_position_rms</code>) along the gap and the shear directions, its frame tilted \
 by N(0, <code>install_tilt_rms</code>) about the gap and the shear axes; the interaction matrix \
 is recomputed for the installed sensors (<code>install_a_change</code> reports the relative \
-Frobenius change of A). Every draw is reproducible from <code>seed</code>; gains, installation \
-and the two noises use separate streams.</p>\
+Frobenius change of A). Each segment placed off its nominal place by \
+N(0, <code>install_segment_position_rms</code>) radially and azimuthally and \
+N(0, <code>install_segment_clocking_rms</code>) in clocking, w<sub>0</sub>: it carries its sensor \
+halves, so w<sub>0</sub> adds to <code>w</code> in both the gap and the height readings \
+(A<sub>gw</sub> w<sub>0</sub>, A<sub>hw</sub> w<sub>0</sub>); each sensor's own gap off the \
+segments' gap by N(0, <code>install_sensor_gap_rms</code>). Every draw is reproducible from \
+<code>seed</code>; gains, installation, the two noises and the drift use separate streams.</p>\
+<p><b>Gap law</b>: the height gain and the moment arm of a real sensor depend on its gap. With \
+dg<sub>n</sub> = A<sub>gz</sub> z + A<sub>gw</sub> (w + w<sub>0</sub>) + (sensor gap offset) \
+the current gap change at sensor n (the gap reading without g<sub>0</sub> and noise), \
+<code>y = s<sub>n</sub> (1 + &gamma;<sub>h</sub> dg<sub>n</sub>) (h<sub>n</sub> + (1 + &kappa; \
+dg<sub>n</sub>) l<sub>n</sub>)</code> with h<sub>n</sub> the pure height part of the reading and \
+l<sub>n</sub> <code>leff</code> times the dihedral, evaluated at every sample; \
+&gamma;<sub>h</sub> = <code>height_gain_per_gap</code>, &kappa; = <code>leff_per_gap</code> (1/m). \
+Both start at 0 (off: the ideal sensors of the dynamic studies); the values calibrated to the \
+seed paper's quasi-static Table 1 are m1::sensing::installed::DEFAULT_HEIGHT_GAIN_PER_GAP and \
+DEFAULT_LEFF_PER_GAP.</p>\
+<p><b>Drift</b>: each reading gains c<sub>n</sub> <code>temperature</code> + d<sub>n</sub> t / \
+week, with c<sub>n</sub> uniform within &plusmn;<code>drift_per_degc</code> (m/K), d<sub>n</sub> \
+uniform within &plusmn;<code>drift_per_week</code> (m), drawn once per seed, \
+<code>temperature</code> the input (K, held over the step) and t the simulation time of the \
+sample instant (s).</p>\
 <p><b>Sampling</b>: readings are taken at t<sub>0</sub> + k / <code>sample_rate</code> and held \
 in between; sample k's noise depends on (seed, k) only, so the readings do not depend on the \
 communication step. A sample instant in the step (t, t + h] reads the inputs held over the step \
@@ -103,9 +139,30 @@ fmu::variables! {
             .start(DEFAULT_SAMPLE_RATE).positive()
             .describe("Sample rate of the sensors; readings are held between samples"),
         seed: IntVar = T::integer("seed").parameter().start_int(1).non_negative()
-            .describe("Seed of the gain errors, installation errors and noise"),
+            .describe("Seed of the gain errors, installation errors, drift and noise"),
         install_a_change: RealVar = T::real("install_a_change").calculated_parameter().unit("1")
             .describe("Relative Frobenius change of A caused by the installation errors"),
+        // Declared after the variables above: the value references follow the declaration
+        // order per type, so those declared before are unchanged.
+        height_gain_per_gap: RealVar = T::real("height_gain_per_gap").parameter().unit("1/m")
+            .start(0.0).describe(&format!(
+                "Gap law: relative height-gain change per metre of gap change, gamma_h (0: off; \
+                 {DEFAULT_HEIGHT_GAIN_PER_GAP} is calibrated to the quasi-static Table 1)")),
+        leff_per_gap: RealVar = T::real("leff_per_gap").parameter().unit("1/m").start(0.0)
+            .describe(&format!(
+                "Gap law: relative change of leff per metre of gap change, kappa (0: off; \
+                 {DEFAULT_LEFF_PER_GAP} is calibrated to the quasi-static Table 1)")),
+        install_segment_position_rms: RealVar = rms("install_segment_position_rms", "m",
+            "rms in-plane placement error of each segment, radial and azimuthal"),
+        install_segment_clocking_rms: RealVar = rms("install_segment_clocking_rms", "rad",
+            "rms clocking error of each segment about its normal"),
+        install_sensor_gap_rms: RealVar = rms("install_sensor_gap_rms", "m",
+            "rms offset of each sensor's own gap from the segments' gap"),
+        drift_per_degc: RealVar = rms("drift_per_degc", "m/K",
+            "Bound of each sensor's temperature drift coefficient (uniform within +-)"),
+        drift_per_week: RealVar = rms("drift_per_week", "m",
+            "Bound of each sensor's drift per week of simulation time (uniform within +-)"),
+        temperature: RealVar = TEMPERATURE.input(layout),
     }
 }
 
@@ -139,6 +196,15 @@ impl SensorSpec {
                 position_rms: v.scalar(x.install_position_rms),
                 tilt_rms: v.scalar(x.install_tilt_rms),
                 seed: u64::from(v.integer(x.seed).unsigned_abs()),
+                gap_law: GapLaw {
+                    height_gain_per_gap: v.scalar(x.height_gain_per_gap),
+                    leff_per_gap: v.scalar(x.leff_per_gap),
+                },
+                segment_position_rms: v.scalar(x.install_segment_position_rms),
+                segment_clocking_rms: v.scalar(x.install_segment_clocking_rms),
+                sensor_gap_rms: v.scalar(x.install_sensor_gap_rms),
+                drift_per_degc: v.scalar(x.drift_per_degc),
+                drift_per_week: v.scalar(x.drift_per_week),
             },
         }
     }
@@ -207,11 +273,20 @@ impl EdgeSensorsRunning {
         }
     }
 
-    /// Reads sample `k` from the inputs in `v` and writes the outputs.
+    /// Reads sample `k` (at its instant, for the drift) from the inputs in `v` and writes the
+    /// outputs.
     fn read(&mut self, v: &mut Values, k: u64) -> Result<(), FmuError> {
         let x = self.vars;
         self.sensors
-            .read_into(v.real(x.z), v.real(x.w), k, &mut self.y, &mut self.gap)
+            .read_into_at(
+                v.real(x.z),
+                v.real(x.w),
+                v.scalar(x.temperature),
+                self.clock.instant(k),
+                k,
+                &mut self.y,
+                &mut self.gap,
+            )
             .map_err(wiring::model_error)?;
         v.real_mut(x.y).copy_from_slice(&self.y);
         v.real_mut(x.gap).copy_from_slice(&self.gap);
@@ -229,8 +304,8 @@ impl Model for EdgeSensorsModel {
         model_identifier: "edge_sensors",
         model_name: "M1 edge sensors",
         description: "Edge-sensor readings (height + Leff x dihedral, gap) of a segmented mirror \
-            from out-of-plane and in-plane segment motion, with gain errors, noise and \
-            installation errors (seeded), sampled and held",
+            from out-of-plane and in-plane segment motion, with gain errors, noise, installation \
+            errors, drift (seeded) and an optional gap law, sampled and held",
         documentation: DOC,
         default_stop_time: 1.0,
         default_step: 1e-3,
@@ -307,11 +382,53 @@ mod tests {
         );
     }
 
-    /// A serialised state reads back with the sensors rebuilt from their parameters: the
-    /// readings go on exactly as after the state was taken (noise and installation errors
-    /// included).
+    /// The new variables come after the old ones: the value references of the Reals declared
+    /// before are those they had without them, and every new parameter starts at 0 (off).
     #[test]
-    fn a_serialised_state_rebuilds_the_sensors() {
+    fn the_installed_sensor_variables_are_appended_and_off() {
+        let (t, _) = EdgeSensorsModel::new("keck").expect("table");
+        let layout = Layout::preset("keck").expect("layout");
+        let (na, ns) = (layout.n_actuators(), layout.n_sensors());
+        let vr = |n: &str| t.by_name(n).expect(n).vr as usize;
+        assert_eq!(
+            (vr("z"), vr("w"), vr("y"), vr("gap")),
+            (0, na, 2 * na, 2 * na + ns)
+        );
+        let names = [
+            "leff",
+            "gain_error_rms",
+            "noise_rms",
+            "gap_noise_rms",
+            "install_position_rms",
+            "install_tilt_rms",
+            "sample_rate",
+            "install_a_change",
+            "height_gain_per_gap",
+            "leff_per_gap",
+            "install_segment_position_rms",
+            "install_segment_clocking_rms",
+            "install_sensor_gap_rms",
+            "drift_per_degc",
+            "drift_per_week",
+            "temperature",
+        ];
+        for (k, name) in names.iter().enumerate() {
+            assert_eq!(vr(name), 2 * na + 2 * ns + k, "{name}");
+        }
+        let v = t.initial_values();
+        for name in &names[8..] {
+            assert_eq!(v.reals[vr(name)], 0.0, "{name}");
+        }
+        assert_eq!(
+            t.by_name("temperature").expect("T").unit.as_deref(),
+            Some("K")
+        );
+    }
+
+    /// Readings of the keck FMU after two 1 ms steps with the parameters `params` and the
+    /// inputs `inputs` set, then a saved state; returns the instance, the serialised state, the
+    /// time and the next three readings of `y` and `gap`.
+    fn run_and_save(params: &[(&str, f64)], inputs: &[(&str, f64)]) -> (f64, Vec<f64>, Vec<f64>) {
         let (table, _) = EdgeSensorsModel::new("keck").expect("table");
         let guid = fmu::xml::guid(&EdgeSensorsModel::INFO, &table);
         let var = |n: &str| table.by_name(n).expect(n).clone();
@@ -323,11 +440,15 @@ mod tests {
             Instance::<EdgeSensorsModel>::new("es", &guid, None, None, false).expect("instance");
         fmu.setup_experiment(0.0, None).expect("setup");
         fmu.enter_initialization_mode().expect("enter");
-        let params = [var("noise_rms").vr, var("install_position_rms").vr];
-        fmu.set_real(&params, &[1e-9, 1e-4]).expect("parameters");
+        for (name, value) in params {
+            fmu.set_real(&[var(name).vr], &[*value]).expect(name);
+        }
         fmu.exit_initialization_mode().expect("exit");
         let z: Vec<f64> = (0..var("z").len).map(|i| 1e-7 * (i as f64).sin()).collect();
         fmu.set_real(&vrs("z"), &z).expect("z");
+        for (name, value) in inputs {
+            fmu.set_real(&[var(name).vr], &[*value]).expect(name);
+        }
         let h = 1e-3;
         let mut t = 0.0;
         for _ in 0..2 {
@@ -347,8 +468,10 @@ mod tests {
             for _ in 0..3 {
                 fmu.do_step(t, h).expect("step");
                 t += h;
-                fmu.get_real(&vrs("y"), &mut out).expect("y");
-                all.extend_from_slice(&out);
+                for name in ["y", "gap"] {
+                    fmu.get_real(&vrs(name), &mut out).expect(name);
+                    all.extend_from_slice(&out);
+                }
             }
             all
         };
@@ -360,9 +483,77 @@ mod tests {
             .expect("running")
             .edge_sensors()
             .install_change();
-        assert!(change > 0.0);
         assert_eq!(rebuilt, change);
+        let again = readings(&mut fmu);
+        (change, straight, again)
+    }
+
+    /// A serialised state reads back with the sensors rebuilt from their parameters: the
+    /// readings go on exactly as after the state was taken (noise and installation errors
+    /// included).
+    #[test]
+    fn a_serialised_state_rebuilds_the_sensors() {
+        let (change, straight, again) =
+            run_and_save(&[("noise_rms", 1e-9), ("install_position_rms", 1e-4)], &[]);
+        assert!(change > 0.0);
         assert!(straight.iter().any(|&y| y != 0.0));
-        assert_eq!(readings(&mut fmu), straight);
+        assert_eq!(again, straight);
+    }
+
+    /// The same with the installed-sensor errors on: gap law, segment and sensor-gap
+    /// installation, drift at a temperature change; they change the readings.
+    #[test]
+    fn a_serialised_state_rebuilds_the_installed_sensors() {
+        let base = [
+            ("noise_rms", 1e-9),
+            ("install_position_rms", 1e-4),
+            ("gain_error_rms", 0.01),
+        ];
+        let installed: Vec<(&str, f64)> = base
+            .iter()
+            .copied()
+            .chain([
+                ("height_gain_per_gap", DEFAULT_HEIGHT_GAIN_PER_GAP),
+                ("leff_per_gap", DEFAULT_LEFF_PER_GAP),
+                ("install_segment_position_rms", 1e-4),
+                ("install_segment_clocking_rms", 1e-4),
+                ("install_sensor_gap_rms", 1e-5),
+                ("drift_per_degc", 1e-9),
+                ("drift_per_week", 1e-9),
+            ])
+            .collect();
+        let (change, straight, again) = run_and_save(&installed, &[("temperature", 3.0)]);
+        assert!(change > 0.0);
+        assert_eq!(again, straight);
+        let (_, plain, _) = run_and_save(&base, &[("temperature", 3.0)]);
+        let ns = plain.len() / 6;
+        // Both y and gap differ on every reading.
+        for (k, (a, b)) in plain.chunks(ns).zip(straight.chunks(ns)).enumerate() {
+            assert!(a.iter().zip(b).all(|(x, y)| x != y), "block {k}");
+        }
+    }
+
+    /// A temperature change moves the readings only through the drift, by c_n T.
+    #[test]
+    fn the_temperature_input_drives_the_drift() {
+        let params = [("drift_per_degc", 1e-9)];
+        let (_, cold, _) = run_and_save(&params, &[]);
+        let (_, warm, _) = run_and_save(&params, &[("temperature", 2.0)]);
+        let (_, ideal, _) = run_and_save(&[], &[("temperature", 2.0)]);
+        assert_eq!(cold, ideal, "no drift at T = 0 (and no time drift)");
+        let ns = cold.len() / 6;
+        let (y_cold, y_warm) = (&cold[..ns], &warm[..ns]);
+        assert!(y_cold.iter().zip(y_warm).any(|(a, b)| a != b));
+        assert!(
+            y_cold
+                .iter()
+                .zip(y_warm)
+                .all(|(a, b)| (a - b).abs() <= 2e-9 * (1.0 + 1e-12))
+        );
+        assert_eq!(
+            &cold[ns..2 * ns],
+            &warm[ns..2 * ns],
+            "the gap does not drift"
+        );
     }
 }

@@ -7,6 +7,7 @@
 //! | `y` | input | ns | m |
 //! | `y_ref` | input | ns | m |
 //! | `u_cmd` | output | na | m |
+//! | `u_lo` | input | na | m |
 //!
 //! with na = 3 x the number of segments and ns the number of edge sensors of the packaged
 //! layout.
@@ -15,10 +16,17 @@
 //!
 //! The loop samples at its own instants `t0 + k / rate` (`k >= 1`), whatever the communication
 //! step (steps need not divide the period). A step `(t, t + h]` takes every instant in it with
-//! the readings held over the step (set at `t`), so `u_cmd` at a communication point equal to a
-//! sample instant already shows that sample's command, and is held in between. `u_cmd` never
-//! depends directly on `y` (ModelStructure: no dependencies; discrete variability): a closed
-//! loop edge sensors -> controller -> segments has no algebraic loop.
+//! the readings held over the step (set at `t`), so the integrator's command at a communication
+//! point equal to a sample instant already shows that sample's command, and is held in between.
+//!
+//! # Low-order command
+//!
+//! `u_cmd = u + u_lo`: the integrator's command `u` plus the low-order command `u_lo` (global
+//! piston/tip/tilt from the optical feedback), passed through at once: `u_cmd` is recomputed
+//! whenever `u_lo` is set, and `u_lo` never enters the integrator. So `u_cmd` depends directly
+//! on `u_lo` (ModelStructure: element i on `u_lo[i]`) but never on `y` (discrete variability):
+//! a closed loop edge sensors -> controller -> segments has no algebraic loop, and with
+//! `u_lo = 0` (its start value) `u_cmd` is the integrator's command.
 
 use std::sync::Arc;
 
@@ -35,7 +43,7 @@ use m1::control::controller::{
     DEFAULT_BANDWIDTH_RADIAL2, DEFAULT_BANDWIDTH_RADIAL34, DEFAULT_FOCUS_GAIN, DEFAULT_RATE,
     LoopGains, Scratch,
 };
-use wiring::signals::{U_CMD, Y, Y_REF, layout_decl, n_segments_decl, n_sensors_decl};
+use wiring::signals::{U_CMD, U_LO, Y, Y_REF, layout_decl, n_segments_decl, n_sensors_decl};
 
 const DOC: &str = "<h2>Model</h2>\
 <p>At each sample instant t<sub>k</sub> = t<sub>0</sub> + k / <code>rate</code> (k &ge; 1) the \
@@ -65,9 +73,13 @@ report the gains per sample.</p>\
 the state whose readings equal <code>y_ref</code> (u &larr; u &minus; g B (y &minus; y_ref)). \
 The command never contains global piston, tip or tilt.</p>\
 <p><b>Sampling</b>: samples are taken at the loop's own instants whatever the communication \
-step, each with the readings held over the step; u_cmd changes only at sample instants and does \
-not depend directly on y (no algebraic loop). <code>enabled</code> = false (tunable) opens the \
-loop: the instants pass and u_cmd is held.</p>";
+step, each with the readings held over the step; the integrator's command u changes only at \
+sample instants and u_cmd does not depend directly on y (no algebraic loop). \
+<code>enabled</code> = false (tunable) opens the loop: the instants pass and u is held.</p>\
+<p><b>Low-order command</b>: <code>u_cmd = u + u_lo</code>, with <code>u_lo</code> the \
+low-order actuator command (global piston/tip/tilt from the optical feedback) passed straight \
+through: u_cmd follows u_lo as soon as it is set (element i of u_cmd depends directly on \
+element i of u_lo), and u_lo does not enter the integrator. It starts at 0.</p>";
 
 /// A closed-loop bandwidth: a non-negative parameter in Hz.
 fn hz(name: &str, start: f64, description: &str) -> Decl {
@@ -96,7 +108,8 @@ fmu::variables! {
         n_sensors: IntVar = n_sensors_decl(layout),
         y: RealVar = Y.input(layout),
         y_ref: RealVar = Y_REF.input(layout),
-        u_cmd: RealVar = U_CMD.output(layout).discrete().depends(Dependencies::None),
+        u_cmd: RealVar = U_CMD.output(layout).discrete()
+            .depends(Dependencies::Elementwise(U_LO.name.into())),
         rate: RealVar = T::real("rate").parameter().unit("Hz").start(DEFAULT_RATE).positive()
             .describe("Sample rate of the global loop"),
         bandwidth: RealVar = hz("bandwidth", DEFAULT_BANDWIDTH,
@@ -128,6 +141,15 @@ fmu::variables! {
              degree 2 and focus-mode) (< rate / 2)"),
         loop_gain_radial34: RealVar = gain("loop_gain_radial34",
             "Integrator gain per sample of the radial-degree-3-4 group"),
+        u_lo: RealVar = U_LO.input(layout),
+    }
+}
+
+/// Writes `u_cmd = u + u_lo` into `v`.
+fn write_command(x: &Vars, u: &[f64], v: &mut Values) {
+    for (i, ui) in u.iter().enumerate() {
+        let lo = v.real(x.u_lo)[i];
+        v.real_mut(x.u_cmd)[i] = ui + lo;
     }
 }
 
@@ -213,6 +235,11 @@ impl GlobalControllerRunning {
     pub fn control_modes(&self) -> &ControlModes {
         &self.modes
     }
+
+    /// The integrator's command `u` (without `u_lo`).
+    pub fn integrator_command(&self) -> &[f64] {
+        &self.state.u
+    }
 }
 
 impl GlobalControllerModel {
@@ -236,7 +263,7 @@ impl Model for GlobalControllerModel {
         description: "Global control loop of a segmented mirror: sparse reconstructor with global \
             piston/tip/tilt projected out, modal discrete integrators (radial degrees >= 5 at \
             1.5 Hz, 3-4 at 1 Hz, 2 at 0.75 Hz, focus-mode at 0.1 Hz) sampled at 20 Hz, command \
-            held between samples",
+            held between samples, plus the low-order command u_lo passed through",
         documentation: DOC,
         default_stop_time: 2.0,
         default_step: 1e-3,
@@ -275,7 +302,7 @@ impl Model for GlobalControllerModel {
         v.real_mut(x.loop_gain_radial2)[0] = gains.radial2;
         v.real_mut(x.loop_gain_radial34)[0] = gains.radial34;
         v.real_mut(x.loop_gain_focus)[0] = gains.focus;
-        v.real_mut(x.u_cmd).copy_from_slice(&state.u);
+        write_command(&x, &state.u, v);
         Ok(GlobalControllerRunning {
             scratch: modes.scratch(),
             vars: x,
@@ -288,8 +315,10 @@ impl Model for GlobalControllerModel {
 }
 
 impl fmu::Running for GlobalControllerRunning {
-    fn update_outputs(&mut self, _v: &mut Values) -> Result<(), FmuError> {
-        // u_cmd changes only at sample instants, inside fmi2DoStep.
+    fn update_outputs(&mut self, v: &mut Values) -> Result<(), FmuError> {
+        // The integrator's command changes only at sample instants, inside fmi2DoStep; u_lo
+        // passes through at once.
+        write_command(&self.vars, &self.state.u, v);
         Ok(())
     }
 
@@ -306,7 +335,7 @@ impl fmu::Running for GlobalControllerRunning {
                 &mut self.scratch,
             )
             .map_err(wiring::model_error)?;
-        v.real_mut(x.u_cmd).copy_from_slice(&self.state.u);
+        write_command(&x, &self.state.u, v);
         Ok(())
     }
 }
@@ -323,7 +352,8 @@ mod tests {
             let layout = Layout::preset(variant).expect("layout");
             let u = t.by_name("u_cmd").expect("u_cmd");
             assert_eq!(u.len, layout.n_actuators());
-            assert_eq!(u.dependencies, Dependencies::None);
+            assert_eq!(u.dependencies, Dependencies::Elementwise("u_lo".into()));
+            assert_eq!(t.by_name("u_lo").expect("u_lo").len, layout.n_actuators());
             assert_eq!(t.by_name("y").expect("y").len, layout.n_sensors());
         }
     }
@@ -351,6 +381,8 @@ mod tests {
             "bandwidth_radial34",
             "loop_gain_radial34",
         ];
+        // u_lo is the last Real: the Reals above keep their value references.
+        assert_eq!(vr("u_lo"), 2 * ns + na + scalars.len());
         for (k, name) in scalars.iter().enumerate() {
             assert_eq!(vr(name), 2 * ns + na + k, "{name}");
         }
@@ -382,49 +414,152 @@ mod tests {
         );
     }
 
-    /// A serialised state reads back with the reconstructor and modes rebuilt: the commands go
-    /// on exactly as after the state was taken.
-    #[test]
-    fn a_serialised_state_rebuilds_the_modes() {
+    /// An instance of the keck controller, initialised, with the readings `y` set.
+    fn started(y: &[f64]) -> (VariableTable, Instance<GlobalControllerModel>) {
         let (table, _) = GlobalControllerModel::new("keck").expect("table");
         let guid = fmu::xml::guid(&GlobalControllerModel::INFO, &table);
-        let var = |n: &str| table.by_name(n).expect(n).clone();
-        let vrs = |n: &str| {
-            let v = var(n);
-            (v.vr..v.vr + v.len as u32).collect::<Vec<_>>()
-        };
         let mut fmu = Instance::<GlobalControllerModel>::new("gc", &guid, None, None, false)
             .expect("instance");
         fmu.setup_experiment(0.0, None).expect("setup");
         fmu.enter_initialization_mode().expect("enter");
         fmu.exit_initialization_mode().expect("exit");
-        let y: Vec<f64> = (0..var("y").len).map(|i| 1e-7 * (i as f64).sin()).collect();
-        fmu.set_real(&vrs("y"), &y).expect("y");
-        let h = 0.05;
+        let vrs = vrs_of(&table, "y");
+        fmu.set_real(&vrs, y).expect("y");
+        (table, fmu)
+    }
+
+    fn vrs_of(table: &VariableTable, name: &str) -> Vec<u32> {
+        let v = table.by_name(name).expect(name);
+        (v.vr..v.vr + v.len as u32).collect()
+    }
+
+    fn get(fmu: &mut Instance<GlobalControllerModel>, table: &VariableTable, n: &str) -> Vec<f64> {
+        let vrs = vrs_of(table, n);
+        let mut out = vec![0.0; vrs.len()];
+        fmu.get_real(&vrs, &mut out).expect(n);
+        out
+    }
+
+    /// A constant u_lo shows in u_cmd at once (before any step), is added to the integrator's
+    /// command at every step, and leaves the integrator alone: the command is that of a twin
+    /// instance without it.
+    #[test]
+    fn u_lo_passes_to_u_cmd_at_once_and_leaves_the_integrator_alone() {
+        let layout = Layout::preset("keck").expect("layout");
+        let y: Vec<f64> = (0..layout.n_sensors())
+            .map(|i| 1e-7 * (i as f64).sin())
+            .collect();
+        let lo: Vec<f64> = (0..layout.n_actuators())
+            .map(|i| 1e-6 * (0.3 * i as f64).cos())
+            .collect();
+        let (table, mut with) = started(&y);
+        let (_, mut without) = started(&y);
+        let h = 0.01;
         let mut t = 0.0;
-        for _ in 0..2 {
-            fmu.do_step(t, h).expect("step");
+        for _ in 0..7 {
+            with.do_step(t, h).expect("step");
+            without.do_step(t, h).expect("step");
             t += h;
         }
-        let bytes = Instance::serialize(&fmu.get_state().expect("state")).expect("serialize");
-        let commands = |fmu: &mut Instance<GlobalControllerModel>| {
-            let mut t = t;
-            let mut out = vec![0.0; var("u_cmd").len];
-            let mut all = Vec::new();
-            for _ in 0..3 {
+        let u = get(&mut without, &table, "u_cmd");
+        assert!(u.iter().any(|x| *x != 0.0));
+        assert_eq!(get(&mut with, &table, "u_cmd"), u);
+        // Set between samples: u_cmd follows at once, without a step.
+        with.set_real(&vrs_of(&table, "u_lo"), &lo).expect("u_lo");
+        let sum: Vec<f64> = u.iter().zip(&lo).map(|(a, b)| a + b).collect();
+        assert_eq!(get(&mut with, &table, "u_cmd"), sum);
+        for _ in 0..13 {
+            with.do_step(t, h).expect("step");
+            without.do_step(t, h).expect("step");
+            t += h;
+            let u = get(&mut without, &table, "u_cmd");
+            let sum: Vec<f64> = u.iter().zip(&lo).map(|(a, b)| a + b).collect();
+            assert_eq!(get(&mut with, &table, "u_cmd"), sum);
+            let integrator = |f: &Instance<GlobalControllerModel>| {
+                f.running().expect("running").integrator_command().to_vec()
+            };
+            assert_eq!(integrator(&with), integrator(&without));
+            assert_eq!(integrator(&without), u);
+        }
+        // Back to zero: u_cmd is the integrator's command again.
+        with.set_real(&vrs_of(&table, "u_lo"), &vec![0.0; lo.len()])
+            .expect("u_lo");
+        assert_eq!(
+            get(&mut with, &table, "u_cmd"),
+            get(&mut without, &table, "u_cmd")
+        );
+    }
+
+    /// A u_lo set during initialisation shows in the initial u_cmd.
+    #[test]
+    fn u_lo_set_during_initialisation_is_the_initial_command() {
+        let (table, _) = GlobalControllerModel::new("keck").expect("table");
+        let guid = fmu::xml::guid(&GlobalControllerModel::INFO, &table);
+        let mut fmu = Instance::<GlobalControllerModel>::new("gc", &guid, None, None, false)
+            .expect("instance");
+        fmu.setup_experiment(0.0, None).expect("setup");
+        fmu.enter_initialization_mode().expect("enter");
+        let lo: Vec<f64> = (0..table.by_name("u_lo").expect("u_lo").len)
+            .map(|i| 1e-7 * i as f64)
+            .collect();
+        fmu.set_real(&vrs_of(&table, "u_lo"), &lo).expect("u_lo");
+        assert_eq!(get(&mut fmu, &table, "u_cmd"), lo);
+        fmu.exit_initialization_mode().expect("exit");
+        assert_eq!(get(&mut fmu, &table, "u_cmd"), lo);
+    }
+
+    /// A serialised state reads back with the reconstructor and modes rebuilt: the commands go
+    /// on exactly as after the state was taken.
+    #[test]
+    fn a_serialised_state_rebuilds_the_modes() {
+        // Without and with a low-order command.
+        for scale in [0.0, 1e-8] {
+            let (table, _) = GlobalControllerModel::new("keck").expect("table");
+            let guid = fmu::xml::guid(&GlobalControllerModel::INFO, &table);
+            let var = |n: &str| table.by_name(n).expect(n).clone();
+            let vrs = |n: &str| {
+                let v = var(n);
+                (v.vr..v.vr + v.len as u32).collect::<Vec<_>>()
+            };
+            let mut fmu = Instance::<GlobalControllerModel>::new("gc", &guid, None, None, false)
+                .expect("instance");
+            fmu.setup_experiment(0.0, None).expect("setup");
+            fmu.enter_initialization_mode().expect("enter");
+            fmu.exit_initialization_mode().expect("exit");
+            let y: Vec<f64> = (0..var("y").len).map(|i| 1e-7 * (i as f64).sin()).collect();
+            fmu.set_real(&vrs("y"), &y).expect("y");
+            if scale != 0.0 {
+                let lo: Vec<f64> = (0..var("u_lo").len).map(|i| scale * i as f64).collect();
+                fmu.set_real(&vrs("u_lo"), &lo).expect("u_lo");
+            }
+            let h = 0.05;
+            let mut t = 0.0;
+            for _ in 0..2 {
                 fmu.do_step(t, h).expect("step");
                 t += h;
-                fmu.get_real(&vrs("u_cmd"), &mut out).expect("u_cmd");
-                all.extend_from_slice(&out);
             }
-            all
-        };
-        let straight = commands(&mut fmu);
-        let back = fmu.deserialize(&bytes).expect("deserialize");
-        fmu.set_state(&back).expect("set state");
-        let modes = fmu.running().expect("running").control_modes();
-        assert_eq!(modes.radial34().len(), 9);
-        assert!(straight.iter().any(|&u| u != 0.0));
-        assert_eq!(commands(&mut fmu), straight);
+            let bytes = Instance::serialize(&fmu.get_state().expect("state")).expect("serialize");
+            let commands = |fmu: &mut Instance<GlobalControllerModel>| {
+                let mut t = t;
+                let mut out = vec![0.0; var("u_cmd").len];
+                let mut all = Vec::new();
+                for _ in 0..3 {
+                    fmu.do_step(t, h).expect("step");
+                    t += h;
+                    fmu.get_real(&vrs("u_cmd"), &mut out).expect("u_cmd");
+                    all.extend_from_slice(&out);
+                    let u = fmu.running().expect("running").integrator_command();
+                    all.extend_from_slice(u);
+                }
+                all
+            };
+            let straight = commands(&mut fmu);
+            let back = fmu.deserialize(&bytes).expect("deserialize");
+            fmu.set_state(&back).expect("set state");
+            let modes = fmu.running().expect("running").control_modes();
+            assert_eq!(modes.radial34().len(), 9);
+            assert!(straight.iter().any(|&u| u != 0.0));
+            assert_eq!(commands(&mut fmu), straight);
+        }
     }
 }

@@ -112,6 +112,18 @@ pub struct SystemArgs {
     /// Step every component at the base step (no multi-rate), as fmpy.ssp does.
     #[arg(long)]
     pub uniform: bool,
+    /// Add the optical measurements: the `aps` FMU (a run at the start, then every 14 days)
+    /// and the `optical_feedback` FMU (global piston/tip/tilt into the controller's `u_lo`,
+    /// focus-mode through its `y_ref`), both reading the mirror's `z`.
+    #[arg(long)]
+    pub optical: bool,
+    /// Add the `deformation` FMU at this zenith angle (deg; the baseline is 30): its in-plane
+    /// segment motion `w` feeds the edge sensors.
+    #[arg(long)]
+    pub zenith: Option<f64>,
+    /// With `--zenith`: the temperature change from the alignment baseline (K).
+    #[arg(long, default_value_t = 0.0, requires = "zenith")]
+    pub temperature: f64,
     /// Simulated duration (s).
     #[arg(long, default_value_t = DURATION)]
     pub duration: f64,
@@ -306,10 +318,38 @@ pub fn standard_system(a: &SystemArgs, closed: bool) -> Result<System, String> {
             .connect("structure.z_cell", "segments.z_cell")
             .connect("segments.f_cell", "structure.f_cell");
     }
-    Ok(s.connect("controller.u_cmd", &format!("{mirror}.u_cmd"))
+    s = s
+        .connect("controller.u_cmd", &format!("{mirror}.u_cmd"))
         .connect(&format!("{mirror}.z"), "sensors.z")
         .connect("sensors.y", "controller.y")
-        .connect(&format!("{mirror}.z"), "optics.z"))
+        .connect(&format!("{mirror}.z"), "optics.z");
+    if a.optical {
+        s = s
+            .component("aps", fmu(a, "aps")?)
+            .every(per(1.0))
+            .component("optical_feedback", fmu(a, "optical_feedback")?)
+            .every(per(1.0))
+            .connect(&format!("{mirror}.z"), "aps.z")
+            .connect(&format!("{mirror}.z"), "optical_feedback.z")
+            .connect("aps.y_ref", "optical_feedback.y_ref_in")
+            .connect("optical_feedback.y_ref", "controller.y_ref")
+            .connect("optical_feedback.u_lo", "controller.u_lo");
+    }
+    if let Some(zenith) = a.zenith {
+        if !(zenith.is_finite() && (0.0..=90.0).contains(&zenith)) {
+            return Err(format!("--zenith {zenith}: must be in [0, 90] deg"));
+        }
+        if !a.temperature.is_finite() {
+            return Err(format!("--temperature {}: must be finite", a.temperature));
+        }
+        s = s
+            .component("deformation", fmu(a, "deformation")?)
+            .every(per(1.0))
+            .parameter("deformation", "zenith_angle", Value::Real(zenith))
+            .parameter("deformation", "temperature", Value::Real(a.temperature))
+            .connect("deformation.w", "sensors.w");
+    }
+    Ok(s)
 }
 
 /// The value of the FMUs' `structure` parameter for `--structure NAME`: a preset's name, or a

@@ -15,7 +15,8 @@
 //!
 //! The loop then moves the segments by `-e` (to first order in the A-matrix error).
 //! [`Aps::measure`] draws the measurement error per segment, `N(0, piston_rms)` in piston and
-//! `N(0, tilt_rms)` in each tilt (aperture plane), from a generator seeded by `(seed, run)`.
+//! `N(0, tilt_rms)` in each tilt (about the segment's radial and azimuthal axes), from a generator
+//! seeded by `(seed, run)`.
 //!
 //! # Optical feedback
 //!
@@ -39,7 +40,6 @@ use serde::{Deserialize, Serialize};
 use crate::M1Error;
 use crate::aperture::geometry::Geometry;
 use crate::control::reconstructor::{orthonormalize, sparse_mul};
-use crate::optics::metrics::ptt_to_actuators;
 use crate::sensing::interaction::global_ptt;
 
 /// Parameters of the APS.
@@ -156,9 +156,13 @@ impl Aps {
                 ]
             })
             .collect();
-        let mut e = ptt_to_actuators(&self.geometry, &err)?;
-        for (v, zi) in e.iter_mut().zip(z) {
-            *v += zi;
+        // Each segment's error in its own frame: z = P (p, alpha, beta).
+        let mut e = z.to_vec();
+        for (i, d) in err.iter().enumerate() {
+            let p = self.geometry.ptt_matrix(i);
+            for (k, row) in p.iter().enumerate() {
+                e[3 * i + k] += row[0] * d[0] + row[1] * d[1] + row[2] * d[2];
+            }
         }
         remove_modes(&self.ptt_modes, &mut e);
         Ok(e)

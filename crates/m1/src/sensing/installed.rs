@@ -43,7 +43,6 @@ use serde::{Deserialize, Serialize};
 
 use crate::M1Error;
 use crate::aperture::geometry::Geometry;
-use crate::control::reconstructor::sparse_mul;
 use crate::sensing::interaction::{a_matrix, interaction_matrices};
 use crate::sensing::sensors::install_sensors;
 
@@ -249,6 +248,18 @@ impl HeightSplit {
             y[r] = gain[r] * (y[r] + self.leff * leff_factor[r] * yd[r]);
         }
         Ok(())
+    }
+}
+
+/// `y = A x` for a CSC matrix.
+fn sparse_mul(a: &SparseColMat<usize, f64>, x: &[f64], y: &mut [f64]) {
+    let s = a.symbolic();
+    let (cp, ri, v) = (s.col_ptr(), s.row_idx(), a.val());
+    y.fill(0.0);
+    for (j, xj) in x.iter().enumerate() {
+        for k in cp[j]..cp[j + 1] {
+            y[ri[k]] += v[k] * xj;
+        }
     }
 }
 

@@ -1,4 +1,5 @@
-//! Edge-sensor readings with gain errors, noise and installation errors.
+//! Edge-sensor readings with gain errors, noise, installation errors, a gap-dependent gain and
+//! moment arm, and drift.
 //!
 //! # Readings
 //!
@@ -7,39 +8,73 @@
 //! see [`crate::sensing::interaction`] for the kinematics), sensor `n` reads
 //!
 //! ```text
-//! y_n   = s_n (A_hz z + A_hw w)_n + sigma_y  nu_n        (m: height + Leff x dihedral)
-//! gap_n = g_0 + (A_gz z + A_gw w)_n + sigma_g mu_n        (m: gap)
+//! y_n   = s_n (A_hz z + A_hw w')_n + c_n T + d_n t / week + sigma_y nu_n
+//! gap_n = g_0 + (A_gz z + A_gw w')_n + dg_sensor,n + sigma_g mu_n
 //! ```
+//!
+//! (m: `y` is the height difference plus `L_eff` times the dihedral, `gap` the gap), where
 //!
 //! - the interaction blocks are those of the *installed* geometry (below); `A_hz = A` is the
 //!   A-matrix, `A_gz` vanishes on a flat mirror and couples out-of-plane motion into the gap on
 //!   the curved prescription;
+//! - `w' = w + w_0`, with `w_0` the segments' installation errors (below; 0 by default);
 //! - `g_0` is the layout's nominal gap;
 //! - `s_n = 1 + delta_n`, `delta_n ~ N(0, gain_rms)`: sensor gain errors `S = I + delta_S`, drawn
 //!   once per seed; they scale the height reading only;
 //! - `nu_n`, `mu_n ~ N(0, 1)`: white noise, drawn once per sample: sample `k`'s noise comes
 //!   from a generator seeded by `(seed, k)`, so it does not depend on how the time axis is cut
 //!   into steps, and any sample can be recomputed;
-//! - installation errors ([`install_sensors`]): each sensor point moved in its tangent plane by
-//!   `N(0, position_rms)` along the gap and the shear directions, and the sensor's frame
-//!   (height, gap, shear) rotated by `N(0, tilt_rms)` about the gap and then the shear axis, as
-//!   [`crate::analysis::quasistatic`]'s `SensorInstall` perturbation (which tilts the height axis only).
+//! - installation errors of the sensors ([`install_sensors`]): each sensor point moved in its
+//!   tangent plane by `N(0, position_rms)` along the gap and the shear directions, and the
+//!   sensor's frame (height, gap, shear) rotated by `N(0, tilt_rms)` about the gap and then the
+//!   shear axis, as [`crate::analysis::quasistatic`]'s `SensorInstall` perturbation (which tilts
+//!   the height axis only);
+//! - installation errors of the segments ([`Installation`]): each segment placed off its nominal
+//!   place by `w_0`, `N(0, segment_position_rms)` radially and azimuthally and
+//!   `N(0, segment_clocking_rms)` in clocking; it carries its sensor halves, so `w_0` adds to `w`
+//!   in both the gap and the height (cross-axis, `A_hw`) readings; and each sensor's own gap
+//!   offset from the segments' gap, `dg_sensor,n ~ N(0, sensor_gap_rms)`;
+//! - drift: `c_n ~ U(-drift_per_degc, drift_per_degc)` (m/K) and
+//!   `d_n ~ U(-drift_per_week, drift_per_week)` (m), drawn once per seed, times the temperature
+//!   change `T` (K) and the time `t` (s, one week = 604800 s) passed to
+//!   [`EdgeSensors::read_into_at`] ([`EdgeSensors::read_into`] reads at `T = 0`, `t = 0`).
 //!
-//! Each stream has its own seed derived from `seed` (gains, installation, height noise, gap
-//! noise), so switching one error source on leaves the others' draws unchanged.
+//! # Gap law
+//!
+//! With a [`GapLaw`] other than [`GapLaw::NONE`] (the default) the sensors respond as installed
+//! sensors do ([`crate::sensing::installed`]): the height gain and the moment arm depend on the
+//! current gap change at the sensor,
+//!
+//! ```text
+//! dg_n = (A_gz z + A_gw w')_n + dg_sensor,n
+//! y_n  = s_n (1 + gamma_h dg_n) (h_n + (1 + kappa dg_n) l_n) + c_n T + d_n t / week
+//!        + sigma_y nu_n
+//! ```
+//!
+//! (`dg_n` is the gap reading without `g_0` and noise), with `h_n` the pure height part of
+//! `(A_hz z + A_hw w')_n` (the reading with `L_eff = 0`) and `l_n` the rest, `L_eff` times the
+//! dihedral, both evaluated per sample. The law scales the whole height reading, in-plane
+//! (`A_hw`) part included, as the gain errors do.
+//!
+//! Each stream has its own seed derived from `seed` (gains, sensor installation, height noise,
+//! gap noise, drift; the segment and sensor-gap installation draws are [`Installation`]'s own),
+//! so switching one error source on leaves the others' draws unchanged, and the defaults
+//! reproduce the readings of ideal sensors exactly.
 
 use faer::sparse::SparseColMat;
-use rand::SeedableRng;
 use rand::rngs::StdRng;
+use rand::{RngExt, SeedableRng};
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
 use crate::M1Error;
 use crate::aperture::geometry::Geometry;
-use crate::sensing::interaction::interaction_matrices;
+use crate::sensing::installed::{GapLaw, Installation};
+use crate::sensing::interaction::{InteractionMatrices, interaction_matrices};
 
 /// The error sources of the edge sensors (all zero by default: ideal sensors).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct SensorErrors {
     /// rms of the sensor gain errors `delta_S` (1 = 100 %) (default: 0).
     pub gain_rms: f64,
@@ -54,6 +89,20 @@ pub struct SensorErrors {
     pub tilt_rms: f64,
     /// Seed of every random draw (default: 1).
     pub seed: u64,
+    /// How the height gain and the moment arm depend on the gap (default: [`GapLaw::NONE`],
+    /// no dependence; [`GapLaw::default`] holds the values calibrated to Table 1).
+    pub gap_law: GapLaw,
+    /// rms in-plane placement error of each segment, radial and azimuthal (m) (default: 0).
+    pub segment_position_rms: f64,
+    /// rms clocking error of each segment about its normal (rad) (default: 0).
+    pub segment_clocking_rms: f64,
+    /// rms offset of each sensor's own gap from the segments' gap (m) (default: 0).
+    pub sensor_gap_rms: f64,
+    /// Bound of each sensor's temperature drift coefficient (m/K) (default: 0; the
+    /// specification is 1 nm/degC).
+    pub drift_per_degc: f64,
+    /// Bound of each sensor's drift per week (m) (default: 0; the specification is 1 nm/week).
+    pub drift_per_week: f64,
 }
 
 impl Default for SensorErrors {
@@ -65,6 +114,12 @@ impl Default for SensorErrors {
             position_rms: 0.0,
             tilt_rms: 0.0,
             seed: 1,
+            gap_law: GapLaw::NONE,
+            segment_position_rms: 0.0,
+            segment_clocking_rms: 0.0,
+            sensor_gap_rms: 0.0,
+            drift_per_degc: 0.0,
+            drift_per_week: 0.0,
         }
     }
 }
@@ -77,6 +132,11 @@ impl SensorErrors {
             ("gap_noise_rms", self.gap_noise_rms),
             ("install_position_rms", self.position_rms),
             ("install_tilt_rms", self.tilt_rms),
+            ("install_segment_position_rms", self.segment_position_rms),
+            ("install_segment_clocking_rms", self.segment_clocking_rms),
+            ("install_sensor_gap_rms", self.sensor_gap_rms),
+            ("drift_per_degc", self.drift_per_degc),
+            ("drift_per_week", self.drift_per_week),
         ] {
             if !(x.is_finite() && x >= 0.0) {
                 return Err(M1Error::InvalidParameter {
@@ -86,7 +146,31 @@ impl SensorErrors {
                 });
             }
         }
+        for (name, x) in [
+            ("height_gain_per_gap", self.gap_law.height_gain_per_gap),
+            ("leff_per_gap", self.gap_law.leff_per_gap),
+        ] {
+            if !x.is_finite() {
+                return Err(M1Error::InvalidParameter {
+                    name,
+                    value: x,
+                    reason: "must be finite",
+                });
+            }
+        }
         Ok(())
+    }
+
+    /// The segment and sensor installation errors as an [`Installation`] (same seed).
+    fn installation(&self) -> Installation {
+        Installation {
+            segment_position_rms: self.segment_position_rms,
+            segment_clocking_rms: self.segment_clocking_rms,
+            sensor_position_rms: self.position_rms,
+            sensor_tilt_rms: self.tilt_rms,
+            sensor_gap_rms: self.sensor_gap_rms,
+            seed: self.seed,
+        }
     }
 }
 
@@ -95,6 +179,10 @@ const STREAM_GAINS: u64 = 1;
 const STREAM_INSTALL: u64 = 2;
 const STREAM_NOISE: u64 = 3;
 const STREAM_GAP_NOISE: u64 = 4;
+const STREAM_DRIFT: u64 = 5;
+
+/// One week (s): the time unit of the drift bound `drift_per_week`.
+pub const WEEK: f64 = 7.0 * 86400.0;
 
 /// SplitMix64 finaliser of `a` combined with `b`: well-spread seeds from small integers.
 fn mix(a: u64, b: u64) -> u64 {
@@ -199,6 +287,87 @@ fn relative_difference(a: &SparseColMat<usize, f64>, b: &SparseColMat<usize, f64
     }
 }
 
+/// The pure-height and the dihedral parts of the height readings, sensor by sensor (row-major),
+/// over the columns `[z; w]`: what the gap law scales separately.
+#[derive(Debug, Clone)]
+struct HeightRows {
+    row_ptr: Vec<usize>,
+    /// A column of `z` below `n_a`; `n_a +` a column of `w` above.
+    col: Vec<usize>,
+    /// Entries of the pure height part (the readings with `L_eff = 0`).
+    height: Vec<f64>,
+    /// Entries of the rest: `L_eff` times the dihedral.
+    dihedral: Vec<f64>,
+}
+
+impl HeightRows {
+    /// The split of `full`, the blocks of `geometry` (with its `L_eff`).
+    fn new(geometry: &Geometry, full: &InteractionMatrices) -> Self {
+        let mut g0 = geometry.clone();
+        g0.params.leff = 0.0;
+        let pure = interaction_matrices(&g0);
+        let (ns, na) = (full.a_hz.nrows(), full.a_hz.ncols());
+        // Per row: (column, pure height entry, full entry).
+        let mut rows: Vec<Vec<(usize, f64, f64)>> = vec![Vec::new(); ns];
+        for (a, offset, is_full) in [
+            (&pure.a_hz, 0, false),
+            (&pure.a_hw, na, false),
+            (&full.a_hz, 0, true),
+            (&full.a_hw, na, true),
+        ] {
+            let sym = a.symbolic();
+            let (cp, ri, v) = (sym.col_ptr(), sym.row_idx(), a.val());
+            for c in 0..a.ncols() {
+                for k in cp[c]..cp[c + 1] {
+                    let row = &mut rows[ri[k]];
+                    let col = offset + c;
+                    let i = match row.iter().position(|e| e.0 == col) {
+                        Some(i) => i,
+                        None => {
+                            row.push((col, 0.0, 0.0));
+                            row.len() - 1
+                        }
+                    };
+                    if is_full {
+                        row[i].2 += v[k];
+                    } else {
+                        row[i].1 += v[k];
+                    }
+                }
+            }
+        }
+        let mut out = Self {
+            row_ptr: vec![0],
+            col: Vec::new(),
+            height: Vec::new(),
+            dihedral: Vec::new(),
+        };
+        for mut row in rows {
+            row.sort_by_key(|e| e.0);
+            for (c, h, a) in row {
+                out.col.push(c);
+                out.height.push(h);
+                out.dihedral.push(a - h);
+            }
+            out.row_ptr.push(out.col.len());
+        }
+        out
+    }
+
+    /// `(h_n, l_n)`: sensor `n`'s pure height and dihedral readings of `z` and `w + w0`.
+    fn row(&self, n: usize, z: &[f64], w: &[f64], w0: &[f64]) -> (f64, f64) {
+        let na = z.len();
+        let (mut h, mut l) = (0.0, 0.0);
+        for k in self.row_ptr[n]..self.row_ptr[n + 1] {
+            let c = self.col[k];
+            let x = if c < na { z[c] } else { w[c - na] + w0[c - na] };
+            h += self.height[k] * x;
+            l += self.dihedral[k] * x;
+        }
+        (h, l)
+    }
+}
+
 /// The edge sensors of one mirror with one realisation of their errors.
 #[derive(Debug, Clone)]
 pub struct EdgeSensors {
@@ -217,6 +386,20 @@ pub struct EdgeSensors {
     noise_seed: u64,
     gap_noise_seed: u64,
     install_change: f64,
+    gap_law: GapLaw,
+    /// The height and dihedral parts (without the gains), with a gap law only.
+    rows: Option<HeightRows>,
+    /// The segments' placement errors `w_0` (length `n_a`, zeros without them).
+    segment_w: Vec<f64>,
+    /// `S A_hw w_0`, added to the readings when the segments have placement errors.
+    height_offset: Option<Vec<f64>>,
+    /// The installation's gap change `A_gw w_0 + dg_sensor` (zeros without it).
+    gap_offset: Vec<f64>,
+    gap_installed: bool,
+    /// Drift coefficients per kelvin (m/K) and per week (m) (zeros without drift).
+    drift_per_degc: Vec<f64>,
+    drift_per_week: Vec<f64>,
+    drifts: bool,
 }
 
 impl EdgeSensors {
@@ -224,26 +407,27 @@ impl EdgeSensors {
     /// errors `errors`.
     ///
     /// # Errors
-    /// [`M1Error::InvalidParameter`] naming the error rms that is negative or not finite.
+    /// [`M1Error::InvalidParameter`] naming the error rms that is negative or not finite (or the
+    /// gap law's coefficient that is not finite).
     pub fn new(geometry: &Geometry, errors: &SensorErrors) -> Result<Self, M1Error> {
         errors.check()?;
-        let installed = errors.position_rms > 0.0 || errors.tilt_rms > 0.0;
-        let mut m = if installed {
-            interaction_matrices(&install_sensors(
-                geometry,
-                errors.position_rms,
-                errors.tilt_rms,
-                errors.seed,
-            ))
+        let (na, ns) = (geometry.n_actuators(), geometry.n_sensors());
+        let sensors_moved = errors.position_rms > 0.0 || errors.tilt_rms > 0.0;
+        let segments_moved = errors.segment_position_rms > 0.0 || errors.segment_clocking_rms > 0.0;
+        let gap_installed = segments_moved || errors.sensor_gap_rms > 0.0;
+        let installed = if sensors_moved || gap_installed {
+            Some(errors.installation().install(geometry)?)
         } else {
-            interaction_matrices(geometry)
+            None
         };
-        let install_change = if installed {
+        let placed = installed.as_ref().map_or(geometry, |i| &i.geometry);
+        let mut m = interaction_matrices(placed);
+        let install_change = if sensors_moved {
             relative_difference(&m.a_hz, &interaction_matrices(geometry).a_hz)
         } else {
             0.0
         };
-        let ns = geometry.n_sensors();
+        let rows = (errors.gap_law != GapLaw::NONE).then(|| HeightRows::new(placed, &m));
         let mut rng = StdRng::seed_from_u64(mix(errors.seed, STREAM_GAINS));
         let gains: Vec<f64> = (0..ns)
             .map(|_| 1.0 + errors.gain_rms * gauss(&mut rng))
@@ -252,6 +436,26 @@ impl EdgeSensors {
             let rows: Vec<usize> = a.symbolic().row_idx().to_vec();
             for (v, r) in a.val_mut().iter_mut().zip(rows) {
                 *v *= gains[r];
+            }
+        }
+        let (segment_w, sensor_gap) = match installed {
+            Some(i) => (i.segment_w, i.sensor_gap),
+            None => (vec![0.0; na], vec![0.0; ns]),
+        };
+        let height_offset = segments_moved.then(|| {
+            let mut y = vec![0.0; ns];
+            mul_add(&m.a_hw, &segment_w, &mut y);
+            y
+        });
+        let mut gap_offset = sensor_gap;
+        mul_add(&m.a_gw, &segment_w, &mut gap_offset);
+        let drifts = errors.drift_per_degc > 0.0 || errors.drift_per_week > 0.0;
+        let (mut drift_per_degc, mut drift_per_week) = (vec![0.0; ns], vec![0.0; ns]);
+        if drifts {
+            let mut rng = StdRng::seed_from_u64(mix(errors.seed, STREAM_DRIFT));
+            for (c, d) in drift_per_degc.iter_mut().zip(&mut drift_per_week) {
+                *c = errors.drift_per_degc * rng.random_range(-1.0..=1.0);
+                *d = errors.drift_per_week * rng.random_range(-1.0..=1.0);
             }
         }
         Ok(Self {
@@ -266,6 +470,15 @@ impl EdgeSensors {
             noise_seed: mix(errors.seed, STREAM_NOISE),
             gap_noise_seed: mix(errors.seed, STREAM_GAP_NOISE),
             install_change,
+            gap_law: errors.gap_law,
+            rows,
+            segment_w,
+            height_offset,
+            gap_offset,
+            gap_installed,
+            drift_per_degc,
+            drift_per_week,
+            drifts,
         })
     }
 
@@ -284,12 +497,13 @@ impl EdgeSensors {
         &self.gains
     }
 
-    /// The true `S A_hz` (installed geometry, gains applied): readings per unit `z`.
+    /// The true `S A_hz` (installed geometry, gains applied): readings per unit `z` (without
+    /// the gap law).
     pub fn height_matrix(&self) -> &SparseColMat<usize, f64> {
         &self.height_z
     }
 
-    /// The true `S A_hw`: readings per unit `w`.
+    /// The true `S A_hw`: readings per unit `w` (without the gap law).
     pub fn height_in_plane_matrix(&self) -> &SparseColMat<usize, f64> {
         &self.height_w
     }
@@ -305,13 +519,36 @@ impl EdgeSensors {
     }
 
     /// `||A_installed - A_nominal||_F / ||A_nominal||_F` of the height block (0 without
-    /// installation errors).
+    /// installation errors of the sensors).
     pub fn install_change(&self) -> f64 {
         self.install_change
     }
 
+    /// The gap law of the height gain and the moment arm.
+    pub fn gap_law(&self) -> GapLaw {
+        self.gap_law
+    }
+
+    /// The segments' placement errors `w_0` (`w` layout, length `n_a`; zeros without them).
+    pub fn segment_placement(&self) -> &[f64] {
+        &self.segment_w
+    }
+
+    /// The constant gap change from the installation at each sensor, `A_gw w_0 + dg_sensor`
+    /// (m, length `n_s`; zeros without installation errors of the segments or sensor gaps).
+    pub fn installation_gap(&self) -> &[f64] {
+        &self.gap_offset
+    }
+
+    /// The drift coefficients of every sensor: per kelvin of temperature change (m/K) and per
+    /// week (m) (zeros without drift).
+    pub fn drift_coefficients(&self) -> (&[f64], &[f64]) {
+        (&self.drift_per_degc, &self.drift_per_week)
+    }
+
     /// The readings of sample `sample` for displacements `z` and in-plane motion `w` into `y`
-    /// and `gap` (length `n_s`), without allocating.
+    /// and `gap` (length `n_s`) at zero temperature change and time (no drift), without
+    /// allocating: [`Self::read_into_at`] at `(0, 0)`.
     ///
     /// # Errors
     /// [`M1Error::SizeMismatch`] if a slice has the wrong length (nothing is written then).
@@ -319,6 +556,27 @@ impl EdgeSensors {
         &self,
         z: &[f64],
         w: &[f64],
+        sample: u64,
+        y: &mut [f64],
+        gap: &mut [f64],
+    ) -> Result<(), M1Error> {
+        self.read_into_at(z, w, 0.0, 0.0, sample, y, gap)
+    }
+
+    /// The readings of sample `sample` for displacements `z` and in-plane motion `w`, at the
+    /// temperature change `temperature` (K) and the time `time` (s) of the drift, into `y` and
+    /// `gap` (length `n_s`), without allocating (see the [module documentation](self)).
+    ///
+    /// # Errors
+    /// [`M1Error::SizeMismatch`] if a slice has the wrong length, [`M1Error::InvalidParameter`]
+    /// naming `temperature` or `time` if it is not finite (nothing is written then).
+    #[allow(clippy::too_many_arguments)]
+    pub fn read_into_at(
+        &self,
+        z: &[f64],
+        w: &[f64],
+        temperature: f64,
+        time: f64,
         sample: u64,
         y: &mut [f64],
         gap: &mut [f64],
@@ -338,12 +596,55 @@ impl EdgeSensors {
                 });
             }
         }
-        y.fill(0.0);
-        mul_add(&self.height_z, z, y);
-        mul_add(&self.height_w, w, y);
+        for (name, value) in [("temperature", temperature), ("time", time)] {
+            if !value.is_finite() {
+                return Err(M1Error::InvalidParameter {
+                    name,
+                    value,
+                    reason: "must be finite",
+                });
+            }
+        }
         gap.fill(self.nominal_gap);
         mul_add(&self.gap_z, z, gap);
         mul_add(&self.gap_w, w, gap);
+        if self.gap_installed {
+            for (g, d) in gap.iter_mut().zip(&self.gap_offset) {
+                *g += d;
+            }
+        }
+        match &self.rows {
+            None => {
+                y.fill(0.0);
+                mul_add(&self.height_z, z, y);
+                mul_add(&self.height_w, w, y);
+                if let Some(offset) = &self.height_offset {
+                    for (v, o) in y.iter_mut().zip(offset) {
+                        *v += o;
+                    }
+                }
+            }
+            Some(rows) => {
+                let law = &self.gap_law;
+                for (n, v) in y.iter_mut().enumerate() {
+                    let dg = gap[n] - self.nominal_gap;
+                    let (h, l) = rows.row(n, z, w, &self.segment_w);
+                    *v = self.gains[n]
+                        * (1.0 + law.height_gain_per_gap * dg)
+                        * (h + (1.0 + law.leff_per_gap * dg) * l);
+                }
+            }
+        }
+        if self.drifts {
+            let weeks = time / WEEK;
+            for ((v, c), d) in y
+                .iter_mut()
+                .zip(&self.drift_per_degc)
+                .zip(&self.drift_per_week)
+            {
+                *v += c * temperature + d * weeks;
+            }
+        }
         if self.noise_rms > 0.0 {
             let mut rng = StdRng::seed_from_u64(mix(self.noise_seed, sample));
             for v in y.iter_mut() {
@@ -357,5 +658,334 @@ impl EdgeSensors {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::aperture::geometry::GeometryParams;
+    use crate::aperture::layout::Layout;
+    use crate::sensing::installed::HeightSplit;
+
+    fn keck() -> Geometry {
+        let l = Layout::preset("keck").unwrap();
+        Geometry::new(&l, GeometryParams::for_layout(&l)).unwrap()
+    }
+
+    /// A deterministic vector of amplitude `scale`.
+    fn pattern(n: usize, scale: f64, phase: f64) -> Vec<f64> {
+        (0..n)
+            .map(|i| scale * ((i as f64 * 0.731 + phase).sin() + 0.3 * (i as f64 * 2.17).cos()))
+            .collect()
+    }
+
+    fn read_at(s: &EdgeSensors, z: &[f64], w: &[f64], t: f64, time: f64) -> (Vec<f64>, Vec<f64>) {
+        let ns = s.n_sensors();
+        let (mut y, mut gap) = (vec![0.0; ns], vec![0.0; ns]);
+        s.read_into_at(z, w, t, time, 3, &mut y, &mut gap).unwrap();
+        (y, gap)
+    }
+
+    fn read(s: &EdgeSensors, z: &[f64], w: &[f64]) -> (Vec<f64>, Vec<f64>) {
+        read_at(s, z, w, 0.0, 0.0)
+    }
+
+    /// `y = A x` of a CSC matrix with row scales, column by column, as the sensors accumulate.
+    fn accumulate(a: &SparseColMat<usize, f64>, scale: &[f64], x: &[f64], y: &mut [f64]) {
+        let s = a.symbolic();
+        for (j, &xj) in x.iter().enumerate() {
+            if xj != 0.0 {
+                for k in s.col_ptr()[j]..s.col_ptr()[j + 1] {
+                    let r = s.row_idx()[k];
+                    y[r] += (scale[r] * a.val()[k]) * xj;
+                }
+            }
+        }
+    }
+
+    fn max_abs(x: &[f64]) -> f64 {
+        x.iter().fold(0.0, |m, v| m.max(v.abs()))
+    }
+
+    /// With the new error sources at their defaults the readings are, bit for bit, those of the
+    /// interaction matrices with the gains applied: `S (A_hz z + A_hw w)` and
+    /// `g_0 + A_gz z + A_gw w`, accumulated in the same order.
+    #[test]
+    fn the_defaults_reproduce_the_previous_readings_bit_for_bit() {
+        let g = keck();
+        let (na, ns) = (g.n_actuators(), g.n_sensors());
+        let z = pattern(na, 1e-6, 0.1);
+        let w = pattern(na, 1e-5, 1.3);
+        for errors in [
+            SensorErrors::default(),
+            SensorErrors {
+                gain_rms: 0.01,
+                seed: 5,
+                ..SensorErrors::default()
+            },
+        ] {
+            let s = EdgeSensors::new(&g, &errors).unwrap();
+            assert_eq!(s.gap_law(), GapLaw::NONE);
+            let m = interaction_matrices(&g);
+            let (mut y, mut gap) = (vec![0.0; ns], vec![g.layout.gap; ns]);
+            accumulate(&m.a_hz, s.gains(), &z, &mut y);
+            accumulate(&m.a_hw, s.gains(), &w, &mut y);
+            let ones = vec![1.0; ns];
+            accumulate(&m.a_gz, &ones, &z, &mut gap);
+            accumulate(&m.a_gw, &ones, &w, &mut gap);
+            let (ys, gs) = read(&s, &z, &w);
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&ys), bits(&y));
+            assert_eq!(bits(&gs), bits(&gap));
+            // The old entry point is the new one at zero temperature change and time.
+            let (mut y2, mut gap2) = (vec![0.0; ns], vec![0.0; ns]);
+            s.read_into(&z, &w, 3, &mut y2, &mut gap2).unwrap();
+            assert_eq!(bits(&y2), bits(&ys));
+            assert_eq!(bits(&gap2), bits(&gs));
+            assert!(s.installation_gap().iter().all(|d| *d == 0.0));
+            assert!(s.segment_placement().iter().all(|d| *d == 0.0));
+        }
+        // The height split agrees with the A-matrix to round-off.
+        let split = HeightSplit::new(&g);
+        let ones = vec![1.0; ns];
+        let mut ya = vec![0.0; ns];
+        split.mul_into(&ones, &ones, &z, &mut ya).unwrap();
+        let (yz, _) = read(
+            &EdgeSensors::new(&g, &SensorErrors::default()).unwrap(),
+            &z,
+            &vec![0.0; na],
+        );
+        for (a, b) in ya.iter().zip(&yz) {
+            assert!((a - b).abs() <= 1e-14 * max_abs(&yz));
+        }
+    }
+
+    /// A uniform expansion of the segment pattern opens every gap by (nearly) the same amount;
+    /// with a gap law each reading scales by its gain `1 + gamma_h dg` (kappa = 0), and with
+    /// both coefficients the readings are those of the height split with the law's gains and
+    /// moment arms.
+    #[test]
+    fn a_gap_law_scales_the_readings_by_its_gain() {
+        let g = keck();
+        let (na, ns) = (g.n_actuators(), g.n_sensors());
+        let z = pattern(na, 1e-6, 0.4);
+        // Each segment slides radially by eps times its distance from the axis.
+        let eps = 2e-5;
+        let mut w = vec![0.0; na];
+        for (i, f) in g.segments.iter().enumerate() {
+            w[3 * i] = eps * f.centre[0].hypot(f.centre[1]);
+        }
+        let ideal = EdgeSensors::new(&g, &SensorErrors::default()).unwrap();
+        let (y0, gap0) = read(&ideal, &z, &w);
+        let dg: Vec<f64> = gap0.iter().map(|x| x - g.layout.gap).collect();
+        let mean = dg.iter().sum::<f64>() / ns as f64;
+        assert!(mean > 1e-5, "the gaps open: {mean}");
+        assert!(
+            dg.iter().all(|d| (d - mean).abs() < 0.05 * mean),
+            "uniform gap change"
+        );
+        let gamma = -210.0;
+        let law = GapLaw {
+            height_gain_per_gap: gamma,
+            leff_per_gap: 0.0,
+        };
+        let s = EdgeSensors::new(
+            &g,
+            &SensorErrors {
+                gap_law: law,
+                ..SensorErrors::default()
+            },
+        )
+        .unwrap();
+        let (y, gap) = read(&s, &z, &w);
+        assert_eq!(gap, gap0, "the law leaves the gap reading alone");
+        let scale = max_abs(&y0);
+        for n in 0..ns {
+            let expected = (1.0 + gamma * dg[n]) * y0[n];
+            assert!((y[n] - expected).abs() <= 1e-13 * scale, "y[{n}]");
+            assert!((y[n] - (1.0 + gamma * mean) * y0[n]).abs() <= 1e-3 * scale);
+        }
+        // Both coefficients, gain errors and sensor gap offsets, z alone: the height split with
+        // the gains s_n (1 + gamma dg_n) and the arms 1 + kappa dg_n.
+        let errors = SensorErrors {
+            gap_law: GapLaw::default(),
+            gain_rms: 0.01,
+            sensor_gap_rms: 2e-5,
+            seed: 9,
+            ..SensorErrors::default()
+        };
+        let s = EdgeSensors::new(&g, &errors).unwrap();
+        let zero = vec![0.0; na];
+        let (y, gap) = read(&s, &z, &zero);
+        let dg: Vec<f64> = gap.iter().map(|x| x - g.layout.gap).collect();
+        assert!(dg.iter().any(|d| d.abs() > 1e-5));
+        let (mut gain, mut leff) = GapLaw::default().factors(&dg);
+        for (a, b) in gain.iter_mut().zip(s.gains()) {
+            *a *= b;
+        }
+        let split = HeightSplit::new(&g);
+        let mut expected = vec![0.0; ns];
+        split.mul_into(&gain, &leff, &z, &mut expected).unwrap();
+        for n in 0..ns {
+            assert!(
+                (y[n] - expected[n]).abs() <= 1e-13 * max_abs(&expected),
+                "y[{n}]"
+            );
+        }
+        // The arm factor matters: without it the readings differ.
+        leff.fill(1.0);
+        split.mul_into(&gain, &leff, &z, &mut expected).unwrap();
+        assert!(
+            y.iter()
+                .zip(&expected)
+                .any(|(a, b)| (a - b).abs() > 1e-6 * max_abs(&expected))
+        );
+    }
+
+    /// Each sensor drifts by c_n T + d_n t / week, with c_n and d_n within their bounds,
+    /// reproducibly from the seed and independently of the other draws.
+    #[test]
+    fn drift_grows_linearly_with_temperature_and_time_within_the_bounds() {
+        let g = keck();
+        let (na, ns) = (g.n_actuators(), g.n_sensors());
+        let errors = SensorErrors {
+            drift_per_degc: 1e-9,
+            drift_per_week: 2e-9,
+            gain_rms: 0.01,
+            seed: 4,
+            ..SensorErrors::default()
+        };
+        let s = EdgeSensors::new(&g, &errors).unwrap();
+        let zero = vec![0.0; na];
+        let (y, _) = read(&s, &zero, &zero);
+        assert!(y.iter().all(|v| *v == 0.0), "no drift at T = 0, t = 0");
+        let (c, d) = s.drift_coefficients();
+        assert!(c.iter().all(|x| x.abs() <= 1e-9) && d.iter().all(|x| x.abs() <= 2e-9));
+        // Uniform draws: they fill the interval (168 draws), centred.
+        assert!(max_abs(c) > 0.9e-9 && max_abs(d) > 1.8e-9);
+        assert!((c.iter().sum::<f64>() / ns as f64).abs() < 0.2e-9);
+        let (y1, _) = read_at(&s, &zero, &zero, 2.0, 0.0);
+        let (y2, _) = read_at(&s, &zero, &zero, 4.0, 0.0);
+        let (yw, gw) = read_at(&s, &zero, &zero, 0.0, 3.0 * WEEK);
+        let (yb, _) = read_at(&s, &zero, &zero, 2.0, 3.0 * WEEK);
+        for n in 0..ns {
+            assert_eq!(y1[n], 2.0 * c[n]);
+            assert!((y2[n] - 2.0 * y1[n]).abs() <= 1e-24);
+            assert!((yw[n] - 3.0 * d[n]).abs() <= 1e-24);
+            assert!((yb[n] - y1[n] - yw[n]).abs() <= 1e-24);
+            assert!(y2[n].abs() <= 4e-9 && yw[n].abs() <= 6e-9);
+        }
+        assert!(
+            gw.iter().all(|x| *x == g.layout.gap),
+            "the gap does not drift"
+        );
+        // The drift draws leave the gains alone, and another seed draws others.
+        let no_drift = SensorErrors {
+            drift_per_degc: 0.0,
+            drift_per_week: 0.0,
+            ..errors
+        };
+        assert_eq!(EdgeSensors::new(&g, &no_drift).unwrap().gains(), s.gains());
+        let other = EdgeSensors::new(&g, &SensorErrors { seed: 5, ..errors }).unwrap();
+        assert_ne!(other.drift_coefficients().0, c);
+        // A temperature or time that is not finite is refused, naming it.
+        let mut out = (vec![0.0; ns], vec![0.0; ns]);
+        let e = s
+            .read_into_at(&zero, &zero, f64::NAN, 0.0, 0, &mut out.0, &mut out.1)
+            .unwrap_err();
+        assert!(e.to_string().contains("temperature"), "{e}");
+    }
+
+    /// Segment placement errors move the segments with their sensor halves: the gaps change by
+    /// `A_gw w_0` and the readings by `S A_hw w_0`, as if `w_0` were added to `w`; the sensors'
+    /// own gap offsets add to the gap. The draws are [`Installation`]'s.
+    #[test]
+    fn segment_installation_changes_the_gaps_by_a_gw_w0() {
+        let g = keck();
+        let (na, ns) = (g.n_actuators(), g.n_sensors());
+        let errors = SensorErrors {
+            segment_position_rms: 1e-4,
+            segment_clocking_rms: 1e-4,
+            seed: 6,
+            ..SensorErrors::default()
+        };
+        let s = EdgeSensors::new(&g, &errors).unwrap();
+        let inst = Installation {
+            segment_position_rms: 1e-4,
+            segment_clocking_rms: 1e-4,
+            seed: 6,
+            ..Installation::default()
+        }
+        .install(&g)
+        .unwrap();
+        assert_eq!(s.segment_placement(), inst.segment_w.as_slice());
+        assert_eq!(
+            s.install_change(),
+            0.0,
+            "the sensors sit on their nominal places"
+        );
+        let w0 = &inst.segment_w;
+        let m = interaction_matrices(&g);
+        let (mut gw0, mut hw0) = (vec![0.0; ns], vec![0.0; ns]);
+        mul_add(&m.a_gw, w0, &mut gw0);
+        mul_add(&m.a_hw, w0, &mut hw0);
+        assert!(max_abs(&gw0) > 1e-5);
+        let ideal = EdgeSensors::new(&g, &SensorErrors::default()).unwrap();
+        let z = pattern(na, 1e-6, 0.7);
+        let w = pattern(na, 1e-5, 0.2);
+        let (y0, gap0) = read(&ideal, &z, &w);
+        let (y, gap) = read(&s, &z, &w);
+        for n in 0..ns {
+            assert!((gap[n] - gap0[n] - gw0[n]).abs() <= 1e-18, "gap[{n}]");
+            assert!((y[n] - y0[n] - hw0[n]).abs() <= 1e-18, "y[{n}]");
+            assert!((s.installation_gap()[n] - inst.dgap[n]).abs() <= 1e-18);
+        }
+        // The same as the ideal sensors reading w + w0.
+        let shifted: Vec<f64> = w.iter().zip(w0).map(|(a, b)| a + b).collect();
+        let (ys, gaps) = read(&ideal, &z, &shifted);
+        for n in 0..ns {
+            assert!((gap[n] - gaps[n]).abs() <= 1e-17, "{}", gap[n] - gaps[n]);
+            assert!((y[n] - ys[n]).abs() <= 1e-18, "{}", y[n] - ys[n]);
+        }
+        // With a gap law too: the law sees the installed gap and scales the w0 reading.
+        let law = SensorErrors {
+            gap_law: GapLaw {
+                height_gain_per_gap: -210.0,
+                leff_per_gap: 0.0,
+            },
+            ..errors
+        };
+        let (yl, gapl) = read(&EdgeSensors::new(&g, &law).unwrap(), &z, &w);
+        assert_eq!(gapl, gap);
+        for n in 0..ns {
+            let dg = gap[n] - g.layout.gap;
+            assert!((yl[n] - (1.0 - 210.0 * dg) * y[n]).abs() <= 1e-13 * max_abs(&y));
+        }
+        // The sensors' own gap offsets add to the gap, drawn apart from the segments.
+        let both = SensorErrors {
+            sensor_gap_rms: 1e-5,
+            ..errors
+        };
+        let sb = EdgeSensors::new(&g, &both).unwrap();
+        assert_eq!(sb.segment_placement(), w0.as_slice());
+        let (_, gapb) = read(&sb, &z, &w);
+        let rms = (gapb
+            .iter()
+            .zip(&gap)
+            .map(|(a, b)| (a - b).powi(2))
+            .sum::<f64>()
+            / ns as f64)
+            .sqrt();
+        assert!((rms / 1e-5 - 1.0).abs() < 0.3, "{rms}");
+        let bad = SensorErrors {
+            segment_clocking_rms: -1.0,
+            ..errors
+        };
+        let e = EdgeSensors::new(&g, &bad).unwrap_err();
+        assert!(
+            e.to_string().contains("install_segment_clocking_rms"),
+            "{e}"
+        );
     }
 }
