@@ -219,9 +219,20 @@ fn plots(
                 .collect()
         };
     let draw = |file: &str, s: Vec<(String, Vec<(f64, f64)>)>, title: &str, y: &str, log_y| {
-        let refs: Vec<(&str, &[(f64, f64)])> =
-            s.iter().map(|(n, p)| (n.as_str(), p.as_slice())).collect();
-        plot::lines(dir.join(file), &refs, title, "time (days)", y, false, log_y)
+        // One piece per night in the variant's colour (only the first labelled), so the
+        // days between nights are gaps rather than lines.
+        let mut pieces: Vec<plot::ColouredSeries> = Vec::new();
+        for (k, (n, p)) in s.iter().enumerate() {
+            let mut start = 0;
+            for i in 1..=p.len() {
+                if i == p.len() || p[i].0 - p[i - 1].0 > 0.25 {
+                    let label = if start == 0 { n.as_str() } else { "" };
+                    pieces.push((label, k, &p[start..i]));
+                    start = i;
+                }
+            }
+        }
+        plot::lines_in_colours(dir.join(file), &pieces, title, "time (days)", y, false, log_y)
             .map_err(|e| e.to_string())
     };
     let name = &layout.name;
