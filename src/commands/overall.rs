@@ -232,8 +232,16 @@ fn plots(
                 }
             }
         }
-        plot::lines_in_colours(dir.join(file), &pieces, title, "time (days)", y, false, log_y)
-            .map_err(|e| e.to_string())
+        plot::lines_in_colours(
+            dir.join(file),
+            &pieces,
+            title,
+            "time (days)",
+            y,
+            false,
+            log_y,
+        )
+        .map_err(|e| e.to_string())
     };
     let name = &layout.name;
     draw(

@@ -1,8 +1,9 @@
 //! SSP 1.0 (System Structure and Parameterization): reading a system from a `.ssp` archive or a
 //! `.ssd` file with its FMUs, and writing one.
 //!
-//! Read: `ssd:System` with `ssd:Elements/ssd:Component` (`source` = the FMU, relative to the
-//! .ssd or inside the archive), `ssd:ParameterBindings` with inline `ssv:ParameterValues` or a
+//! Read: `ssd:System` with `ssd:Elements/ssd:Component` (`source` = the FMU, a URI reference:
+//! a percent-encoded path relative to the .ssd or inside the archive, an absolute path, or a
+//! `file:` URI), `ssd:ParameterBindings` with inline `ssv:ParameterValues` or a
 //! `source` .ssv file, `ssd:Connections/ssd:Connection` (`startElement`/`startConnector` ->
 //! `endElement`/`endConnector`), and `ssd:DefaultExperiment` (startTime, stopTime). The base
 //! step and each component's step multiple are not part of SSP 1.0: they are read from (and
@@ -195,7 +196,8 @@ impl SsdReader<'_> {
             "Component" if self.depth_system == 1 => self.component(e)?,
             "ParameterBinding" => {
                 if let (Some(c), Some(src)) = (self.current_component, attr(e, "source")) {
-                    let f = self.at.base.join(&src);
+                    let f = resolve_source(&self.at.base, &src)
+                        .map_err(|why| self.named(format!("parameter source {src}: {why}")))?;
                     let text = std::fs::read_to_string(&f).map_err(io(&f))?;
                     let p = parse_parameters(&text, &f)?;
                     self.system.components[c].parameters.extend(p);
@@ -252,7 +254,8 @@ impl SsdReader<'_> {
         let cname = attr(e, "name").ok_or_else(|| self.named("a Component has no name".into()))?;
         let source = attr(e, "source")
             .ok_or_else(|| self.named(format!("component {cname} has no source")))?;
-        let fmu = self.at.base.join(&source);
+        let fmu = resolve_source(&self.at.base, &source)
+            .map_err(|why| self.named(format!("component {cname}: source {source}: {why}")))?;
         if !fmu.is_file() {
             return Err(self.named(format!(
                 "component {cname}: source {source} not found ({})",
@@ -586,4 +589,90 @@ pub fn write_ssp(system: &System, name: &str, path: &Path) -> Result<()> {
     }
     z.finish().map_err(|e| bad(e.to_string()))?;
     Ok(())
+}
+
+/// The file an SSP `source` attribute names. SSP 1.0 makes it a URI reference: a `file:` URI
+/// (`file:///abs/x.fmu`, `file://localhost/abs/x.fmu`, `file:/abs/x.fmu`) or a relative or
+/// absolute path, percent-encoded (`my%20dir/x.fmu`); relative references resolve against
+/// `base`. Other schemes (`http:`) are refused.
+pub(crate) fn resolve_source(base: &Path, source: &str) -> std::result::Result<PathBuf, String> {
+    let decode = |s: &str| -> std::result::Result<String, String> {
+        percent_encoding::percent_decode_str(s)
+            .decode_utf8()
+            .map(|c| c.into_owned())
+            .map_err(|e| format!("not valid UTF-8 once percent-decoded ({e})"))
+    };
+    // A scheme has two characters or more (a single letter would be a Windows drive).
+    let scheme = source.split_once(':').map(|(s, _)| s).filter(|s| {
+        s.len() > 1
+            && s.chars().next().is_some_and(|c| c.is_ascii_alphabetic())
+            && s.chars()
+                .all(|c| c.is_ascii_alphanumeric() || "+-.".contains(c))
+    });
+    match scheme {
+        None => {
+            let p = PathBuf::from(decode(source)?);
+            Ok(if p.is_absolute() { p } else { base.join(p) })
+        }
+        Some(s) if s.eq_ignore_ascii_case("file") => {
+            let rest = &source[s.len() + 1..];
+            let path = match rest.strip_prefix("//") {
+                // file://host/path: only the local host.
+                Some(after) => {
+                    let (host, path) = after.split_at(after.find('/').unwrap_or(after.len()));
+                    if !(host.is_empty() || host.eq_ignore_ascii_case("localhost")) {
+                        return Err(format!("host {host} is not this machine"));
+                    }
+                    path
+                }
+                None => rest,
+            };
+            if !path.starts_with('/') {
+                return Err("a file: URI needs an absolute path".into());
+            }
+            Ok(PathBuf::from(decode(path)?))
+        }
+        Some(s) => Err(format!(
+            "the {s}: scheme is not supported (use a path or a file: URI)"
+        )),
+    }
+}
+
+#[cfg(test)]
+mod source_tests {
+    use super::resolve_source;
+    use std::path::{Path, PathBuf};
+
+    #[test]
+    fn sources_are_uri_references() {
+        let base = Path::new("/systems/s");
+        let ok = |s: &str| resolve_source(base, s).unwrap();
+        assert_eq!(
+            ok("resources/a.fmu"),
+            PathBuf::from("/systems/s/resources/a.fmu")
+        );
+        assert_eq!(
+            ok("my%20dir/a.fmu"),
+            PathBuf::from("/systems/s/my dir/a.fmu")
+        );
+        assert_eq!(ok("/abs/a.fmu"), PathBuf::from("/abs/a.fmu"));
+        assert_eq!(
+            ok("file:///abs/my%20dir/a.fmu"),
+            PathBuf::from("/abs/my dir/a.fmu")
+        );
+        assert_eq!(
+            ok("file://localhost/abs/a.fmu"),
+            PathBuf::from("/abs/a.fmu")
+        );
+        assert_eq!(ok("FILE:/abs/a.fmu"), PathBuf::from("/abs/a.fmu"));
+        for (bad, why) in [
+            ("http://example.org/a.fmu", "http: scheme"),
+            ("file://server/a.fmu", "host server"),
+            ("file:a.fmu", "absolute path"),
+            ("a%FF.fmu", "UTF-8"),
+        ] {
+            let e = resolve_source(base, bad).unwrap_err();
+            assert!(e.contains(why), "{bad}: {e}");
+        }
+    }
 }

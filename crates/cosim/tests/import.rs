@@ -649,6 +649,18 @@ fn ssp_round_trip_runs_the_same() {
     let back = ssp::read(&ssd_dir.join("chain.ssd")).unwrap();
     let r3 = run(&back.system, &rec, 1, &mut |_, _| {}).unwrap();
     assert_eq!(r1.values(), r3.values());
+    // Sources are URI references (SSP 1.0): a percent-encoded relative path and an absolute
+    // file: URI give the same system.
+    std::fs::create_dir_all(ssd_dir.join("my dir")).unwrap();
+    std::fs::copy(&path, ssd_dir.join("my dir/tiny.fmu")).unwrap();
+    let abs = ssd_dir.join("my dir/tiny.fmu").canonicalize().unwrap();
+    let uri = format!("file://{}", abs.display().to_string().replace(' ', "%20"));
+    let text = ssp::ssd_text(&sys, "chain", &["my%20dir/tiny.fmu".into(), uri]).unwrap();
+    std::fs::write(ssd_dir.join("uri.ssd"), &text).unwrap();
+    let back = ssp::read(&ssd_dir.join("uri.ssd")).unwrap();
+    assert_eq!(back.system.components[1].fmu, abs);
+    let r4 = run(&back.system, &rec, 1, &mut |_, _| {}).unwrap();
+    assert_eq!(r1.values(), r4.values());
     // A missing FMU is named.
     std::fs::remove_file(ssd_dir.join("resources/tiny.fmu")).unwrap();
     let e = ssp::read(&ssd_dir.join("chain.ssd"))
