@@ -332,7 +332,17 @@ fn run_and_system_on_keck() {
         &ssp,
     ]);
     assert!(ok, "{err}");
-    let v = json(&["run", "--ssp", &ssp, "--out", &out, "--json"]);
+    let (ok, stdout, err) = m1cs(&["run", "--ssp", &ssp, "--out", &out, "--json"]);
+    assert!(ok && !err.contains("overrides"), "{err}");
+    let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    // The file says gauss-seidel (the standard systems' order); --order overrides it, saying so.
+    let (ok, _, err) = m1cs(&[
+        "run", "--ssp", &ssp, "--out", &out, "--json", "--order", "jacobi",
+    ]);
+    assert!(
+        ok && err.contains("--order jacobi overrides the order") && err.contains("(gauss-seidel)"),
+        "{err}"
+    );
     assert_eq!(v["runs"].as_array().unwrap().len(), 1);
     assert!(v["runs"][0]["rms_surface_m"].as_f64().unwrap() > 0.0);
     assert!(

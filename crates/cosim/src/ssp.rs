@@ -216,10 +216,19 @@ impl SsdReader<'_> {
                 self.system.connections.push(connection);
             }
             "DefaultExperiment" => {
-                if let Some(t) = num(ssd, "startTime", attr(e, "startTime"))? {
+                let start = num(ssd, "startTime", attr(e, "startTime"))?;
+                let stop = num(ssd, "stopTime", attr(e, "stopTime"))?;
+                if let (Some(t0), Some(t1)) = (start, stop)
+                    && t1 < t0
+                {
+                    return Err(self.named(format!(
+                        "DefaultExperiment: stopTime {t1} is before startTime {t0}"
+                    )));
+                }
+                if let Some(t) = start {
                     self.system.start_time = t;
                 }
-                if let Some(t) = num(ssd, "stopTime", attr(e, "stopTime"))? {
+                if let Some(t) = stop {
                     self.system.stop_time = t;
                 }
             }
@@ -233,7 +242,13 @@ impl SsdReader<'_> {
                 }
                 self.system.order = match attr(e, "order").as_deref() {
                     Some("gauss-seidel") => Order::GaussSeidel,
-                    _ => Order::Jacobi,
+                    Some("jacobi") | None => Order::Jacobi,
+                    Some(other) => {
+                        return Err(self.named(format!(
+                            "the master annotation's order \"{other}\" is neither \"jacobi\" \
+                             nor \"gauss-seidel\""
+                        )));
+                    }
                 };
             }
             "Rate" if self.in_annotation => {
@@ -337,6 +352,14 @@ impl SsdReader<'_> {
 
     /// The system with the rates applied to their components.
     fn finish(mut self) -> Result<(System, bool)> {
+        if self.system.components.is_empty() {
+            return Err(self.named("the system has no component".into()));
+        }
+        for (i, c) in self.system.components.iter().enumerate() {
+            if self.system.components[..i].iter().any(|o| o.name == c.name) {
+                return Err(self.named(format!("two components are named {}", c.name)));
+            }
+        }
         for (c, every) in std::mem::take(&mut self.everies) {
             let Some(comp) = self.system.components.iter_mut().find(|x| x.name == c) else {
                 return Err(self.named(format!("Rate names no component {c}")));

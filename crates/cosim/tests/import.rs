@@ -661,6 +661,41 @@ fn ssp_round_trip_runs_the_same() {
     assert_eq!(back.system.components[1].fmu, abs);
     let r4 = run(&back.system, &rec, 1, &mut |_, _| {}).unwrap();
     assert_eq!(r1.values(), r4.values());
+    // Schema-level checks, each named: stop before start, an unknown order, two components
+    // of one name, no component.
+    let start = text.find("startTime=\"").unwrap();
+    let stop_at = text.find("stopTime=\"").unwrap();
+    let end = stop_at + text[stop_at..].find('>').unwrap();
+    let bad_cases = [
+        (
+            format!(
+                "{}startTime=\"1\" stopTime=\"0.5\"{}",
+                &text[..start],
+                &text[end..]
+            ),
+            "stopTime 0.5 is before startTime 1",
+        ),
+        (
+            text.replacen("order=\"", "order=\"random\" x=\"", 1),
+            "order \"random\"",
+        ),
+        (
+            text.replace("name=\"b\"", "name=\"a\""),
+            "two components are named a",
+        ),
+    ];
+    for (bad, why) in bad_cases {
+        std::fs::write(ssd_dir.join("bad.ssd"), &bad).unwrap();
+        let e = ssp::read(&ssd_dir.join("bad.ssd")).unwrap_err().to_string();
+        assert!(e.contains(why) && e.contains("bad.ssd"), "{why}: {e}");
+    }
+    let empty = System::new(0.2, 0.01);
+    let text = ssp::ssd_text(&empty, "empty", &[]).unwrap();
+    std::fs::write(ssd_dir.join("empty.ssd"), &text).unwrap();
+    let e = ssp::read(&ssd_dir.join("empty.ssd"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("no component"), "{e}");
     // A missing FMU is named.
     std::fs::remove_file(ssd_dir.join("resources/tiny.fmu")).unwrap();
     let e = ssp::read(&ssd_dir.join("chain.ssd"))

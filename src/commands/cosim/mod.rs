@@ -162,14 +162,16 @@ pub struct RunCmd {
     /// Record every N base steps (the spectra reach half the recording rate).
     #[arg(long, default_value_t = 1)]
     pub decimation: usize,
-    /// Stepping order of the master. Gauss-Seidel (default) steps the components in turn on
-    /// their predecessors' newest outputs: one delay less per connection (needed by `--cell
-    /// split`), and a component nobody reads right away (the edge sensors) steps on a second
-    /// thread meanwhile (same values; see --no-lookahead). Jacobi steps them in
-    /// parallel on the values of the last communication point (results independent of the
-    /// component order; fmpy.ssp's convention).
-    #[arg(long, value_enum, default_value_t = OrderArg::GaussSeidel)]
-    pub order: OrderArg,
+    /// Stepping order of the master [default: gauss-seidel for the standard systems; with
+    /// --ssp, the file's order (its master annotation; jacobi without one), which this flag
+    /// overrides]. Gauss-Seidel steps the components in turn on their predecessors' newest
+    /// outputs: one delay less per connection (needed by `--cell split`), and a component
+    /// nobody reads right away (the edge sensors) steps on a second thread meanwhile (same
+    /// values; see --no-lookahead). Jacobi steps them in parallel on the values of the last
+    /// communication point (results independent of the component order; fmpy.ssp's
+    /// convention).
+    #[arg(long, value_enum)]
+    pub order: Option<OrderArg>,
     /// Print the summary as one JSON object.
     #[arg(long)]
     pub json: bool,
@@ -186,7 +188,7 @@ pub struct RunCmd {
 /// Stepping order.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum OrderArg {
-    /// Parallel, on the last communication point's values (default).
+    /// Parallel, on the last communication point's values.
     Jacobi,
     /// Sequential, each component on its predecessors' newest outputs.
     GaussSeidel,
@@ -241,7 +243,9 @@ pub fn standard_system(a: &SystemArgs, closed: bool) -> Result<System, String> {
         (_, Variant::Voicecoil) => ("segments", "segments_voicecoil"),
         (_, _) => ("segments", "segments_piezo"),
     };
-    let mut s = System::new(a.duration, a.step);
+    // Gauss-Seidel, `m1cs run`'s order for the standard systems, so a written .ssp runs as
+    // `m1cs run` does.
+    let mut s = System::new(a.duration, a.step).order(Order::GaussSeidel);
     s = match a.scenario {
         Scenario::Wind => s
             .component("wind", fmu(a, "wind")?)
@@ -457,13 +461,22 @@ fn settled_mean(v: &[f64]) -> f64 {
     half.iter().sum::<f64>() / half.len().max(1) as f64
 }
 
+/// The command-line name of an order.
+fn order_name(o: Order) -> &'static str {
+    match o {
+        Order::Jacobi => "jacobi",
+        Order::GaussSeidel => "gauss-seidel",
+    }
+}
+
 /// Runs `m1cs run`.
 pub fn run_cmd(a: &RunCmd) -> Result<(), String> {
     std::fs::create_dir_all(&a.out).map_err(|e| format!("{}: {e}", a.out.display()))?;
-    let order = match a.order {
+    let given = a.order.map(|o| match o {
         OrderArg::Jacobi => Order::Jacobi,
         OrderArg::GaussSeidel => Order::GaussSeidel,
-    };
+    });
+    let order = given.unwrap_or(Order::GaussSeidel);
     let mut runs: Vec<(String, System)> = Vec::new();
     if let Some(path) = &a.ssp {
         let s = cosim::ssp::read(path).map_err(|e| e.to_string())?;
@@ -482,7 +495,17 @@ pub fn run_cmd(a: &RunCmd) -> Result<(), String> {
         } else if sys.stop_time <= sys.start_time {
             sys.stop_time = sys.start_time + a.system.duration;
         }
-        sys.order = order;
+        if let Some(o) = given {
+            if o != sys.order {
+                eprintln!(
+                    "note: --order {} overrides the order of {} ({})",
+                    order_name(o),
+                    path.display(),
+                    order_name(sys.order)
+                );
+            }
+            sys.order = o;
+        }
         sys.zero_start = a.zero_start;
         sys.no_lookahead = a.no_lookahead;
         runs.push(("system".into(), sys));
