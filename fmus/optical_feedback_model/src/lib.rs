@@ -133,15 +133,13 @@ pub struct OpticalFeedbackFmu {
     layout: String,
 }
 
-/// The initialised `optical_feedback` FMU: the integrator and the number of updates taken.
+/// The initialised `optical_feedback` FMU: the integrator (with its update count).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(into = "SavedFeedback", try_from = "SavedFeedback")]
 pub struct OpticalFeedbackRunning {
     vars: Vars,
     spec: Spec,
     feedback: OpticalFeedback,
-    /// Updates taken (one per step): the library's update count.
-    updates: u64,
 }
 
 /// The serialised form of [`OpticalFeedbackRunning`].
@@ -158,8 +156,8 @@ impl From<OpticalFeedbackRunning> for SavedFeedback {
         Self {
             vars: r.vars,
             spec: r.spec,
-            coefficients: r.feedback.coefficients(),
-            updates: r.updates,
+            coefficients: r.feedback.state().0,
+            updates: r.feedback.state().1,
         }
     }
 }
@@ -174,7 +172,6 @@ impl TryFrom<SavedFeedback> for OpticalFeedbackRunning {
             vars: s.vars,
             spec: s.spec,
             feedback,
-            updates: s.updates,
         })
     }
 }
@@ -236,7 +233,6 @@ impl Model for OpticalFeedbackFmu {
             vars: self.vars,
             spec,
             feedback,
-            updates: 0,
         };
         running.write_u_lo(v);
         running.write_y_ref(v);
@@ -256,7 +252,6 @@ impl fmu::Running for OpticalFeedbackRunning {
         self.feedback
             .update(v.real(self.vars.z), h)
             .map_err(wiring::model_error)?;
-        self.updates = self.updates.saturating_add(1);
         self.write_u_lo(v);
         self.write_y_ref(v);
         Ok(())

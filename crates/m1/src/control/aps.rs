@@ -39,6 +39,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::M1Error;
 use crate::aperture::geometry::Geometry;
+use crate::control::nominal::project_out;
 use crate::control::reconstructor::{orthonormalize, sparse_mul};
 use crate::sensing::interaction::global_ptt;
 
@@ -93,16 +94,6 @@ impl ApsParams {
             }
         }
         Ok(())
-    }
-}
-
-/// Projection out of the global piston/tip/tilt.
-fn remove_modes(modes: &Mat<f64>, x: &mut [f64]) {
-    for c in 0..modes.ncols() {
-        let d: f64 = (0..x.len()).map(|i| modes[(i, c)] * x[i]).sum();
-        for (i, v) in x.iter_mut().enumerate() {
-            *v -= d * modes[(i, c)];
-        }
     }
 }
 
@@ -164,7 +155,7 @@ impl Aps {
                 e[3 * i + k] += row[0] * d[0] + row[1] * d[1] + row[2] * d[2];
             }
         }
-        remove_modes(&self.ptt_modes, &mut e);
+        project_out(self.ptt_modes.as_ref(), &mut e);
         Ok(e)
     }
 
@@ -257,7 +248,7 @@ impl OpticalFeedback {
         crate::error::check_lengths(geometry.n_actuators(), &[("focus-mode", focus)])?;
         let ptt = orthonormalize(global_ptt(geometry).as_ref());
         let mut f = focus.to_vec();
-        remove_modes(&ptt, &mut f);
+        project_out(ptt.as_ref(), &mut f);
         let n = f.iter().map(|x| x * x).sum::<f64>().sqrt();
         if !(n > 0.0) {
             return Err(M1Error::InvalidInput(
@@ -385,7 +376,7 @@ mod tests {
         let mut z: Vec<f64> = (0..g.n_actuators())
             .map(|k| 1e-8 * (k as f64).cos())
             .collect();
-        remove_modes(&exact.ptt_modes, &mut z);
+        project_out(exact.ptt_modes.as_ref(), &mut z);
         let plane = exact.ptt_modes.col(1);
         let zp: Vec<f64> = (0..z.len()).map(|i| z[i] + 3e-7 * plane[i]).collect();
         let e = exact.measure(&zp, 0).unwrap();

@@ -601,16 +601,34 @@ mod tests {
         }
         // The attachments move along the normal by alpha dT p . n: about -alpha dT x sag.
         assert!(d.z_cell.iter().any(|x| x.abs() > 1e-7));
-        // Gravity is linear in (cos, sin) changes: zenith 0 and 60 are symmetric about 30 in
-        // neither, but the sag follows cos: z_cell(0) / z_cell(60) = (1 - c30) / (c60 - c30).
+        // Gravity enters through the changes of cos and sin of the zenith angle: from zenith 0
+        // and 90 the axial and lateral fields follow, and they predict zenith 60.
+        let (c30, s30) = (30f64.to_radians().cos(), 30f64.to_radians().sin());
         let (a, b) = (
             m.evaluate(0.0, 0.0).unwrap(),
             m.evaluate(90.0, 0.0).unwrap(),
         );
         assert!(a.z_cell.iter().any(|x| x.abs() > 1e-7));
+        let m60 = m.evaluate(60.0, 0.0).unwrap();
+        // [1 - c30, -s30; -c30, 1 - s30] [axial; lateral] = [a; b].
+        let det = (1.0 - c30) * (1.0 - s30) - s30 * c30;
+        let (c60, s60) = (
+            60f64.to_radians().cos() - c30,
+            60f64.to_radians().sin() - s30,
+        );
+        for (x0, x90, x60) in [(&a.w, &b.w, &m60.w), (&a.z_cell, &b.z_cell, &m60.z_cell)] {
+            for k in 0..x0.len() {
+                let axial = ((1.0 - s30) * x0[k] + s30 * x90[k]) / det;
+                let lateral = (c30 * x0[k] + (1.0 - c30) * x90[k]) / det;
+                let predicted = c60 * axial + s60 * lateral;
+                assert!(
+                    (x60[k] - predicted).abs() < 1e-12 * (1.0 + x0[k].abs() * 1e6),
+                    "{k}"
+                );
+            }
+        }
         assert!(m.evaluate(91.0, 0.0).is_err());
         assert!(m.evaluate(10.0, f64::NAN).is_err());
-        let _ = b;
     }
 
     #[test]

@@ -21,8 +21,8 @@
 //!
 //! Since the readings are linear in `L_eff`, `A = A_h + L_eff A_d` with `A_h` the pure height
 //! block and `A_d` the dihedral block; [`HeightSplit`] keeps both on one sparsity pattern and
-//! assembles or applies `diag(s) (A_h + diag(L_eff,n) A_d)` for any per-sensor gains and arms
-//! without rebuilding the geometry.
+//! assembles or applies `diag(s) (A_h + diag(L_eff,n / L_eff) L_eff A_d)` for any per-sensor
+//! gains and arms without rebuilding the geometry (the edge-sensor model uses it per sample).
 //!
 //! # Installation
 //!
@@ -35,7 +35,7 @@
 //!   and shear motion (cross-axis sensitivity, through `A_hw` of the installed geometry), and an
 //!   offset of the sensor's own gap from the segments' gap, `N(0, sensor_gap_rms)`.
 
-use faer::sparse::{SparseColMat, SymbolicSparseColMat};
+use faer::sparse::{SparseColMat, Triplet};
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 use rand_distr::{Distribution, StandardNormal};
@@ -44,7 +44,7 @@ use serde::{Deserialize, Serialize};
 use crate::M1Error;
 use crate::aperture::geometry::Geometry;
 use crate::sensing::interaction::{a_matrix, interaction_matrices};
-use crate::sensing::sensors::install_sensors;
+use crate::sensing::sensors::{install_sensors, mul_add};
 
 /// Default `gamma_h`, the residual height-gain sensitivity to the gap after normalisation by the
 /// gap reading (1/m): *calibrated* so that a 5 degC temperature change of the default
@@ -99,67 +99,75 @@ impl GapLaw {
     }
 }
 
-/// The A-matrix split into its height and dihedral blocks on one sparsity pattern:
-/// `A = A_h + L_eff A_d` (see the [module documentation](self)).
+/// A height block of the interaction matrix split into its pure-height and dihedral parts on
+/// one sparsity pattern, row by row: `A = A_h + A_l` with `A_l = L_eff A_d` (see the
+/// [module documentation](self)). Each sensor's reading is then
+/// `s_n (h_n + f_n l_n)` for a gain `s_n` and an arm factor `f_n = L_eff,n / L_eff`, computed
+/// row by row without scratch.
 #[derive(Debug, Clone)]
 pub struct HeightSplit {
     nrows: usize,
     ncols: usize,
-    col_ptr: Vec<usize>,
-    row_idx: Vec<usize>,
+    /// Compressed rows: the entries of row `n` are `row_ptr[n]..row_ptr[n + 1]`.
+    row_ptr: Vec<usize>,
+    col: Vec<usize>,
+    /// Pure height entries (the block with `L_eff = 0`).
     h: Vec<f64>,
-    d: Vec<f64>,
-    leff: f64,
+    /// `L_eff` times the dihedral entries (the rest of the block).
+    l: Vec<f64>,
 }
 
 impl HeightSplit {
     /// The split of `geometry`'s A-matrix (two interaction-matrix builds).
     pub fn new(geometry: &Geometry) -> Self {
-        let leff = geometry.params.leff;
         let mut g0 = geometry.clone();
         g0.params.leff = 0.0;
-        let mut g1 = geometry.clone();
-        g1.params.leff = 1.0;
-        let (ah, a1) = (a_matrix(&g0), a_matrix(&g1));
-        let (nrows, ncols) = (ah.nrows(), ah.ncols());
-        // Union of the two patterns, column by column (rows sorted in each).
-        let (sh, s1) = (ah.symbolic(), a1.symbolic());
-        let mut col_ptr = vec![0];
-        let (mut row_idx, mut h, mut d) = (Vec::new(), Vec::new(), Vec::new());
-        for c in 0..ncols {
-            let (mut p, mut q) = (sh.col_ptr()[c], s1.col_ptr()[c]);
-            let (pe, qe) = (sh.col_ptr()[c + 1], s1.col_ptr()[c + 1]);
-            while p < pe || q < qe {
-                let rp = if p < pe { sh.row_idx()[p] } else { usize::MAX };
-                let rq = if q < qe { s1.row_idx()[q] } else { usize::MAX };
-                let r = rp.min(rq);
-                let vh = if rp == r {
-                    p += 1;
-                    ah.val()[p - 1]
-                } else {
-                    0.0
-                };
-                let v1 = if rq == r {
-                    q += 1;
-                    a1.val()[q - 1]
-                } else {
-                    0.0
-                };
-                row_idx.push(r);
-                h.push(vh);
-                d.push(v1 - vh);
+        Self::from_blocks(&a_matrix(&g0), &a_matrix(geometry))
+    }
+
+    /// The split of `full`, a height block (`A_hz` or `A_hw`), given `pure`, the same block of
+    /// the geometry with `L_eff = 0`.
+    pub fn from_blocks(pure: &SparseColMat<usize, f64>, full: &SparseColMat<usize, f64>) -> Self {
+        let (nrows, ncols) = (full.nrows(), full.ncols());
+        // (row, column, height, rest) of both blocks, merged on their union pattern.
+        let mut t: Vec<(usize, usize, f64, f64)> = Vec::with_capacity(2 * full.val().len());
+        for (a, is_pure) in [(pure, true), (full, false)] {
+            let sym = a.symbolic();
+            for c in 0..a.ncols() {
+                for k in sym.col_ptr()[c]..sym.col_ptr()[c + 1] {
+                    let v = a.val()[k];
+                    let (h, l) = if is_pure { (v, -v) } else { (0.0, v) };
+                    t.push((sym.row_idx()[k], c, h, l));
+                }
             }
-            col_ptr.push(row_idx.len());
         }
-        Self {
+        t.sort_unstable_by_key(|e| (e.0, e.1));
+        let mut out = Self {
             nrows,
             ncols,
-            col_ptr,
-            row_idx,
-            h,
-            d,
-            leff,
+            row_ptr: vec![0; nrows + 1],
+            col: Vec::new(),
+            h: Vec::new(),
+            l: Vec::new(),
+        };
+        let mut last = None;
+        for (r, c, h, l) in t {
+            if last == Some((r, c)) {
+                let k = out.col.len() - 1;
+                out.h[k] += h;
+                out.l[k] += l;
+            } else {
+                out.col.push(c);
+                out.h.push(h);
+                out.l.push(l);
+                out.row_ptr[r + 1] += 1;
+                last = Some((r, c));
+            }
         }
+        for r in 0..nrows {
+            out.row_ptr[r + 1] += out.row_ptr[r];
+        }
+        out
     }
 
     /// Number of sensors (rows).
@@ -167,14 +175,21 @@ impl HeightSplit {
         self.nrows
     }
 
-    /// Number of actuators (columns).
+    /// Number of columns (actuators, or in-plane coordinates).
     pub fn n_actuators(&self) -> usize {
         self.ncols
     }
 
-    /// The nominal moment arm `L_eff` (m).
-    pub fn leff(&self) -> f64 {
-        self.leff
+    /// `(h_n, l_n)`: row `n`'s pure height and dihedral parts of the vector whose column `c` is
+    /// `x(c)`.
+    pub fn row(&self, n: usize, x: impl Fn(usize) -> f64) -> (f64, f64) {
+        let (mut h, mut l) = (0.0, 0.0);
+        for k in self.row_ptr[n]..self.row_ptr[n + 1] {
+            let v = x(self.col[k]);
+            h += self.h[k] * v;
+            l += self.l[k] * v;
+        }
+        (h, l)
     }
 
     fn check(&self, gain: &[f64], leff_factor: &[f64]) -> Result<(), M1Error> {
@@ -184,7 +199,7 @@ impl HeightSplit {
         )
     }
 
-    /// `diag(gain) (A_h + diag(L_eff leff_factor) A_d)` as a sparse matrix.
+    /// `diag(gain) (A_h + diag(leff_factor) A_l)` as a sparse matrix.
     ///
     /// # Errors
     /// [`M1Error::SizeMismatch`] if a slice is not `n_sensors` long.
@@ -194,25 +209,18 @@ impl HeightSplit {
         leff_factor: &[f64],
     ) -> Result<SparseColMat<usize, f64>, M1Error> {
         self.check(gain, leff_factor)?;
-        let vals: Vec<f64> = self
-            .row_idx
-            .iter()
-            .zip(self.h.iter().zip(&self.d))
-            .map(|(&r, (h, d))| gain[r] * (h + self.leff * leff_factor[r] * d))
-            .collect();
-        Ok(SparseColMat::new(
-            SymbolicSparseColMat::new_checked(
-                self.nrows,
-                self.ncols,
-                self.col_ptr.clone(),
-                None,
-                self.row_idx.clone(),
-            ),
-            vals,
-        ))
+        let mut t = Vec::with_capacity(self.col.len());
+        for n in 0..self.nrows {
+            for k in self.row_ptr[n]..self.row_ptr[n + 1] {
+                let v = gain[n] * (self.h[k] + leff_factor[n] * self.l[k]);
+                t.push(Triplet::new(n, self.col[k], v));
+            }
+        }
+        SparseColMat::try_new_from_triplets(self.nrows, self.ncols, &t)
+            .map_err(|e| M1Error::Numerical(format!("assembling the height block: {e:?}")))
     }
 
-    /// `y = diag(gain) (A_h + diag(L_eff leff_factor) A_d) z`, without allocating.
+    /// `y = diag(gain) (A_h + diag(leff_factor) A_l) z`, without allocating.
     ///
     /// # Errors
     /// [`M1Error::SizeMismatch`] for a slice of the wrong length (nothing is written then).
@@ -232,34 +240,11 @@ impl HeightSplit {
                 found: y.len(),
             });
         }
-        // Accumulate the two blocks separately, then scale by row.
-        let mut yd = vec![0.0; self.nrows];
-        y.fill(0.0);
-        for (c, &zc) in z.iter().enumerate() {
-            if zc != 0.0 {
-                for k in self.col_ptr[c]..self.col_ptr[c + 1] {
-                    let r = self.row_idx[k];
-                    y[r] += self.h[k] * zc;
-                    yd[r] += self.d[k] * zc;
-                }
-            }
-        }
-        for r in 0..self.nrows {
-            y[r] = gain[r] * (y[r] + self.leff * leff_factor[r] * yd[r]);
+        for (n, v) in y.iter_mut().enumerate() {
+            let (h, l) = self.row(n, |c| z[c]);
+            *v = gain[n] * (h + leff_factor[n] * l);
         }
         Ok(())
-    }
-}
-
-/// `y = A x` for a CSC matrix.
-fn sparse_mul(a: &SparseColMat<usize, f64>, x: &[f64], y: &mut [f64]) {
-    let s = a.symbolic();
-    let (cp, ri, v) = (s.col_ptr(), s.row_idx(), a.val());
-    y.fill(0.0);
-    for (j, xj) in x.iter().enumerate() {
-        for k in cp[j]..cp[j + 1] {
-            y[ri[k]] += v[k] * xj;
-        }
     }
 }
 
@@ -361,11 +346,8 @@ impl Installation {
             .map(|_| self.sensor_gap_rms * gauss(&mut rng))
             .collect();
         let im = interaction_matrices(geometry);
-        let mut dgap = vec![0.0; geometry.n_sensors()];
-        sparse_mul(&im.a_gw, &segment_w, &mut dgap);
-        for (d, s) in dgap.iter_mut().zip(&sensor_gap) {
-            *d += s;
-        }
+        let mut dgap = sensor_gap.clone();
+        mul_add(&im.a_gw, &segment_w, &mut dgap);
         Ok(Installed {
             geometry: installed,
             segment_w,
@@ -413,7 +395,7 @@ mod tests {
         let mut y = vec![0.0; ns];
         split.mul_into(&gains, &lf, &z, &mut y).unwrap();
         let mut y2 = vec![0.0; ns];
-        sparse_mul(&split.assemble(&gains, &lf).unwrap(), &z, &mut y2);
+        mul_add(&split.assemble(&gains, &lf).unwrap(), &z, &mut y2);
         for (a, b) in y.iter().zip(&y2) {
             assert!((a - b).abs() < 1e-15);
         }

@@ -69,8 +69,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::M1Error;
 use crate::aperture::geometry::Geometry;
-use crate::sensing::installed::{GapLaw, Installation};
-use crate::sensing::interaction::{InteractionMatrices, interaction_matrices};
+use crate::sensing::installed::{GapLaw, HeightSplit, Installation};
+use crate::sensing::interaction::interaction_matrices;
 
 /// The error sources of the edge sensors (all zero by default: ideal sensors).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -238,7 +238,7 @@ pub fn install_sensors(
 }
 
 /// `y += A x` for a CSC matrix, without allocating.
-fn mul_add(a: &SparseColMat<usize, f64>, x: &[f64], y: &mut [f64]) {
+pub(crate) fn mul_add(a: &SparseColMat<usize, f64>, x: &[f64], y: &mut [f64]) {
     let s = a.symbolic();
     let (cp, ri, v) = (s.col_ptr(), s.row_idx(), a.val());
     for (j, &xj) in x.iter().enumerate() {
@@ -287,87 +287,6 @@ fn relative_difference(a: &SparseColMat<usize, f64>, b: &SparseColMat<usize, f64
     }
 }
 
-/// The pure-height and the dihedral parts of the height readings, sensor by sensor (row-major),
-/// over the columns `[z; w]`: what the gap law scales separately.
-#[derive(Debug, Clone)]
-struct HeightRows {
-    row_ptr: Vec<usize>,
-    /// A column of `z` below `n_a`; `n_a +` a column of `w` above.
-    col: Vec<usize>,
-    /// Entries of the pure height part (the readings with `L_eff = 0`).
-    height: Vec<f64>,
-    /// Entries of the rest: `L_eff` times the dihedral.
-    dihedral: Vec<f64>,
-}
-
-impl HeightRows {
-    /// The split of `full`, the blocks of `geometry` (with its `L_eff`).
-    fn new(geometry: &Geometry, full: &InteractionMatrices) -> Self {
-        let mut g0 = geometry.clone();
-        g0.params.leff = 0.0;
-        let pure = interaction_matrices(&g0);
-        let (ns, na) = (full.a_hz.nrows(), full.a_hz.ncols());
-        // Per row: (column, pure height entry, full entry).
-        let mut rows: Vec<Vec<(usize, f64, f64)>> = vec![Vec::new(); ns];
-        for (a, offset, is_full) in [
-            (&pure.a_hz, 0, false),
-            (&pure.a_hw, na, false),
-            (&full.a_hz, 0, true),
-            (&full.a_hw, na, true),
-        ] {
-            let sym = a.symbolic();
-            let (cp, ri, v) = (sym.col_ptr(), sym.row_idx(), a.val());
-            for c in 0..a.ncols() {
-                for k in cp[c]..cp[c + 1] {
-                    let row = &mut rows[ri[k]];
-                    let col = offset + c;
-                    let i = match row.iter().position(|e| e.0 == col) {
-                        Some(i) => i,
-                        None => {
-                            row.push((col, 0.0, 0.0));
-                            row.len() - 1
-                        }
-                    };
-                    if is_full {
-                        row[i].2 += v[k];
-                    } else {
-                        row[i].1 += v[k];
-                    }
-                }
-            }
-        }
-        let mut out = Self {
-            row_ptr: vec![0],
-            col: Vec::new(),
-            height: Vec::new(),
-            dihedral: Vec::new(),
-        };
-        for mut row in rows {
-            row.sort_by_key(|e| e.0);
-            for (c, h, a) in row {
-                out.col.push(c);
-                out.height.push(h);
-                out.dihedral.push(a - h);
-            }
-            out.row_ptr.push(out.col.len());
-        }
-        out
-    }
-
-    /// `(h_n, l_n)`: sensor `n`'s pure height and dihedral readings of `z` and `w + w0`.
-    fn row(&self, n: usize, z: &[f64], w: &[f64], w0: &[f64]) -> (f64, f64) {
-        let na = z.len();
-        let (mut h, mut l) = (0.0, 0.0);
-        for k in self.row_ptr[n]..self.row_ptr[n + 1] {
-            let c = self.col[k];
-            let x = if c < na { z[c] } else { w[c - na] + w0[c - na] };
-            h += self.height[k] * x;
-            l += self.dihedral[k] * x;
-        }
-        (h, l)
-    }
-}
-
 /// The edge sensors of one mirror with one realisation of their errors.
 #[derive(Debug, Clone)]
 pub struct EdgeSensors {
@@ -387,8 +306,9 @@ pub struct EdgeSensors {
     gap_noise_seed: u64,
     install_change: f64,
     gap_law: GapLaw,
-    /// The height and dihedral parts (without the gains), with a gap law only.
-    rows: Option<HeightRows>,
+    /// The height and dihedral parts of `A_hz` and `A_hw` (without the gains), with a gap law
+    /// only.
+    split: Option<[HeightSplit; 2]>,
     /// The segments' placement errors `w_0` (length `n_a`, zeros without them).
     segment_w: Vec<f64>,
     /// `S A_hw w_0`, added to the readings when the segments have placement errors.
@@ -427,7 +347,15 @@ impl EdgeSensors {
         } else {
             0.0
         };
-        let rows = (errors.gap_law != GapLaw::NONE).then(|| HeightRows::new(placed, &m));
+        let split = (errors.gap_law != GapLaw::NONE).then(|| {
+            let mut g0 = placed.clone();
+            g0.params.leff = 0.0;
+            let pure = interaction_matrices(&g0);
+            [
+                HeightSplit::from_blocks(&pure.a_hz, &m.a_hz),
+                HeightSplit::from_blocks(&pure.a_hw, &m.a_hw),
+            ]
+        });
         let mut rng = StdRng::seed_from_u64(mix(errors.seed, STREAM_GAINS));
         let gains: Vec<f64> = (0..ns)
             .map(|_| 1.0 + errors.gain_rms * gauss(&mut rng))
@@ -471,7 +399,7 @@ impl EdgeSensors {
             gap_noise_seed: mix(errors.seed, STREAM_GAP_NOISE),
             install_change,
             gap_law: errors.gap_law,
-            rows,
+            split,
             segment_w,
             height_offset,
             gap_offset,
@@ -613,7 +541,7 @@ impl EdgeSensors {
                 *g += d;
             }
         }
-        match &self.rows {
+        match &self.split {
             None => {
                 y.fill(0.0);
                 mul_add(&self.height_z, z, y);
@@ -624,11 +552,13 @@ impl EdgeSensors {
                     }
                 }
             }
-            Some(rows) => {
+            Some([split_z, split_w]) => {
                 let law = &self.gap_law;
                 for (n, v) in y.iter_mut().enumerate() {
                     let dg = gap[n] - self.nominal_gap;
-                    let (h, l) = rows.row(n, z, w, &self.segment_w);
+                    let (hz, lz) = split_z.row(n, |c| z[c]);
+                    let (hw, lw) = split_w.row(n, |c| w[c] + self.segment_w[c]);
+                    let (h, l) = (hz + hw, lz + lw);
                     *v = self.gains[n]
                         * (1.0 + law.height_gain_per_gap * dg)
                         * (h + (1.0 + law.leff_per_gap * dg) * l);
@@ -666,7 +596,6 @@ mod tests {
     use super::*;
     use crate::aperture::geometry::GeometryParams;
     use crate::aperture::layout::Layout;
-    use crate::sensing::installed::HeightSplit;
 
     fn keck() -> Geometry {
         let l = Layout::preset("keck").unwrap();

@@ -392,10 +392,14 @@ struct Loop {
     y: Vec<f64>,
     gain: Vec<f64>,
     leff: Vec<f64>,
+    /// Scratch of `settle`: the reading error, the command change, the reconstructor's work.
+    err: Vec<f64>,
+    du: Vec<f64>,
+    work: Vec<f64>,
 }
 
 impl Loop {
-    fn new(na: usize, ns: usize) -> Self {
+    fn new(na: usize, ns: usize, work: usize) -> Self {
         Self {
             u: vec![0.0; na],
             u_lo: vec![0.0; na],
@@ -403,6 +407,9 @@ impl Loop {
             y: vec![0.0; ns],
             gain: vec![1.0; ns],
             leff: vec![1.0; ns],
+            err: vec![0.0; ns],
+            du: vec![0.0; na],
+            work: vec![0.0; work],
         }
     }
 
@@ -419,9 +426,6 @@ impl Loop {
         setup
             .gap_law
             .factors_into(&c.dgap[k], &mut self.gain, &mut self.leff);
-        let mut err = vec![0.0; self.y.len()];
-        let mut du = vec![0.0; self.u.len()];
-        let mut work = vec![0.0; setup.nominal.b0.work_len()];
         for _ in 0..=iterations {
             for i in 0..self.z.len() {
                 self.z[i] = c.z_cell[k][i] + self.u[i] + self.u_lo[i];
@@ -429,11 +433,14 @@ impl Loop {
             setup
                 .split
                 .mul_into(&self.gain, &self.leff, &self.z, &mut self.y)?;
-            for n in 0..err.len() {
-                err[n] = self.y[n] + c.phased[k][n] - y_ref[n];
+            for n in 0..self.err.len() {
+                self.err[n] = self.y[n] + c.phased[k][n] - y_ref[n];
             }
-            setup.nominal.b0.apply_into(&err, &mut du, &mut work);
-            for (u, d) in self.u.iter_mut().zip(&du) {
+            setup
+                .nominal
+                .b0
+                .apply_into(&self.err, &mut self.du, &mut self.work);
+            for (u, d) in self.u.iter_mut().zip(&self.du) {
                 *u -= d;
             }
         }
@@ -459,7 +466,7 @@ fn campaign(
         .collect();
     let c = setup.conditions(params, &points, 1)?;
     let (na, ns) = (setup.split.n_actuators(), setup.split.n_sensors());
-    let mut lp = Loop::new(na, ns);
+    let mut lp = Loop::new(na, ns, setup.nominal.b0.work_len());
     let mut y_ref = vec![0.0; ns];
     let mut out = Vec::new();
     for (k, &(zenith, temp, _)) in points.iter().enumerate() {
@@ -490,7 +497,7 @@ fn run_variant(
     pssn: Option<(&Pssn, &[usize])>,
 ) -> Result<(VariantResult, Vec<f64>), M1Error> {
     let (na, ns) = (setup.split.n_actuators(), setup.split.n_sensors());
-    let mut lp = Loop::new(na, ns);
+    let mut lp = Loop::new(na, ns, setup.nominal.b0.work_len());
     let mut optical = optical;
     // Desired readings: the APS value, and the calibration prediction at the last APS run.
     let mut y_aps = vec![0.0; ns];

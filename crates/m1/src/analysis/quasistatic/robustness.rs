@@ -389,22 +389,26 @@ fn ptt_element_errors(
     a: &SparseColMat<usize, f64>,
     rms: f64,
     rng: &mut StdRng,
-) -> SparseColMat<usize, f64> {
-    let n = geometry.n_segments();
-    let ns = a.nrows();
-    let dense = a.to_dense();
+) -> Result<SparseColMat<usize, f64>, M1Error> {
+    let sym = a.symbolic();
     let mut triplets = Vec::with_capacity(a.val().len());
-    for i in 0..n {
+    let mut rows: Vec<(usize, usize, f64)> = Vec::new();
+    for i in 0..geometry.n_segments() {
         let p = geometry.ptt_matrix(i);
         let pinv = geometry.ptt_inverse(i);
-        for r in 0..ns {
-            let row = [
-                dense[(r, 3 * i)],
-                dense[(r, 3 * i + 1)],
-                dense[(r, 3 * i + 2)],
-            ];
-            if row.iter().all(|v| *v == 0.0) {
-                continue;
+        // The rows of the segment's three columns, row by row.
+        rows.clear();
+        for k in 0..3 {
+            let c = 3 * i + k;
+            for e in sym.col_ptr()[c]..sym.col_ptr()[c + 1] {
+                rows.push((sym.row_idx()[e], k, a.val()[e]));
+            }
+        }
+        rows.sort_unstable_by_key(|e| (e.0, e.1));
+        for chunk in rows.chunk_by(|x, y| x.0 == y.0) {
+            let mut row = [0.0; 3];
+            for &(_, k, v) in chunk {
+                row[k] = v;
             }
             // (A P)_r = row . P[:, c]
             let mut ap: [f64; 3] = std::array::from_fn(|c| (0..3).map(|k| row[k] * p[k][c]).sum());
@@ -416,11 +420,12 @@ fn ptt_element_errors(
             }
             for k in 0..3 {
                 let v: f64 = (0..3).map(|c| ap[c] * pinv[c][k]).sum();
-                triplets.push(faer::sparse::Triplet::new(r, 3 * i + k, v));
+                triplets.push(faer::sparse::Triplet::new(chunk[0].0, 3 * i + k, v));
             }
         }
     }
-    SparseColMat::try_new_from_triplets(ns, a.ncols(), &triplets).unwrap_or_else(|_| a.clone())
+    SparseColMat::try_new_from_triplets(a.nrows(), a.ncols(), &triplets)
+        .map_err(|e| M1Error::Numerical(format!("A in the piston/tip/tilt basis: {e:?}")))
 }
 
 /// The true A and sensor gains of one realization.
@@ -465,7 +470,7 @@ pub(super) fn realize(
                 &nominal.a,
                 *rms,
                 rng,
-            ))),
+            )?)),
         },
         Perturbation::SensorInstall {
             position_rms,
