@@ -26,7 +26,8 @@
 //!    per sample), drawn once per instant. `r` is the reading of the phased mirror;
 //! 3. the global loop has converged (its bandwidth is ~1 Hz, the step minutes): the actuator
 //!    command `u` solves `B_0 (y - y_ref) = 0`, found by the loop's own iteration
-//!    `u <- u - B_0 (y(z_cell + u + u_lo) - y_ref)` from the previous instant's `u`;
+//!    `u <- u - B_0 (y(z_cell + u + u_lo) - y_ref)` from the previous instant's `u` until the
+//!    change is below 1e-12 m rms;
 //! 4. the desired readings are `y_ref = y_APS + f(g, s) - f(g_APS, s_APS) + dy_OF`: the APS
 //!    value, the calibration fit's change since the APS run ([`fit`], when calibration is on;
 //!    the sensors' measured gap `g` and shear `s` estimated from the gaps by eq. 2) and the
@@ -145,8 +146,10 @@ pub struct OverallParams {
     pub loop_rate: f64,
     /// Global loop bandwidth (Hz).
     pub loop_bandwidth: f64,
-    /// Loop iterations per instant (default 3; the A-matrix errors are ~1e-2, so the error
-    /// falls 1e-2-fold per iteration).
+    /// Most loop iterations per instant (default 100): the loop iterates until its command
+    /// changes by less than 1e-12 m rms (the steady state of the integrator); a night's start,
+    /// after a day of temperature change, needs tens of iterations since Q is not normal.
+    /// Not converging within them is an error.
     pub iterations: usize,
     /// Minutes between PSSN evaluations (default 60; 0: none).
     pub pssn_every_minutes: f64,
@@ -169,7 +172,7 @@ impl Default for OverallParams {
             calibration: CalibrationPlan::default(),
             loop_rate: DEFAULT_RATE,
             loop_bandwidth: DEFAULT_BANDWIDTH,
-            iterations: 3,
+            iterations: 100,
             pssn_every_minutes: 60.0,
             pssn_samples: 128,
             seed: 1,
@@ -384,6 +387,9 @@ impl Setup {
     }
 }
 
+/// The loop has settled when its command changes by less than this rms (m).
+const SETTLED: f64 = 1e-12;
+
 /// The state of one variant's loop.
 struct Loop {
     u: Vec<f64>,
@@ -426,7 +432,7 @@ impl Loop {
         setup
             .gap_law
             .factors_into(&c.dgap[k], &mut self.gain, &mut self.leff);
-        for _ in 0..=iterations {
+        for _ in 0..iterations {
             for i in 0..self.z.len() {
                 self.z[i] = c.z_cell[k][i] + self.u[i] + self.u_lo[i];
             }
@@ -443,11 +449,17 @@ impl Loop {
             for (u, d) in self.u.iter_mut().zip(&self.du) {
                 *u -= d;
             }
+            let change = (self.du.iter().map(|d| d * d).sum::<f64>() / self.du.len() as f64).sqrt();
+            if change < SETTLED {
+                for i in 0..self.z.len() {
+                    self.z[i] = c.z_cell[k][i] + self.u[i] + self.u_lo[i];
+                }
+                return Ok(());
+            }
         }
-        for i in 0..self.z.len() {
-            self.z[i] = c.z_cell[k][i] + self.u[i] + self.u_lo[i];
-        }
-        Ok(())
+        Err(M1Error::Numerical(format!(
+            "the global loop did not settle within {iterations} iterations at instant {k}"
+        )))
     }
 }
 
