@@ -16,12 +16,20 @@ sensors at every base step (1 ms by default; the mirror FMU takes any multiple o
 servo period). `--cell rigid` sweeps the segments FMU alone instead (`segments_voicecoil` or
 `segments_piezo`, the cell does not move), as `m1cs run --cell rigid`. The system is stepped
 here by an explicit Python loop over fmpy FMU2Slave instances with the master algorithm of
-`m1cs run` (crates/cosim/src/system.rs): each component steps over its own multiple of the base
-step, the connections start at the components' initial outputs, and in Gauss-Seidel order (the
-default, as `m1cs run`'s) every due component takes its inputs from the newest outputs
-(components in the order above), in Jacobi order from the outputs of the communication point.
-Values move in bulk: one fmi2SetReal, one fmi2DoStep and one fmi2GetReal per component and
-step, on numpy arrays of value references and values allocated once per run. The optics'
+`m1cs run` (crates/cosim/src/system/step.rs), on its FMI 2.0 timing. With base step h, a
+component stepping every N base steps is due at base step k (t_k = k h) when k % N == 0 and
+steps over N h (its last step cut to end at the stop time); the outputs it gives after
+fmi2DoStep(t, H) are those at t + H, and its initial outputs those at the start time (they feed
+the first step). A due component reads, per input, the source's latest outputs with a time up to
+t_k in Jacobi order, and up to t_k + h among those already computed in Gauss-Seidel order (the
+default, as `m1cs run`'s: components in the order above, each after its predecessors at this
+base step). So the wind's outputs from its step at t_k reach the mirror at base step k + 9
+(Gauss-Seidel) or k + 10 (Jacobi), the controller's at k + 49 or k + 50, while the mirror's reach
+the sensors and the optics at the same base step (Gauss-Seidel) or the next (Jacobi). The
+optics' outputs are recorded at the ends of its steps, each row showing every output's latest
+value with a time up to the row's. Values move in bulk: one fmi2SetReal, one fmi2DoStep and one
+fmi2GetReal per component and step, on numpy arrays of value references and values allocated
+once per run. The optics'
 outputs equal those of `m1cs run --layout LAYOUT --cell CELL --structure-modes N [--structure
 NAME] --step STEP --order ORDER --bandwidth B --bandwidth-radial34 B34 --bandwidth-radial2 B2`
 bit for bit.
@@ -224,11 +232,11 @@ def simulate_point(fmus, wind_speed, bandwidth, duration, step,
     """Runs the closed loop for one (wind speed, bandwidth) on the instances of `fmus` (an
     FmuSet of `fmu_files` for the same actuator and cell) and returns the row of metrics (SI
     units); with `series`, the row also holds row["series"]: "time" and the optics outputs
-    after each optics step (arrays, by name). `bandwidth` acts on radial degrees >= 5;
-    `bandwidth_radial34` and `bandwidth_radial2` default to the baseline's ratios of it
-    (`group_bandwidths`). On the coupled cell, the mirror FMU gets `n_modes` =
-    `structure_modes` and, when `structure` is given, the String parameter `structure` (else
-    the FMU's default preset, tmt)."""
+    at the ends of its steps, the times of those outputs (arrays, by name). `bandwidth` acts
+    on radial degrees >= 5; `bandwidth_radial34` and `bandwidth_radial2` default to the
+    baseline's ratios of it (`group_bandwidths`). On the coupled cell, the mirror FMU gets
+    `n_modes` = `structure_modes` and, when `structure` is given, the String parameter
+    `structure` (else the FMU's default preset, tmt)."""
     if not (duration > 0 and step > 0 and duration >= step):
         raise ValueError(f"duration {duration} and step {step} must be positive, "
                          f"the duration at least one step")
@@ -321,43 +329,68 @@ def simulate_point(fmus, wind_speed, bandwidth, duration, step,
         r.in_buf = np.zeros(len(r.in_vrs))
         r.out_vrs = (np.concatenate(out_vrs[name]) if out_vrs[name]
                      else np.zeros(0, np.uint32))
+        # Its outputs as read after its latest step (`out_buf`), and as the others see them
+        # (`out_view`, its part of `outputs`): copied over when their time comes.
+        r.out_buf = np.zeros(len(r.out_vrs))
         r.out_view = outputs[offset[name]:offset[name] + len(r.out_vrs)]
+        r.ready_at = None  # base step at which `out_buf` becomes visible (None: it is)
         # ctypes pointers made once: the arrays live as long as this run.
         r.p_in_vrs, r.p_in_buf = _ptr(r.in_vrs, ctypes.c_uint), _ptr(r.in_buf, ctypes.c_double)
         r.p_out_vrs = _ptr(r.out_vrs, ctypes.c_uint)
-        r.p_out = _ptr(r.out_view, ctypes.c_double)
+        r.p_out = _ptr(r.out_buf, ctypes.c_double)
         r.n_in, r.n_out = len(r.in_vrs), len(r.out_vrs)
         comps.append(r)
-        # The initial outputs feed the first step (as `m1cs run` without --zero-start).
+        # The initial outputs (time: the start) feed the first step, visible at once (as
+        # `m1cs run` without --zero-start).
         if r.n_out:
             r.fmu.fmi2GetReal(r.fmu.component, r.p_out_vrs, r.n_out, r.p_out)
+            r.out_view[:] = r.out_buf
 
+    def publish_due(limit):
+        """Makes visible the pending outputs whose time is base step `limit` or earlier."""
+        for r in comps:
+            if r.ready_at is not None and r.ready_at <= limit:
+                r.out_view[:] = r.out_buf
+                r.ready_at = None
+
+    # FMI 2.0 timing, as `m1cs run`: the outputs read after fmi2DoStep(t_k, n h) are those at
+    # t_{k+n}, pending until base step k + n (`ready_at`; n = every, cut to end at the stop
+    # time). A component due at base step k reads the visible outputs: in Jacobi order those
+    # with times up to t_k (what becomes due at t_k + h is published once every due component
+    # has stepped); in Gauss-Seidel order those with times up to t_k + h computed so far
+    # (published at the start of the base step, and right after a step that ends at t_k + h).
+    # A step over N base steps from t_k is thus first seen at base step k + N - 1 in
+    # Gauss-Seidel order, k + N in Jacobi order.
     n_steps = int(round(duration / step))
     optics = comps[-1]
-    n_rec = len(range(0, n_steps, optics.every))
+    # Recorded at the times of the optics' outputs, the ends of its steps: a row at t_k holds
+    # the visible outputs, each the latest with a time up to t_k.
+    rec_steps = [k for k in range(1, n_steps + 1) if k % optics.every == 0 or k == n_steps]
+    n_rec = len(rec_steps)
     record = np.empty((n_rec, len(METRICS)))
     rec_index = np.array([offset["optics"] + s for s in metric_slots])
     jacobi = order == "jacobi"
     i = 0
     for k in range(n_steps):
-        t = k * step
-        due = [r for r in comps if k % r.every == 0]
-        if jacobi:
-            # Every due component takes its inputs from the outputs of the communication
-            # point before any of them steps.
-            for r in due:
-                if r.n_in:
-                    np.take(outputs, r.in_src, out=r.in_buf)
-                    r.fmu.fmi2SetReal(r.fmu.component, r.p_in_vrs, r.n_in, r.p_in_buf)
-        for r in due:
+        t, left = k * step, n_steps - k  # base steps left before the stop time
+        if not jacobi:
+            publish_due(k + 1)  # slower components' outputs for t_k + h
+        for r in comps:
+            if k % r.every:
+                continue
             c, f = r.fmu.component, r.fmu
-            if r.n_in and not jacobi:
+            if r.n_in:
                 np.take(outputs, r.in_src, out=r.in_buf)
                 f.fmi2SetReal(c, r.p_in_vrs, r.n_in, r.p_in_buf)
-            f.fmi2DoStep(c, t, r.every * step, 1)
+            n = min(r.every, left)
+            f.fmi2DoStep(c, t, n * step, 1)
             if r.n_out:
                 f.fmi2GetReal(c, r.p_out_vrs, r.n_out, r.p_out)
-        if optics in due:
+            r.ready_at = k + n
+            if not jacobi:
+                publish_due(k + 1)  # its outputs, if they are for t_k + h
+        publish_due(k + 1)  # Jacobi: the outputs for t_k + h, once every due one has stepped
+        if i < n_rec and rec_steps[i] == k + 1:
             record[i] = outputs[rec_index]
             i += 1
     for r in comps:
@@ -378,7 +411,7 @@ def simulate_point(fmus, wind_speed, bandwidth, duration, step,
         "earlier_runs": reuse,  # points run before on the same instances (0: fresh)
     }
     if series:
-        row["series"] = {"time": (np.arange(n_rec) + 1) * optics.every * step}
+        row["series"] = {"time": np.array(rec_steps) * step}
         row["series"].update({m: record[:, j].copy() for j, m in enumerate(METRICS)})
     return row
 

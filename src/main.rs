@@ -95,6 +95,14 @@ fn main() -> ExitCode {
         Cmd::Zernike(a) => commands::optics::run_zernike(&a),
         Cmd::Pssn(a) => commands::optics::run_pssn(&a),
     };
+    if commands::cosim::interrupted() {
+        // Stopped by Ctrl-C or SIGTERM: the rows until then are written (said on stderr), the
+        // temporary folders removed; the shell's convention for an interrupted command.
+        if let Err(e) = r {
+            eprintln!("error: {e}");
+        }
+        return ExitCode::from(130);
+    }
     match r {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

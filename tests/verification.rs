@@ -244,7 +244,7 @@ fn tmt_mirror_fmus_follow_the_monolithic_model() {
 /// (`m1cs run`, 10 s, Gauss-Seidel, 1 ms) against the monolithic model run with the same
 /// schedule (`m1::plant::monolithic::wind_run`: the exact state-space mirror, the controller's own
 /// sample law, the same wind tables): the recorded rms surface (global piston/tip/tilt removed)
-/// agrees within 1 % rms over the run, open and closed loop.
+/// agrees within 1e-4 relative rms over the run, open and closed loop (measured: 1e-6 to 1e-5).
 #[test]
 fn keck_wind_run_follows_the_monolithic_model() {
     wind_run_follows_the_monolithic_model("keck", StructurePreset::Tmt, 30, 10.0);
@@ -376,7 +376,7 @@ fn wind_run_follows_the_monolithic_model(
         let rel = (e2 / r2).sqrt();
         eprintln!("{name} {file}: {matched} rows, relative rms difference {rel:.2e}");
         assert!(matched > 1000, "{file}: {matched} rows");
-        assert!(rel < 0.01, "{file}: relative rms difference {rel}");
+        assert!(rel < 1e-4, "{file}: relative rms difference {rel}");
     }
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -89,8 +89,8 @@ pub enum CosimError {
         log: String,
     },
     /// An FMI call returned fmi2Discard: the FMU discarded it (for fmi2DoStep, it did not
-    /// complete the step, e.g. because it ended the simulation itself). The run fails as on
-    /// [`Self::Status`].
+    /// complete the step). The run fails as on [`Self::Status`], unless the FMU asks to end the
+    /// simulation ([`Self::Ended`]).
     #[error(
         "{component}: {function} returned fmi2Discard{at}: the FMU discarded the {}{log}",
         discarded_what(function)
@@ -104,6 +104,18 @@ pub enum CosimError {
         at: String,
         /// The messages the FMU logged for this call.
         log: String,
+    },
+    /// A component discarded its step and asked to end the simulation
+    /// (fmi2GetBooleanStatus(fmi2Terminated) is true). Not a failure: `system::run` ends the
+    /// run there with its results ([`crate::system::Results::ended`]); a caller stepping a
+    /// [`crate::Simulation`] itself stops at this error.
+    #[error("{component} ended the simulation at t = {time} s")]
+    Ended {
+        /// Instance name.
+        component: String,
+        /// Its last successful time (fmi2LastSuccessfulTime, or the start of the discarded
+        /// step if it does not say) (s).
+        time: f64,
     },
     /// A variable name that the component does not have.
     #[error("{component}: no variable named {name}")]

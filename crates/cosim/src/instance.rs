@@ -7,7 +7,7 @@ use std::ffi::{CStr, CString, c_int};
 use std::sync::Arc;
 
 use fmi_sys::fmi2::callbacks::fmi2CallbackFunctions;
-use fmi_sys::fmi2::enums::{fmi2Status, fmi2Type};
+use fmi_sys::fmi2::enums::{fmi2Status, fmi2StatusKind, fmi2Type};
 use fmi_sys::fmi2::types::{fmi2Component, fmi2String};
 
 use crate::error::{CosimError, Result};
@@ -216,6 +216,44 @@ impl Instance {
         // SAFETY: valid component.
         let s = unsafe { (self.shared.library.fns.do_step)(self.comp, t, h, 1) };
         self.check("fmi2DoStep", s, Some(t))
+    }
+
+    /// Whether the slave asks to end the simulation (fmi2GetBooleanStatus(fmi2Terminated), asked
+    /// after a step returned fmi2Discard).
+    ///
+    /// # Errors
+    /// The FMU's error status with its log (an FMU that does not answer this kind).
+    pub fn terminated(&mut self) -> Result<bool> {
+        let mut v: c_int = 0;
+        // SAFETY: valid component and a live out-pointer.
+        let s = unsafe {
+            (self.shared.library.fns.get_boolean_status)(
+                self.comp,
+                fmi2StatusKind::fmi2Terminated as c_int,
+                &raw mut v,
+            )
+        };
+        self.check("fmi2GetBooleanStatus(fmi2Terminated)", s, None)?;
+        Ok(v != 0)
+    }
+
+    /// The end time of the last successful step after a discarded one
+    /// (fmi2GetRealStatus(fmi2LastSuccessfulTime)).
+    ///
+    /// # Errors
+    /// The FMU's error status with its log (an FMU that does not answer this kind).
+    pub fn last_successful_time(&mut self) -> Result<f64> {
+        let mut v = 0.0;
+        // SAFETY: valid component and a live out-pointer.
+        let s = unsafe {
+            (self.shared.library.fns.get_real_status)(
+                self.comp,
+                fmi2StatusKind::fmi2LastSuccessfulTime as c_int,
+                &raw mut v,
+            )
+        };
+        self.check("fmi2GetRealStatus(fmi2LastSuccessfulTime)", s, None)?;
+        Ok(v)
     }
 
     /// fmi2GetReal into `out` (one value per reference).

@@ -71,6 +71,12 @@ pub(crate) type SetStringFn = unsafe extern "C" fn(
 ) -> Status;
 pub(crate) type DoStepFn =
     unsafe extern "C" fn(fmi2Component, fmi2Real, fmi2Real, fmi2Boolean) -> Status;
+/// fmi2GetBooleanStatus (the status kind as its C int).
+pub(crate) type GetBooleanStatusFn =
+    unsafe extern "C" fn(fmi2Component, c_int, *mut fmi2Boolean) -> Status;
+/// fmi2GetRealStatus (the status kind as its C int).
+pub(crate) type GetRealStatusFn =
+    unsafe extern "C" fn(fmi2Component, c_int, *mut fmi2Real) -> Status;
 
 /// The function pointers the master uses.
 #[derive(Clone, Copy)]
@@ -91,6 +97,8 @@ pub(crate) struct Functions {
     pub get_string: GetStringFn,
     pub set_string: SetStringFn,
     pub do_step: DoStepFn,
+    pub get_boolean_status: GetBooleanStatusFn,
+    pub get_real_status: GetRealStatusFn,
 }
 
 /// A loaded FMU library; unloaded (dlclose) when the last owner drops it.
@@ -206,6 +214,12 @@ impl Library {
                 get_string: std::mem::transmute::<*mut c_void, GetStringFn>(sym("fmi2GetString")?),
                 set_string: std::mem::transmute::<*mut c_void, SetStringFn>(sym("fmi2SetString")?),
                 do_step: std::mem::transmute::<*mut c_void, DoStepFn>(sym("fmi2DoStep")?),
+                get_boolean_status: std::mem::transmute::<*mut c_void, GetBooleanStatusFn>(sym(
+                    "fmi2GetBooleanStatus",
+                )?),
+                get_real_status: std::mem::transmute::<*mut c_void, GetRealStatusFn>(sym(
+                    "fmi2GetRealStatus",
+                )?),
             })
         }
     }

@@ -561,11 +561,12 @@ pub fn ssd_text(system: &System, name: &str, sources: &[String]) -> Result<Strin
 }
 
 /// Writes `system` as a `.ssp` archive at `path`: SystemStructure.ssd plus each distinct FMU
-/// under `resources/`.
+/// under `resources/`. Returns the number of scalar connections written (an array signal is
+/// one connection per element).
 ///
 /// # Errors
 /// I/O errors naming the file, or as [`ssd_text`].
-pub fn write_ssp(system: &System, name: &str, path: &Path) -> Result<()> {
+pub fn write_ssp(system: &System, name: &str, path: &Path) -> Result<usize> {
     let mut files: Vec<(PathBuf, String)> = Vec::new();
     let mut sources = Vec::new();
     for c in &system.components {
@@ -593,6 +594,7 @@ pub fn write_ssp(system: &System, name: &str, path: &Path) -> Result<()> {
         sources.push(src);
     }
     let ssd = ssd_text(system, name, &sources)?;
+    let scalars = ssd.matches("<ssd:Connection ").count();
     let bad = |reason: String| CosimError::Archive {
         path: path.to_path_buf(),
         reason,
@@ -611,7 +613,7 @@ pub fn write_ssp(system: &System, name: &str, path: &Path) -> Result<()> {
         z.write_all(&bytes).map_err(io(path))?;
     }
     z.finish().map_err(|e| bad(e.to_string()))?;
-    Ok(())
+    Ok(scalars)
 }
 
 /// The file an SSP `source` attribute names. SSP 1.0 makes it a URI reference: a `file:` URI

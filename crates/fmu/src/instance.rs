@@ -327,7 +327,11 @@ impl<M: Model> Instance<M> {
     /// stays in initialisation mode so that parameters can be corrected.
     pub fn exit_initialization_mode(&mut self) -> Result<(), FmuError> {
         self.require(Call::ExitInitializationMode)?;
-        self.running = Some(self.model.initialize(&mut self.values, self.start_time)?);
+        // A model built when outputs were read in initialisation mode is kept if nothing was
+        // set since (the master's propagation reads them): the same inputs give the same model.
+        if self.outputs_stale || self.running.is_none() {
+            self.running = Some(self.model.initialize(&mut self.values, self.start_time)?);
+        }
         self.outputs_stale = false;
         self.time = self.start_time;
         self.state = StepComplete;
@@ -358,8 +362,9 @@ impl<M: Model> Instance<M> {
         if self.outputs_stale {
             match self.state {
                 InitializationMode => {
-                    // The running model is dropped: parameters may still change.
-                    self.model.initialize(&mut self.values, self.start_time)?;
+                    // Kept for fmi2ExitInitializationMode while nothing is set (a set makes
+                    // the outputs stale, and the model is built again).
+                    self.running = Some(self.model.initialize(&mut self.values, self.start_time)?);
                 }
                 StepComplete => {
                     if let Some(r) = self.running.as_mut() {

@@ -61,8 +61,9 @@ pub trait Model: Send + 'static {
 
     /// Reads the parameters, checks their combination, prepares the computation, writes the
     /// initial outputs (and calculated parameters) and returns the running model. Called at
-    /// fmi2ExitInitializationMode, and when outputs are read during initialisation mode (then
-    /// the running model is dropped: parameters may still change).
+    /// fmi2ExitInitializationMode, and when outputs are read during initialisation mode (that
+    /// model is kept for fmi2ExitInitializationMode if no value is set in between; any set
+    /// builds it again).
     ///
     /// # Errors
     /// A parameter or a combination of parameters the model cannot run with, naming it.

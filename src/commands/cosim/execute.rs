@@ -62,21 +62,147 @@ pub(super) fn open_fmus(runs: &[(String, System)]) -> Result<Vec<cosim::Fmu>, St
         .map_err(|e| e.to_string())
 }
 
-/// What the runs recorded: the outcomes (their CSV written), and per run with a mirror its
-/// displacement time series (for the map) and amplitude spectrum.
+/// What the runs recorded: the outcomes (their CSV written as they ran), and per run with a
+/// mirror its displacement time series (for the map) and amplitude spectrum.
 pub(super) struct Recorded {
-    outcomes: Vec<Outcome>,
+    outcomes: Vec<RunOutcome>,
     maps: Vec<(String, Vec<Vec<f64>>)>,
     spectra: Vec<(String, Vec<(f64, f64)>)>,
 }
 
-/// Runs each system recording `metrics` and the mirror displacement, and writes each run's
-/// CSV (without the displacement) into `--out`.
+/// One run of `m1cs run`.
+pub(super) struct RunOutcome {
+    label: String,
+    /// The columns kept in memory for the figures (none with `--no-plots`).
+    memory: cosim::system::Results,
+    report: cosim::system::Report,
+    /// Per metric, its rms and mean over the settled second half of the run.
+    settled: Vec<(String, Settled)>,
+    seconds: f64,
+}
+
+/// Running sums of a column over the settled part of a run.
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct Settled {
+    n: usize,
+    sum: f64,
+    sum_sq: f64,
+}
+
+impl Settled {
+    fn rms(&self) -> f64 {
+        if self.n == 0 {
+            f64::NAN
+        } else {
+            (self.sum_sq / self.n as f64).sqrt()
+        }
+    }
+
+    fn mean(&self) -> f64 {
+        if self.n == 0 {
+            f64::NAN
+        } else {
+            self.sum / self.n as f64
+        }
+    }
+}
+
+/// The sink of one run of `m1cs run`: every column goes to the run's CSV as it comes, except
+/// the mirror displacement recorded only for the figures; the metrics' settled statistics
+/// accumulate as rows arrive; the metrics and the displacement stay in memory only when the
+/// figures are drawn. So with `--no-plots` a run takes the same memory whatever its length.
+struct RunSink<'a> {
+    csv: cosim::system::CsvSink,
+    /// User record entries (their columns always go to the CSV).
+    asked: &'a [String],
+    metrics: &'a [&'a str],
+    figures: bool,
+    /// From this time on, a row counts as settled (s).
+    settled_from: f64,
+    to_csv: Vec<usize>,
+    to_memory: Vec<usize>,
+    stats: Vec<(usize, String, Settled)>,
+    memory: cosim::system::Results,
+    buf: Vec<f64>,
+}
+
+impl cosim::system::Sink for RunSink<'_> {
+    fn columns(&mut self, columns: &[String], rows: usize) -> cosim::Result<()> {
+        let is_z = |c: &str| c.starts_with("mirror.z[") || c.starts_with("segments.z[");
+        let asked = |c: &str| {
+            self.asked
+                .iter()
+                .any(|e| cosim::system::record_selects(e, c))
+        };
+        let is_metric = |c: &str| self.metrics.contains(&c);
+        self.to_csv = (0..columns.len())
+            .filter(|&k| k == 0 || !is_z(&columns[k]) || asked(&columns[k]))
+            .collect();
+        self.to_memory = (0..columns.len())
+            .filter(|&k| self.figures && (k == 0 || is_z(&columns[k]) || is_metric(&columns[k])))
+            .collect();
+        self.stats = (1..columns.len())
+            .filter(|&k| is_metric(&columns[k]))
+            .map(|k| (k, columns[k].clone(), Settled::default()))
+            .collect();
+        let names =
+            |keep: &[usize]| -> Vec<String> { keep.iter().map(|&k| columns[k].clone()).collect() };
+        self.csv.columns(&names(&self.to_csv), rows)?;
+        self.memory.columns(&names(&self.to_memory), rows)
+    }
+
+    fn row(&mut self, row: &[f64]) -> cosim::Result<()> {
+        if row[0] >= self.settled_from {
+            for (k, _, s) in &mut self.stats {
+                let v = row[*k];
+                s.n += 1;
+                s.sum += v;
+                s.sum_sq += v * v;
+            }
+        }
+        self.buf.clear();
+        self.buf.extend(self.to_csv.iter().map(|&k| row[k]));
+        self.csv.row(&self.buf)?;
+        if !self.to_memory.is_empty() {
+            self.buf.clear();
+            self.buf.extend(self.to_memory.iter().map(|&k| row[k]));
+            cosim::system::Sink::row(&mut self.memory, &self.buf)?;
+        }
+        Ok(())
+    }
+
+    fn finish(&mut self) -> cosim::Result<()> {
+        self.csv.finish()?;
+        self.memory.finish()
+    }
+}
+
+/// Raised by Ctrl-C (SIGINT) or SIGTERM: the run under way stops after its current step.
+static STOP: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Installs the handler that raises [`STOP`] (once per process; a second signal while the
+/// first is being handled is the same request).
+fn catch_signals() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        if let Err(e) = ctrlc::set_handler(|| {
+            STOP.store(true, std::sync::atomic::Ordering::Relaxed);
+        }) {
+            eprintln!("note: Ctrl-C will not stop the run cleanly ({e})");
+        }
+    });
+}
+
+/// Runs each system recording `metrics`, the user's `--record` entries and (for the figures)
+/// the mirror displacement, writing each run's CSV into `--out` as it goes. A signal stops the
+/// run under way after its current step (the rows until then are in its CSV) and the runs after
+/// it.
 pub(super) fn record_runs(
     a: &RunCmd,
     runs: &[(String, System)],
     metrics: &[&str],
 ) -> Result<Recorded, String> {
+    catch_signals();
     let mut recorded = Recorded {
         outcomes: Vec::new(),
         maps: Vec::new(),
@@ -84,67 +210,133 @@ pub(super) fn record_runs(
     };
     for (label, s) in runs {
         let csv = a.out.join(format!("{}.csv", label.replace(' ', "_")));
-        // The mirror displacement is recorded for the map and the spectrum, not written.
         let mirror = ["mirror", "segments"]
             .into_iter()
             .find(|m| s.components.iter().any(|c| c.name == *m));
         let mut record: Vec<String> = metrics.iter().map(|m| m.to_string()).collect();
-        if let Some(m) = mirror {
+        record.extend(a.record.iter().cloned());
+        if let Some(m) = mirror
+            && !a.no_plots
+        {
             record.push(format!("{m}.z"));
         }
-        let record: Vec<&str> = record.iter().map(String::as_str).collect();
-        let mut o = run_one(label, s, a.decimation, &record, Some(&csv))?;
+        let mut sink = RunSink {
+            csv: cosim::system::CsvSink::create(&csv).map_err(|e| e.to_string())?,
+            asked: &a.record,
+            metrics,
+            figures: !a.no_plots,
+            settled_from: s.start_time + 0.5 * (s.stop_time - s.start_time) - 1e-9 * s.step,
+            to_csv: Vec::new(),
+            to_memory: Vec::new(),
+            stats: Vec::new(),
+            memory: cosim::system::Results::empty(),
+            buf: Vec::new(),
+        };
+        let t0 = Instant::now();
+        let options = cosim::system::RunOptions {
+            record: &record,
+            decimation: a.decimation,
+            stop: Some(&STOP),
+        };
+        let bar = progress_bar(label);
+        let outcome = cosim::system::run_into(s, &options, &mut sink, &mut |t, stop| {
+            show_progress(&bar, t0, t, stop);
+        });
+        bar.finish_and_clear();
+        let report = outcome.map_err(|f| {
+            format!(
+                "{label}: {} (results up to the failure in {})",
+                f.error,
+                csv.display()
+            )
+        })?;
+        if let Some(e) = &report.ended {
+            eprintln!(
+                "note: {label}: {} ended the simulation at t = {} s; results up to then in {}",
+                e.component,
+                e.time,
+                csv.display()
+            );
+        }
+        let mut memory = std::mem::replace(&mut sink.memory, cosim::system::Results::empty());
         let dt = s.step * a.decimation.max(1) as f64;
-        let z = split_off_z(&mut o.results);
+        let z = split_off_z(&mut memory);
         if !z.is_empty() {
             recorded
                 .spectra
                 .push((label.clone(), mirror_spectrum(&z, dt)));
             recorded.maps.push((label.clone(), z));
         }
-        o.results.write_csv(&csv).map_err(|e| e.to_string())?;
-        recorded.outcomes.push(o);
+        let interrupted = report.interrupted;
+        recorded.outcomes.push(RunOutcome {
+            label: label.clone(),
+            memory,
+            settled: sink.stats.iter().map(|(_, n, s)| (n.clone(), *s)).collect(),
+            report,
+            seconds: t0.elapsed().as_secs_f64(),
+        });
+        if let Some(t) = interrupted {
+            eprintln!(
+                "note: {label}: stopped by a signal at t = {t} s; results up to then in {}",
+                csv.display()
+            );
+            break;
+        }
     }
     Ok(recorded)
 }
 
+/// Whether a signal stopped the runs.
+pub(crate) fn interrupted() -> bool {
+    STOP.load(std::sync::atomic::Ordering::Relaxed)
+}
+
 /// A run's row of the summary: timings and the settled optics metrics.
-pub(super) fn summary_row(o: &Outcome, duration: f64) -> serde_json::Value {
-    let col = |n: &str| o.results.column(n).unwrap_or_else(|| vec![f64::NAN]);
+pub(super) fn summary_row(o: &RunOutcome, duration: f64) -> serde_json::Value {
+    let stat = |n: &str| o.settled.iter().find(|(m, _)| m == n).map(|(_, s)| *s);
+    let rms = |n: &str| stat(n).map_or(f64::NAN, |s| s.rms());
+    let timing = &o.report.timing;
+    let simulated = o.report.interrupted.map_or(duration, |t| t.min(duration));
     json!({
         "run": o.label,
         "wall_seconds": o.seconds,
-        "real_time_factor": duration / o.seconds.max(1e-9),
+        "real_time_factor": simulated / o.seconds.max(1e-9),
         // The step loop alone, without instantiation and initialisation (the FMUs' set-up,
         // e.g. the structure's eigensolve, is paid once per run whatever its length).
-        "setup_seconds": (o.seconds - o.results.timing.loop_seconds).max(0.0),
-        "loop_real_time_factor": duration / o.results.timing.loop_seconds.max(1e-9),
-        "master_share": o.results.timing.master_share(),
-        "component_seconds": o.results.timing.components.iter()
+        "setup_seconds": (o.seconds - timing.loop_seconds).max(0.0),
+        "loop_real_time_factor": simulated / timing.loop_seconds.max(1e-9),
+        "master_share": timing.master_share(),
+        "component_seconds": timing.components.iter()
             .map(|(n, t)| (n.clone(), json!(t)))
             .collect::<serde_json::Map<_, _>>(),
-        "component_setup_seconds": o.results.timing.setup_components.iter()
+        "component_setup_seconds": timing.setup_components.iter()
             .map(|(n, t)| (n.clone(), json!(t)))
             .collect::<serde_json::Map<_, _>>(),
-        "rms_surface_m": settled_rms(&col("optics.rms_surface")),
-        "focus_mode_m": settled_rms(&col("optics.focus_mode")),
-        "rms_surface_without_focus_m": settled_rms(&col("optics.rms_surface_without_focus")),
-        "pssn": settled_mean(&col("optics.pssn")),
+        "rows": o.report.rows,
+        "interrupted_at_s": o.report.interrupted,
+        "ended_by": o.report.ended.as_ref().map(|e| json!({"component": e.component, "time_s": e.time})),
+        "rms_surface_m": rms("optics.rms_surface"),
+        "focus_mode_m": rms("optics.focus_mode"),
+        "rms_surface_without_focus_m": rms("optics.rms_surface_without_focus"),
+        "pssn": stat("optics.pssn").map_or(f64::NAN, |s| s.mean()),
     })
 }
 
 /// One plot per metric over time, all runs overlaid (nm, PSSN as is).
 pub(super) fn plot_metrics(
     a: &RunCmd,
-    outcomes: &[Outcome],
+    outcomes: &[RunOutcome],
     metrics: &[&str],
 ) -> Result<(), String> {
+    if a.no_plots {
+        return Ok(());
+    }
     for m in metrics {
         let data: Vec<(String, Vec<(f64, f64)>)> = outcomes
             .iter()
             .filter_map(|o| {
-                let t = o.results.column("time")?;
-                let v = o.results.column(m)?;
+                let t = o.memory.column("time")?;
+                let v = o.memory.column(m)?;
                 Some((o.label.clone(), t.into_iter().zip(v).collect()))
             })
             .collect();

@@ -9,6 +9,7 @@ mod execute;
 mod figures;
 
 use execute::execute;
+pub(crate) use execute::interrupted;
 pub(crate) use figures::{segment_rms_map, split_off_z};
 
 use std::path::{Path, PathBuf};
@@ -162,6 +163,16 @@ pub struct RunCmd {
     /// Record every N base steps (the spectra reach half the recording rate).
     #[arg(long, default_value_t = 1)]
     pub decimation: usize,
+    /// Also record these outputs into each run's CSV (repeatable): `component.signal` (an
+    /// array by its base name, e.g. `mirror.z`), or a pattern where `*` stands for any run of
+    /// characters and `?` for one, e.g. `mirror.z[*]`, `*.rms_surface`, `sensors.*`. Real,
+    /// Integer and Boolean outputs (a Boolean as 0/1). The CSV is written as the run goes.
+    #[arg(long, value_name = "PATTERN")]
+    pub record: Vec<String>,
+    /// Draw no figures: the mirror displacement is not kept in memory, so a run takes the
+    /// same memory whatever its length (the CSV and the summary are written as usual).
+    #[arg(long)]
+    pub no_plots: bool,
     /// Stepping order of the master [default: gauss-seidel for the standard systems; with
     /// --ssp, the file's order (its master annotation; jacobi without one), which this flag
     /// overrides]. Gauss-Seidel steps the components in turn on their predecessors' newest
@@ -377,9 +388,9 @@ pub fn system(a: &SystemCmd) -> Result<(), String> {
         a.system.layout, a.system.actuator, a.system.scenario
     )
     .to_lowercase();
-    cosim::ssp::write_ssp(&s, &name, &a.output).map_err(|e| e.to_string())?;
+    let scalars = cosim::ssp::write_ssp(&s, &name, &a.output).map_err(|e| e.to_string())?;
     println!(
-        "wrote {} ({} components, {} connections)",
+        "wrote {} ({} components, {} signal connections = {scalars} scalar connections)",
         a.output.display(),
         s.components.len(),
         s.connections.len()
@@ -394,10 +405,9 @@ const METRICS: [&str; 4] = [
     "optics.pssn",
 ];
 
+/// One run recorded into memory (for the commands that analyse the whole series).
 pub(crate) struct Outcome {
-    pub(crate) label: String,
     pub(crate) results: cosim::system::Results,
-    pub(crate) seconds: f64,
 }
 
 pub(crate) fn run_one(
@@ -408,25 +418,10 @@ pub(crate) fn run_one(
     partial_csv: Option<&Path>,
 ) -> Result<Outcome, String> {
     let record: Vec<String> = metrics.iter().map(|s| s.to_string()).collect();
-    let bar = indicatif::ProgressBar::new(1000);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("{prefix:>12} [{bar:30}] {msg} ({elapsed})")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
-            .progress_chars("=> "),
-    );
-    bar.set_prefix(label.to_string());
+    let bar = progress_bar(label);
     let t0 = Instant::now();
     let outcome = run(system, &record, decimation, &mut |t, stop| {
-        let f = (t / stop).clamp(0.0, 1.0);
-        let pos = (f * 1000.0) as u64;
-        if pos != bar.position() {
-            bar.set_position(pos);
-            let wall = t0.elapsed().as_secs_f64();
-            bar.set_message(format!(
-                "t = {t:.3} s, {:.2}x real time",
-                t / wall.max(1e-9)
-            ));
-        }
+        show_progress(&bar, t0, t, stop);
     });
     bar.finish_and_clear();
     let results = match outcome {
@@ -443,22 +438,39 @@ pub(crate) fn run_one(
             return Err(format!("{label}: {}{kept}", f.error));
         }
     };
-    Ok(Outcome {
-        label: label.into(),
-        results,
-        seconds: t0.elapsed().as_secs_f64(),
-    })
+    Ok(Outcome { results })
+}
+
+/// The progress bar of a run labelled `label` (simulated time over the stop time).
+pub(crate) fn progress_bar(label: &str) -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new(1000);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{prefix:>12} [{bar:30}] {msg} ({elapsed})")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    bar.set_prefix(label.to_string());
+    bar
+}
+
+/// Moves `bar` to simulated time `t` of `stop`, with the speed since `t0`.
+pub(crate) fn show_progress(bar: &indicatif::ProgressBar, t0: Instant, t: f64, stop: f64) {
+    let f = (t / stop).clamp(0.0, 1.0);
+    let pos = (f * 1000.0) as u64;
+    if pos != bar.position() {
+        bar.set_position(pos);
+        let wall = t0.elapsed().as_secs_f64();
+        bar.set_message(format!(
+            "t = {t:.3} s, {:.2}x real time",
+            t / wall.max(1e-9)
+        ));
+    }
 }
 
 /// Mean square over the second half of a recorded column (settled part), as an rms.
 pub(crate) fn settled_rms(v: &[f64]) -> f64 {
     let half = &v[v.len() / 2..];
     (half.iter().map(|x| x * x).sum::<f64>() / half.len().max(1) as f64).sqrt()
-}
-
-fn settled_mean(v: &[f64]) -> f64 {
-    let half = &v[v.len() / 2..];
-    half.iter().sum::<f64>() / half.len().max(1) as f64
 }
 
 /// The command-line name of an order.

@@ -6,52 +6,89 @@
 //! The master advances with a fixed base communication step `h`. Component `c` steps every
 //! `every[c]` base steps with step `every[c] * h` (multi-rate: e.g. the controller at 20 Hz,
 //! wind at 100 Hz, segments and structure at 1 kHz with `h` = 1 ms); a slower component's last
-//! step is cut to end at the stop time. Two orders:
+//! step is cut to end at the stop time.
 //!
-//! - **Jacobi** (the library's default): at a communication point every due component first
-//!   receives the outputs all components had at that point, then all due components step, in
-//!   parallel on rayon's pool when at least two of them take over
-//!   [`SchedulerParams::parallel_min_seconds`] per step (a running mean); with one such
-//!   component, it steps on the calling thread while the others step in turn on a worker when
-//!   they add up to [`SchedulerParams::split_min_seconds`] and it outlasts them by
-//!   [`SchedulerParams::wake_seconds`] (the worker's wake-up hides behind it); in turn otherwise
-//!   (same results in every case). Results do not depend on the order
-//!   of components; each connection carries a value one step old, which is the standard
-//!   co-simulation delay (fmpy.ssp works the same way).
-//! - **Gauss-Seidel**: due components step one after the other in the order they were added,
-//!   each receiving the outputs its predecessors just produced: less delay along the order.
-//!   **Look-ahead**: a component whose outputs nobody needs right away (the next due component
-//!   does not read them, they are not recorded, and no other component is an instance of its
-//!   FMU, whose library might keep global state) may step on a second thread while the
-//!   master goes on with the next components, into the next base step if nothing reads it:
-//!   its inputs are gathered at its turn, and it is waited for before anything that reads it
-//!   (or its own next step, or the end of the run). Every component therefore receives exactly
-//!   the values of the sequential order, bit for bit (tested); only the wall time changes. One
-//!   component is in flight at a time, and only one taking at least
-//!   [`SchedulerParams::lookahead_min_seconds`] per step (a running mean), so that handing it
-//!   over pays. In the standard TMT system the edge sensors (read by the 20 Hz controller
-//!   only) step while the master moves on to the optics and the next step's wind and mirror.
+//! **Timing (FMI 2.0).** The outputs a component gives after `fmi2DoStep(t, H)` are its
+//! outputs at `t + H`, and no other component sees them before then; its initial outputs
+//! (after initialisation) are those at the start time. A row recorded at `t_k` shows every
+//! output's latest value for a time no later than `t_k`. Two orders decide what "before" means
+//! within a base step `[t_k, t_k + h]`:
+//!
+//! - **Jacobi**: every due component steps on the outputs for times up to `t_k`, in parallel
+//!   when that pays (below). Each connection carries a value one base step old (the standard
+//!   co-simulation delay; fmpy.ssp works the same way), and results do not depend on the order
+//!   of components.
+//! - **Gauss-Seidel**: the due components step one after the other in the order they were
+//!   added, each on the outputs for times up to `t_k + h` that exist when its turn comes: those
+//!   its predecessors just produced at `t_k + h` (less delay along the order), and those a
+//!   slower component produced earlier for `t_k + h`.
+//!
+//! A two-rate example, `h` = 1 ms, a controller `C` stepping every 3 base steps feeding a
+//! segment `S` stepping every base step (`C` added first):
+//!
+//! ```text
+//! base step     0      1      2      3      4      5      6
+//! C steps       [0 -------------> 3)  [3 -------------> 6)
+//! C's outputs   init   init   init   C(3)   C(3)   C(3)   C(6)   <- visible at t_k (row t_k)
+//! S (Jacobi)    init   init   init   C(3)   C(3)   C(3)   C(6)   <- what S's step from t_k gets
+//! S (G.-S.)     init   init   C(3)   C(3)   C(3)   C(6)   C(6)   <- from t_k: values up to t_k + h
+//! ```
+//!
+//! The initial outputs feed the first step; [`System::zero_start`] starts every connection at
+//! 0 instead (fmpy.ssp's convention, for comparisons with it).
+//!
+//! **Threads.** In Jacobi order the due components step in parallel on rayon's pool when at
+//! least two of them take over [`SchedulerParams::parallel_min_seconds`] per step (a running
+//! mean); with one such component, it steps on the calling thread while the others step in turn
+//! on a worker when they add up to [`SchedulerParams::split_min_seconds`] and it outlasts them by
+//! [`SchedulerParams::wake_seconds`] (the worker's wake-up hides behind it); in turn otherwise
+//! (same results in every case). In Gauss-Seidel order, **look-ahead**: a component whose
+//! outputs nobody needs right away (the next due component does not read them, they are not
+//! recorded, and no other component is an instance of its FMU, whose library might keep global
+//! state) may step on a second thread while the master goes on with the next components, into
+//! the next base step if nothing reads it: its inputs are gathered at its turn, and it is
+//! waited for before anything that reads it (or its own next step, or the end of the run).
+//! Every component therefore receives exactly the values of the sequential order, bit for bit
+//! (tested); only the wall time changes. One component is in flight at a time, and only one
+//! taking at least [`SchedulerParams::lookahead_min_seconds`] per step (a running mean), so that
+//! handing it over pays. In the standard TMT system the edge sensors (read by the 20 Hz
+//! controller only) step while the master moves on to the optics and the next step's wind and
+//! mirror.
 //!
 //! The thresholds of these decisions are one parameter struct, [`SchedulerParams`] (its
 //! [`Default`] holds the measured values; [`System::scheduler`] sets others); they change the
 //! wall time only.
 //!
-//! Values move in bulk: per component and step one `fmi2SetReal` over all its connected inputs
-//! and one `fmi2GetReal` over all its connected outputs, through buffers allocated once.
+//! Values move in bulk: per component, step and kind of value (Real, Integer and enumeration,
+//! Boolean, String) one `fmi2Set*` over all its connected inputs and one `fmi2Get*` over all
+//! its connected or recorded outputs, through buffers allocated once (`ports.rs`).
 //!
 //! # Set-up
 //!
-//! Components are instantiated and given their parameters in turn, then leave initialisation
-//! mode (`fmi2ExitInitializationMode`, where FMUs typically build their models: the structure's
-//! eigensolve, the wind screens) in parallel on rayon's pool, one instance per task: FMI 2.0
-//! lets different instances be called from different threads, as Jacobi stepping already does.
-//! The wall time of each component's set-up is reported ([`Simulation::component_setup_seconds`]).
+//! Components are instantiated and given their parameters in turn and enter initialisation
+//! mode; the values of direct-feedthrough chains are then propagated in topological order
+//! (`init.rs`: an algebraic loop is an error naming it); then the components leave
+//! initialisation mode (`fmi2ExitInitializationMode`, where FMUs typically build their models:
+//! the structure's eigensolve, the wind screens) in parallel on rayon's pool, one instance per
+//! task: FMI 2.0 lets different instances be called from different threads, as Jacobi stepping
+//! already does. The wall time of each component's set-up is reported
+//! ([`Simulation::component_setup_seconds`]).
+//!
+//! # Ending
+//!
+//! A component whose `fmi2DoStep` returns `fmi2Discard` and which answers
+//! `fmi2GetBooleanStatus(fmi2Terminated)` with true ends the simulation: [`run`] stops at the
+//! last communication point reached, with its results and [`Results::ended`] naming it. Any
+//! other discard or error stops the run as a failure ([`Failure`]).
 //!
 //! # Files
 //!
 //! - `definition.rs`: the system as described ([`System`], [`Component`], [`Connection`],
 //!   [`Order`], [`Value`]).
-//! - `wiring.rs`: the connection checks and the layout of the shared output buffer.
+//! - `wiring.rs`: the connection checks, the recorded signals and the layout of the shared
+//!   output buffers.
+//! - `ports.rs`: the shared buffers, one per kind of value, and each component's ports.
+//! - `init.rs`: the propagation through direct feedthrough in initialisation mode.
 //! - `setup.rs`: [`Simulation::new`], phase by phase.
 //! - `simulation.rs`: the state kept between steps and its accessors ([`Simulation`]).
 //! - `step.rs`: the step semantics, what a communication step does in each order.
@@ -60,6 +97,8 @@
 //! - `run.rs`: the run loop and its results ([`run`], [`Results`], [`Timing`], [`Failure`]).
 
 mod definition;
+mod init;
+mod ports;
 mod run;
 mod setup;
 mod simulation;
@@ -68,6 +107,7 @@ mod threads;
 mod wiring;
 
 pub use definition::{Component, Connection, Order, System, Value};
-pub use run::{Failure, Results, Timing, run};
+pub use run::{CsvSink, Ended, Failure, Report, Results, RunOptions, Sink, Timing, run, run_into};
 pub use simulation::{Recorded, Simulation};
 pub use threads::SchedulerParams;
+pub use wiring::record_selects;

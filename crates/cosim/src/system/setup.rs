@@ -7,10 +7,12 @@
 use std::time::Instant;
 
 use super::definition::{Order, System, Value};
+use super::init;
+use super::ports::{Port, Ports, Values};
 use super::simulation::{Recorded, Simulation};
 use super::step::Running;
 use super::threads::Lookahead;
-use super::wiring::{Wiring, var_of};
+use super::wiring::{Kind, Recording, Wiring, var_of};
 use crate::description::{ScalarVariable, VarType};
 use crate::error::{CosimError, Result};
 use crate::fmu::Fmu;
@@ -90,13 +92,13 @@ fn open_fmus(system: &System) -> Result<(Vec<Fmu>, Vec<usize>)> {
 }
 
 /// Instantiates component `c`, sets up its experiment and parameters and enters
-/// initialisation mode; its buffers are laid out by `wiring` (global slot `offset`).
+/// initialisation mode; its ports are laid out by `wiring` (global slots `offsets[kind]`).
 fn instantiate(
     system: &System,
     c: usize,
     fmu: &Fmu,
     wiring: &Wiring,
-    offset: &[usize],
+    offsets: &[Vec<usize>; 4],
 ) -> Result<Running> {
     let comp = &system.components[c];
     let t0 = Instant::now();
@@ -107,35 +109,48 @@ fn instantiate(
         set_value(&mut inst, v, value, &format!("{}.{name}", comp.name))?;
     }
     inst.enter_initialization_mode()?;
-    let in_conn = &wiring.in_conn[c];
-    let out_vars = &wiring.out_vars[c];
-    let in_vrs: Vec<u32> = in_conn.iter().map(|x| x.0).collect();
-    let in_src: Vec<usize> = in_conn.iter().map(|x| offset[x.1] + x.2).collect();
+    fn port<T: Clone + Default>(
+        k: Kind,
+        c: usize,
+        wiring: &Wiring,
+        offsets: &[Vec<usize>; 4],
+    ) -> Port<T> {
+        let off = &offsets[k as usize];
+        let inputs = wiring.in_conn[k as usize][c]
+            .iter()
+            .map(|x| (x.0, off[x.1] + x.2))
+            .collect();
+        Port::new(inputs, wiring.out_vars[k as usize][c].clone(), off[c])
+    }
+    let ports = Ports {
+        real: port(Kind::Real, c, wiring, offsets),
+        integer: port(Kind::Integer, c, wiring, offsets),
+        boolean: port(Kind::Boolean, c, wiring, offsets),
+        string: port(Kind::String, c, wiring, offsets),
+    };
+    let out_names = ports
+        .real
+        .out_vrs
+        .iter()
+        .map(|&vr| {
+            fmu.description
+                .variables
+                .iter()
+                .find(|v| v.value_reference == vr && v.var_type == VarType::Real)
+                .map_or_else(|| format!("vr {vr}"), |v| v.name.clone())
+        })
+        .collect();
     Ok(Running {
         name: comp.name.clone(),
         instance: inst,
         every: comp.every,
-        in_buf: vec![0.0; in_vrs.len()],
-        in_vrs,
-        in_src,
-        out_buf: vec![0.0; out_vars.len()],
-        out_names: out_vars
-            .iter()
-            .map(|&vr| {
-                fmu.description
-                    .variables
-                    .iter()
-                    .find(|v| v.value_reference == vr && v.var_type == VarType::Real)
-                    .map_or_else(|| format!("vr {vr}"), |v| v.name.clone())
-            })
-            .collect(),
+        ports,
+        out_names,
         busy: 0.0,
         last: 0.0,
         // Until measured, assume a component is worth a thread.
         mean: f64::INFINITY,
         mean_weight: system.scheduler.mean_weight,
-        out_vrs: out_vars.clone(),
-        out_slot: offset[c],
         setup: t0.elapsed().as_secs_f64(),
     })
 }
@@ -159,14 +174,14 @@ fn exit_initialization(comps: &mut [Running]) -> Result<()> {
 
 /// Per component, whether it must stay on the master's thread in Gauss-Seidel order: any of
 /// its outputs recorded (`rec_local`), or another instance of its FMU in the system.
-fn stay_on_master(fmu_of: &[usize], rec_local: &[(String, usize, usize)]) -> Vec<bool> {
+fn stay_on_master(fmu_of: &[usize], rec_local: &[Recording]) -> Vec<bool> {
     let n = fmu_of.len();
     // Components that may go to the look-ahead thread: not recorded, and the only
     // instance of their FMU (instances of one library may share its global state, and
     // the sequential order never ran two of them at once).
     let mut stay_on_master = vec![false; n];
     for r in rec_local {
-        stay_on_master[r.1] = true;
+        stay_on_master[r.component] = true;
     }
     for c in 0..n {
         if fmu_of.iter().filter(|&&k| k == fmu_of[c]).count() > 1 {
@@ -179,7 +194,8 @@ fn stay_on_master(fmu_of: &[usize], rec_local: &[(String, usize, usize)]) -> Vec
 impl Simulation {
     /// Opens every FMU, instantiates and initialises every component, applies parameters and
     /// checks every connection (names, types, causalities, sizes, units). `record` lists
-    /// signals to record as "component.signal" (arrays by base name). The scheduler's
+    /// signals to record as "component.signal" (arrays by base name), or patterns with `*`
+    /// and `?` matched against every output (`mirror.z[*]`, `*.rms_surface`). The scheduler's
     /// thresholds are the system's ([`System::scheduler`]).
     ///
     /// # Errors
@@ -190,17 +206,23 @@ impl Simulation {
         // Output slots: every connected or recorded output signal of each component.
         let mut wiring = Wiring::connect(system, &fmus, &fmu_of)?;
         let rec_local = wiring.record(system, &fmus, &fmu_of, record)?;
-        let offset = wiring.offsets();
+        let offsets = Kind::ALL.map(|k| wiring.offsets(k));
         // Instantiate, set parameters, initialise.
         let mut comps = Vec::with_capacity(system.components.len());
         for c in 0..system.components.len() {
-            comps.push(instantiate(system, c, &fmus[fmu_of[c]], &wiring, &offset)?);
+            comps.push(instantiate(system, c, &fmus[fmu_of[c]], &wiring, &offsets)?);
+        }
+        if !system.zero_start {
+            init::propagate(system, &fmus, &fmu_of, &wiring, &mut comps)?;
         }
         exit_initialization(&mut comps)?;
         let stay_on_master = stay_on_master(&fmu_of, &rec_local);
         let recorded = Recorded {
-            columns: rec_local.iter().map(|r| r.0.clone()).collect(),
-            slots: rec_local.iter().map(|r| offset[r.1] + r.2).collect(),
+            columns: rec_local.iter().map(|r| r.column.clone()).collect(),
+            slots: rec_local
+                .iter()
+                .map(|r| (r.kind, offsets[r.kind as usize][r.component] + r.slot))
+                .collect(),
         };
         let mut sim = Self::assemble(system, comps, &wiring, stay_on_master, recorded, fmus)?;
         // The initial outputs feed the first step (or zeros, fmpy.ssp's convention).
@@ -223,7 +245,7 @@ impl Simulation {
         fmus: Vec<Fmu>,
     ) -> Result<Self> {
         let n = comps.len();
-        let total = wiring.offsets()[n];
+        let total = Kind::ALL.map(|k| wiring.offsets(k)[n]);
         let lookahead = if system.order == Order::GaussSeidel && n > 1 && !system.no_lookahead {
             Some(Lookahead::start()?)
         } else {
@@ -238,8 +260,10 @@ impl Simulation {
             lookahead,
             params: system.scheduler,
             parallel_steps: 0,
-            outputs: vec![0.0; total],
-            snapshot: vec![0.0; total],
+            outputs: Values::zeroed(total),
+            snapshot: Values::zeroed(total),
+            pending: vec![None; n],
+            visible: 0,
             order: system.order,
             step: system.step,
             time: system.start_time,

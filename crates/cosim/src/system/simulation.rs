@@ -4,17 +4,20 @@
 //! [`Simulation::step`] (`step.rs`).
 
 use super::definition::Order;
+use super::ports::Values;
 use super::step::Running;
 use super::threads::{Lookahead, SchedulerParams};
+use super::wiring::Kind;
 use crate::error::Result;
 use crate::fmu::Fmu;
 
-/// A signal to record: component, its signal name, and the slots of its scalars.
+/// The recorded scalars: their column names and where each is in the shared buffers.
 #[derive(Debug, Clone)]
 pub struct Recorded {
     /// Column names (`"comp.z[1]"`, ...).
     pub columns: Vec<String>,
-    pub(super) slots: Vec<usize>,
+    /// Per column, its kind and global slot.
+    pub(super) slots: Vec<(Kind, usize)>,
 }
 
 /// The system instantiated and initialised, ready to step.
@@ -37,10 +40,16 @@ pub struct Simulation {
     pub(super) params: SchedulerParams,
     /// Jacobi base steps whose components stepped on more than one thread.
     pub(super) parallel_steps: u64,
-    /// Latest output values of all components, concatenated.
-    pub(super) outputs: Vec<f64>,
+    /// The visible outputs of all components, per kind, concatenated.
+    pub(super) outputs: Values,
     /// Snapshot of `outputs` at the communication point (Jacobi).
-    pub(super) snapshot: Vec<f64>,
+    pub(super) snapshot: Values,
+    /// Per component, the base step at which the outputs of its latest step become visible,
+    /// while they are not yet (FMI timing: the end of that step).
+    pub(super) pending: Vec<Option<u64>>,
+    /// The latest base step whose outputs are visible now: the current one in Jacobi order,
+    /// the next one during a Gauss-Seidel step (module docs).
+    pub(super) visible: u64,
     pub(super) order: Order,
     pub(super) step: f64,
     pub(super) time: f64,
@@ -108,8 +117,8 @@ impl Simulation {
 
     /// The current values of the recorded columns, into `out`.
     pub fn recorded_values(&self, out: &mut [f64]) {
-        for (o, &s) in out.iter_mut().zip(&self.recorded.slots) {
-            *o = self.outputs[s];
+        for (o, &(k, s)) in out.iter_mut().zip(&self.recorded.slots) {
+            *o = self.outputs.number(k, s);
         }
     }
 

@@ -8,6 +8,7 @@
 use std::time::Instant;
 
 use super::definition::Order;
+use super::ports::{Ports, Values};
 use super::simulation::Simulation;
 use super::threads::{self, Job};
 use crate::error::{CosimError, Result};
@@ -18,16 +19,9 @@ pub(super) struct Running {
     pub(super) name: String,
     pub(super) instance: Instance,
     pub(super) every: usize,
-    /// Value references of its connected inputs and where each comes from in `outputs`.
-    pub(super) in_vrs: Vec<u32>,
-    pub(super) in_src: Vec<usize>,
-    pub(super) in_buf: Vec<f64>,
-    /// Value references of its connected (or recorded) outputs, and their slots in `outputs`.
-    pub(super) out_vrs: Vec<u32>,
-    pub(super) out_slot: usize,
-    /// Its latest outputs (published into the shared buffer after its step).
-    pub(super) out_buf: Vec<f64>,
-    /// Names of its outputs (for the message when one is not finite).
+    /// Its connected inputs and its connected (or recorded) outputs, per kind of value.
+    pub(super) ports: Ports,
+    /// Names of its Real outputs (for the message when one is not finite).
     pub(super) out_names: Vec<String>,
     /// Wall time spent in its set/doStep/get calls (s), in the last step, and a running mean.
     pub(super) busy: f64,
@@ -40,28 +34,32 @@ pub(super) struct Running {
 }
 
 impl Running {
-    /// Sets its inputs from `outputs` (all components' published outputs), steps from `t` over
+    /// Sets its inputs from `shared` (all components' published outputs), steps from `t` over
     /// its own multiple of `h` (cut to the `left` base steps before the stop time), and reads
-    /// its outputs into `out_buf`: one fmi2SetReal, one fmi2DoStep, one fmi2GetReal, no
-    /// allocation.
-    pub(super) fn advance(&mut self, outputs: &[f64], t: f64, h: f64, left: usize) -> Result<()> {
-        self.gather(outputs);
+    /// its outputs into its ports: one set call per kind, one fmi2DoStep, one get call per kind,
+    /// no allocation (for Real, Integer and Boolean values).
+    pub(super) fn advance(&mut self, shared: &Values, t: f64, h: f64, left: usize) -> Result<()> {
+        self.gather(shared);
         self.step_gathered(t, h, left)
     }
 
-    /// Copies its inputs out of `outputs` into `in_buf`.
-    pub(super) fn gather(&mut self, outputs: &[f64]) {
-        for (b, &s) in self.in_buf.iter_mut().zip(&self.in_src) {
-            *b = outputs[s];
-        }
+    /// Copies its inputs out of `shared`.
+    pub(super) fn gather(&mut self, shared: &Values) {
+        self.ports.gather(shared);
     }
 
-    /// [`Self::advance`] on the inputs gathered in `in_buf`.
+    /// [`Self::advance`] on the inputs already gathered.
+    ///
+    /// # Errors
+    /// The FMU's error; [`CosimError::Ended`] when it discarded the step and asks to end the
+    /// simulation (fmi2GetBooleanStatus(fmi2Terminated)).
     pub(super) fn step_gathered(&mut self, t: f64, h: f64, left: usize) -> Result<()> {
         let t0 = Instant::now();
-        self.instance.set_real(&self.in_vrs, &self.in_buf)?;
-        self.instance.do_step(t, h * self.every.min(left) as f64)?;
-        self.instance.get_real(&self.out_vrs, &mut self.out_buf)?;
+        self.ports.set_inputs(&mut self.instance)?;
+        if let Err(e) = self.instance.do_step(t, h * self.every.min(left) as f64) {
+            return Err(self.ended_or(e, t));
+        }
+        self.ports.get_outputs(&mut self.instance)?;
         self.last = t0.elapsed().as_secs_f64();
         self.busy += self.last;
         self.mean = if self.mean.is_finite() {
@@ -69,20 +67,43 @@ impl Running {
         } else {
             self.last
         };
-        if let Some(k) = self.out_buf.iter().position(|v| !v.is_finite()) {
+        let out = &self.ports.real.out_buf;
+        if let Some(k) = out.iter().position(|v| !v.is_finite()) {
             return Err(CosimError::NonFinite {
                 component: self.name.clone(),
                 variable: self.out_names[k].clone(),
-                value: self.out_buf[k],
-                time: t + h * self.every as f64,
+                value: out[k],
+                time: t + h * self.every.min(left) as f64,
             });
         }
         Ok(())
     }
 
-    /// Copies its outputs into the shared buffer.
-    pub(super) fn publish(&self, outputs: &mut [f64]) {
-        outputs[self.out_slot..self.out_slot + self.out_buf.len()].copy_from_slice(&self.out_buf);
+    /// After fmi2DoStep from `t` failed with `e`: for fmi2Discard, asks the FMU whether it wants
+    /// the simulation to end (fmi2GetBooleanStatus(fmi2Terminated)) and, if so, until when it
+    /// got (fmi2GetRealStatus(fmi2LastSuccessfulTime), `t` if it does not say):
+    /// [`CosimError::Ended`]. Otherwise `e` as it is.
+    fn ended_or(&mut self, e: CosimError, t: f64) -> CosimError {
+        if !matches!(e, CosimError::Discarded { .. }) {
+            return e;
+        }
+        match self.instance.terminated() {
+            Ok(true) => CosimError::Ended {
+                component: self.name.clone(),
+                time: self
+                    .instance
+                    .last_successful_time()
+                    .ok()
+                    .filter(|x| x.is_finite())
+                    .unwrap_or(t),
+            },
+            _ => e,
+        }
+    }
+
+    /// Copies its outputs into the shared buffers.
+    pub(super) fn publish(&self, shared: &mut Values) {
+        self.ports.publish(shared);
     }
 }
 
@@ -90,7 +111,8 @@ impl Simulation {
     /// Advances one base step.
     ///
     /// # Errors
-    /// The first component error, naming the component and the time.
+    /// The first component error, naming the component and the time;
+    /// [`CosimError::Ended`] when a component ended the simulation.
     pub fn step(&mut self) -> Result<()> {
         let k = self.n_steps;
         let t = self.time;
@@ -108,27 +130,55 @@ impl Simulation {
         Ok(())
     }
 
+    /// The base step at which the outputs of component `i`'s step at base step `k` become
+    /// visible: the end of that step (FMI timing: doStep(t, H) gives the outputs at t + H).
+    fn due_at(&self, i: usize, k: u64, left: usize) -> u64 {
+        k + self.every[i].min(left as u64)
+    }
+
+    /// Makes visible every output whose time has come: the components whose pending outputs
+    /// are due at base step `limit` or before publish them (one still on the look-ahead thread
+    /// publishes when it comes back, [`Self::settle`]).
+    fn publish_due(&mut self, limit: u64) {
+        self.visible = limit;
+        for (i, p) in self.pending.iter_mut().enumerate() {
+            if p.is_some_and(|at| at <= limit)
+                && let Some(r) = self.comps[i].as_deref()
+            {
+                r.publish(&mut self.outputs);
+                *p = None;
+            }
+        }
+    }
+
     /// Jacobi: every due component steps on the outputs of the communication point (a
-    /// snapshot), on the threads the policy picks; all publish after all have stepped.
+    /// snapshot), on the threads the policy picks; their outputs become visible at the end of
+    /// their steps (this step's end for those stepping every base step).
     fn step_jacobi(&mut self, k: u64, t: f64, h: f64, left: usize) -> Result<()> {
         let due = |r: &Running| k.is_multiple_of(r.every as u64);
-        self.snapshot.copy_from_slice(&self.outputs);
+        self.snapshot.copy_from(&self.outputs);
         let snapshot = &self.snapshot;
         let plan = threads::plan_jacobi(&self.comps, &due, &self.params);
         if plan.is_parallel() {
             self.parallel_steps += 1;
         }
         let critical = threads::advance_jacobi(plan, &mut self.comps, &due, snapshot, t, h, left)?;
-        for r in self.comps.iter().flatten().filter(|r| due(r)) {
-            r.publish(&mut self.outputs);
+        for i in 0..self.comps.len() {
+            if k.is_multiple_of(self.every[i]) {
+                self.pending[i] = Some(self.due_at(i, k, left));
+            }
         }
+        self.publish_due(k + 1);
         self.fmu_critical += critical;
         Ok(())
     }
 
-    /// Gauss-Seidel: the due components in turn, each on the newest outputs; one whose
-    /// outputs are not needed right away may go to the look-ahead thread (module docs).
+    /// Gauss-Seidel: the due components in turn, each on the newest outputs visible by the end
+    /// of this base step; one whose outputs are not needed right away may go to the look-ahead
+    /// thread (module docs).
     fn step_gauss_seidel(&mut self, k: u64, t: f64, h: f64, left: usize) -> Result<()> {
+        // Outputs of slower components whose steps end with this base step.
+        self.publish_due(k + 1);
         for i in 0..self.comps.len() {
             if !k.is_multiple_of(self.every[i]) {
                 continue;
@@ -152,6 +202,7 @@ impl Simulation {
             .lookahead
             .as_ref()
             .is_some_and(|l| l.in_flight.is_none());
+        let at = self.due_at(i, k, left);
         let Some(r) = self.comps[i].as_deref_mut() else {
             return Err(CosimError::Invalid(format!(
                 "{}: missing from the master (internal error)",
@@ -170,6 +221,7 @@ impl Simulation {
             && !self.stay_on_master[i]
             && self.params.worth_lookahead(r.mean)
             && next().is_some_and(|j| j != i && self.sources[j].binary_search(&i).is_err());
+        self.pending[i] = Some(at);
         if defer
             && let Some(la) = self.lookahead.as_mut()
             && la.jobs.is_some()
@@ -186,24 +238,27 @@ impl Simulation {
         }
         if let Some(r) = self.comps[i].as_deref_mut() {
             r.step_gathered(t, h, left)?;
-            r.publish(&mut self.outputs);
             self.fmu_critical += r.last;
         }
+        self.publish_due(self.visible);
         Ok(())
     }
 
-    /// Reads component `c`'s current outputs into the shared buffer (after [`Self::settle`]).
+    /// Reads component `c`'s current outputs and publishes them at once (after
+    /// [`Self::settle`]): its initial outputs.
     pub(super) fn read_outputs(&mut self, c: usize) -> Result<()> {
         self.settle()?;
         if let Some(r) = self.comps[c].as_deref_mut() {
-            r.instance.get_real(&r.out_vrs, &mut r.out_buf)?;
+            r.ports.get_outputs(&mut r.instance)?;
             r.publish(&mut self.outputs);
         }
+        self.pending[c] = None;
         Ok(())
     }
 
-    /// Waits for the component on the look-ahead thread (if any), puts it back and publishes
-    /// its outputs: afterwards every component is in place and every output current.
+    /// Waits for the component on the look-ahead thread (if any) and puts it back, publishing
+    /// its outputs if they are due: afterwards every component is in place and every visible
+    /// output current.
     ///
     /// # Errors
     /// The error of that component's step (naming it and the time), or a look-ahead thread
@@ -229,8 +284,10 @@ impl Simulation {
             result,
             ..
         } = job;
-        comp.publish(&mut self.outputs);
         self.comps[index] = Some(comp);
+        if result.is_ok() {
+            self.publish_due(self.visible);
+        }
         result
     }
 }

@@ -9,6 +9,7 @@
 //! - Gauss-Seidel: one component at a time on the look-ahead thread ([`Lookahead`]), when it
 //!   takes long enough per step ([`SchedulerParams::worth_lookahead`]).
 
+use super::ports::Values;
 use super::step::Running;
 use crate::error::{CosimError, Result};
 
@@ -220,7 +221,7 @@ pub(super) fn advance_jacobi(
     plan: JacobiPlan,
     comps: &mut [Option<Box<Running>>],
     due: &(dyn Fn(&Running) -> bool + Sync),
-    outputs: &[f64],
+    outputs: &Values,
     t: f64,
     h: f64,
     left: usize,
@@ -249,7 +250,7 @@ pub(super) fn advance_jacobi(
 pub(super) fn advance_split(
     comps: &mut [Option<Box<Running>>],
     due: &(dyn Fn(&Running) -> bool + Sync),
-    outputs: &[f64],
+    outputs: &Values,
     t: f64,
     h: f64,
     left: usize,
@@ -276,7 +277,7 @@ pub(super) fn advance_split(
 pub(super) fn advance_in_turn<'a>(
     comps: impl Iterator<Item = &'a mut Option<Box<Running>>>,
     due: &dyn Fn(&Running) -> bool,
-    outputs: &[f64],
+    outputs: &Values,
     t: f64,
     h: f64,
     left: usize,

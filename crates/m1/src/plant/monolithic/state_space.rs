@@ -438,11 +438,15 @@ fn tick_maps(
 }
 
 /// A wind run of the monolithic mirror with (or without) the global loop, scheduled as the
-/// co-simulation master runs the standard system in Gauss-Seidel order with a base step `step`:
-/// the wind is evaluated every `wind_period` at the end of its step and held, the mirror
-/// advances, the edge sensors (ideal, $y = A z$) read it at the end of each step, and the
-/// controller samples them every controller period right after the mirror's first step of it,
-/// its new command held from the next step. Returns the mirror's metrics at the end of every
+/// co-simulation master runs the standard system (wind, mirror, sensors, controller) in
+/// Gauss-Seidel order with a base step `step` under the FMI timing: a component's outputs
+/// after its step from t to t + H are visible from the base step that ends at t + H. So the
+/// wind, stepping every `wind_period` from t, gives the forces at t + `wind_period`, which the
+/// mirror takes on its step that ends then, and holds them; the edge sensors (ideal, $y = A
+/// z$) read the mirror at the end of each step; the controller samples them every controller
+/// period right after the mirror's first step of it, and its new command reaches the mirror on
+/// the step that ends one controller period after the sample began (or on the next step, when
+/// the controller steps every base step). Returns the mirror's metrics at the end of every
 /// step.
 ///
 /// # Errors
@@ -487,10 +491,23 @@ pub fn wind_run(
         None => None,
     };
     let mut ctrl = ctrl;
+    // The outputs computed ahead of their time, and the base step from which the mirror takes
+    // them.
+    let (mut fw_next, mut u_next) = (vec![0.0; na], vec![0.0; na]);
+    let (mut fw_at, mut u_at) = (None, None);
+    // The wind's initial output: the forces at the start.
+    wind.forces(0.0, &mut fw)?;
     for k in 0..steps {
         let t = k as f64 * step;
         if k % wind_every == 0 {
-            wind.forces(t + wind_every as f64 * step, &mut fw)?;
+            wind.forces(t + wind_every as f64 * step, &mut fw_next)?;
+            fw_at = Some(k + wind_every - 1);
+        }
+        if fw_at == Some(k) {
+            fw.copy_from_slice(&fw_next);
+        }
+        if u_at == Some(k) {
+            u.copy_from_slice(&u_next);
         }
         mirror.advance(step, &u, &fw, 0.0)?;
         mirror.mirror(&mut z);
@@ -506,7 +523,9 @@ pub fn wind_run(
                     y[ri[q]] += v[q] * zj;
                 }
             }
-            modes.sample(gains, &mut u, y, y_ref, scratch)?;
+            // The controller's integrator is its command as computed, ahead of the mirror's.
+            modes.sample(gains, &mut u_next, y, y_ref, scratch)?;
+            u_at = Some(k + (*ctrl_every - 1).max(1));
         }
         out.push((t + step, metrics.evaluate(&z)?));
     }

@@ -1,0 +1,208 @@
+//! `m1cs run` as a general master's front end: `--record` patterns for any outputs, the CSV
+//! written as the run goes, a run stopped by a signal (the rows until then kept, the temporary
+//! folders removed, exit status 130), and `m1cs system`'s connection count.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn fmu_dir() -> String {
+    std::env::var("M1CS_FMU_DIR")
+        .unwrap_or_else(|_| concat!(env!("CARGO_MANIFEST_DIR"), "/target/fmu").to_string())
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("m1cs-cli-record-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// The header and the numeric rows of a CSV file.
+fn read_csv(path: &Path) -> (Vec<String>, Vec<Vec<f64>>) {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    let header = lines
+        .next()
+        .unwrap()
+        .split(',')
+        .map(str::to_string)
+        .collect();
+    let rows = lines
+        .map(|l| l.split(',').map(|x| x.parse().unwrap()).collect())
+        .collect();
+    (header, rows)
+}
+
+/// Patterns select outputs of any component (an array by base name, `*` and `?` globs, a
+/// pattern matching a default column adds nothing twice); the CSV holds exactly the metrics and
+/// those columns, every row; the figures' mirror displacement is not in it; `--no-plots` draws
+/// nothing. A pattern that matches nothing, or a String, is an error naming it.
+#[test]
+fn record_patterns_select_any_outputs() {
+    let dir = scratch("patterns");
+    let out = dir.to_string_lossy().into_owned();
+    let fmus = fmu_dir();
+    let run = |extra: &[&str]| {
+        let mut args = vec![
+            "run",
+            "--layout",
+            "keck",
+            "--duration",
+            "0.1",
+            "--fmu-dir",
+            &fmus,
+            "--out",
+            &out,
+            "--json",
+        ];
+        args.extend_from_slice(extra);
+        Command::new(env!("CARGO_BIN_EXE_m1cs"))
+            .args(&args)
+            .output()
+            .unwrap()
+    };
+    let o = run(&[
+        "--record",
+        "mirror.z[1?]",
+        "--record",
+        "*.pssn",
+        "--record",
+        "controller.u_cmd",
+        "--record",
+        "sensors.y[3]",
+        "--no-plots",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (header, rows) = read_csv(&dir.join("closed_loop.csv"));
+    let mut expected: Vec<String> = [
+        "time",
+        "optics.rms_surface",
+        "optics.focus_mode",
+        "optics.rms_surface_without_focus",
+        "optics.pssn",
+    ]
+    .map(String::from)
+    .to_vec();
+    expected.extend((10..20).map(|k| format!("mirror.z[{k}]")));
+    expected.extend((1..=108).map(|k| format!("controller.u_cmd[{k}]")));
+    expected.push("sensors.y[3]".into());
+    assert_eq!(header, expected);
+    assert_eq!(rows.len(), 101);
+    assert!(rows.iter().all(|r| r.len() == expected.len()));
+    // The recorded displacement moves with the wind; the controller's command too, closed loop.
+    assert!(rows.iter().any(|r| r[5] != 0.0));
+    assert!(rows.iter().any(|r| r[15] != 0.0));
+    assert!(
+        !dir.join("rms_surface.png").exists(),
+        "--no-plots drew a figure"
+    );
+    // Without --record the CSV has the metrics only (the displacement is kept for the figures,
+    // not written), and the figures are drawn.
+    let o = run(&[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (header, _) = read_csv(&dir.join("closed_loop.csv"));
+    assert_eq!(header.len(), 5, "{header:?}");
+    assert!(dir.join("rms_surface.png").is_file());
+    for (pattern, says) in [
+        ("mirror.nosuch*", "matches no output"),
+        ("nosuch.z", "no component named nosuch"),
+        ("*.nosuch", "matches no output"),
+        ("rmssurface", "expected component.signal"),
+    ] {
+        let o = run(&["--record", pattern]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            !o.status.success() && err.contains(says),
+            "{pattern}: {err}"
+        );
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// SIGINT on a running `m1cs run`: the loop stops at the next step, the CSV holds the rows up
+/// to then (consecutive, complete), the summary says where it stopped, the FMUs' temporary
+/// folders are gone, and the exit status is 130. The same for SIGTERM.
+#[test]
+fn a_signal_stops_the_run_and_keeps_its_rows() {
+    for signal in [libc::SIGINT, libc::SIGTERM] {
+        let dir = scratch(&format!("signal-{signal}"));
+        let tmp = dir.join("tmp");
+        std::fs::create_dir_all(&tmp).unwrap();
+        let out = dir.join("results");
+        let mut child = Command::new(env!("CARGO_BIN_EXE_m1cs"))
+            .args(["run", "--layout", "keck", "--duration", "600", "--no-plots"])
+            .args(["--fmu-dir", &fmu_dir(), "--json", "--out"])
+            .arg(&out)
+            .env("TMPDIR", &tmp)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        // Wait until rows are being written (set-up done, the loop running).
+        let csv = out.join("open_loop.csv");
+        let t0 = std::time::Instant::now();
+        while std::fs::metadata(&csv).map_or(0, |m| m.len()) < 200_000 {
+            assert!(
+                t0.elapsed().as_secs() < 120,
+                "no rows after 120 s: {:?}",
+                child.try_wait()
+            );
+            std::thread::sleep(std::time::Duration::from_millis(50));
+        }
+        assert!(
+            std::fs::read_dir(&tmp).unwrap().count() > 0,
+            "the FMUs are unpacked under TMPDIR"
+        );
+        // SAFETY: kill with a valid pid and signal.
+        let rc = unsafe { libc::kill(child.id() as libc::pid_t, signal) };
+        assert_eq!(rc, 0);
+        let o = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(130), "{err}");
+        assert!(err.contains("stopped by a signal at t ="), "{err}");
+        let (header, rows) = read_csv(&csv);
+        assert_eq!(header.len(), 5);
+        assert!(rows.len() > 100, "{} rows", rows.len());
+        for (k, r) in rows.iter().enumerate() {
+            assert_eq!(r.len(), 5, "row {k}");
+            assert!(
+                (r[0] - k as f64 * 1e-3).abs() < 1e-9,
+                "row {k}: t = {}",
+                r[0]
+            );
+        }
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        let stopped = v["runs"][0]["interrupted_at_s"].as_f64().unwrap();
+        assert!(
+            (stopped - rows.last().unwrap()[0]).abs() < 1e-9,
+            "{stopped}"
+        );
+        // The closed-loop run after it did not start.
+        assert_eq!(v["runs"].as_array().unwrap().len(), 1);
+        let left: Vec<_> = std::fs::read_dir(&tmp).unwrap().collect();
+        assert!(left.is_empty(), "temporary folders left: {left:?}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
+
+/// `m1cs system` counts the scalar connections it writes, next to the signal connections.
+#[test]
+fn system_reports_scalar_connections() {
+    let dir = scratch("system");
+    let ssp = dir.join("keck.ssp");
+    let o = Command::new(env!("CARGO_BIN_EXE_m1cs"))
+        .args(["system", "--layout", "keck", "--fmu-dir", &fmu_dir(), "-o"])
+        .arg(&ssp)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // wind -> mirror (108), controller -> mirror (108), mirror -> sensors (108), sensors ->
+    // controller (168), mirror -> optics (108).
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains("5 signal connections = 600 scalar connections"),
+        "{text}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
