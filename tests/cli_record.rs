@@ -206,3 +206,111 @@ fn system_reports_scalar_connections() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `m1cs run --ssp` honours the file's step, rates and stop time; `--step`, `--duration` and
+/// `--uniform` override them, each with a note (the rates keep their periods when the step
+/// changes); an error about a file inside the archive names it as `X.ssp: resources/...`,
+/// not the temporary folder it was unpacked to.
+#[test]
+fn ssp_overrides_say_so_and_errors_name_the_archive() {
+    let dir = scratch("ssp");
+    let ssp = dir.join("keck.ssp");
+    let out = dir.join("results");
+    let fmus = fmu_dir();
+    let o = Command::new(env!("CARGO_BIN_EXE_m1cs"))
+        .args([
+            "system",
+            "--layout",
+            "keck",
+            "--duration",
+            "0.1",
+            "--fmu-dir",
+            &fmus,
+        ])
+        .arg("-o")
+        .arg(&ssp)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let run = |extra: &[&str]| {
+        let o = Command::new(env!("CARGO_BIN_EXE_m1cs"))
+            .arg("run")
+            .arg("--ssp")
+            .arg(&ssp)
+            .arg("--out")
+            .arg(&out)
+            .args(["--json", "--no-plots"])
+            .args(extra)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        (o.status.success(), err)
+    };
+    let (ok, err) = run(&[]);
+    assert!(ok && !err.contains("note:"), "{err}");
+    assert_eq!(read_csv(&out.join("system.csv")).1.len(), 101);
+    let (ok, err) = run(&["--step", "4e-4", "--duration", "0.05"]);
+    assert!(ok, "{err}");
+    assert!(
+        err.contains("--step 0.0004 overrides the step of")
+            && err.contains(
+                "the slower components keep their periods: wind every 25, controller every 125"
+            ),
+        "{err}"
+    );
+    assert!(
+        err.contains("stop time 0.05 s overrides that of") && err.contains("(0.1 s)"),
+        "{err}"
+    );
+    let (_, rows) = read_csv(&out.join("system.csv"));
+    assert_eq!(rows.len(), 126);
+    assert!((rows[125][0] - 0.05).abs() < 1e-12);
+    let (ok, err) = run(&["--uniform"]);
+    assert!(
+        ok && err.contains("--uniform steps every component"),
+        "{err}"
+    );
+    let (ok, err) = run(&["--step", "3e-4"]);
+    assert!(!ok && err.contains("not a whole number"), "{err}");
+    // A broken FMU inside the archive.
+    let broken = dir.join("broken.ssp");
+    {
+        let mut src = zip::ZipArchive::new(std::fs::File::open(&ssp).unwrap()).unwrap();
+        let mut dst = zip::ZipWriter::new(std::fs::File::create(&broken).unwrap());
+        let opts = zip::write::SimpleFileOptions::default();
+        for k in 0..src.len() {
+            let mut f = src.by_index(k).unwrap();
+            let name = f.name().unwrap().to_string();
+            let mut bytes = Vec::new();
+            std::io::Read::read_to_end(&mut f, &mut bytes).unwrap();
+            if name.ends_with("edge_sensors.fmu") {
+                bytes = b"not a zip archive".to_vec();
+            }
+            dst.start_file(name, opts).unwrap();
+            std::io::Write::write_all(&mut dst, &bytes).unwrap();
+        }
+        dst.finish().unwrap();
+    }
+    let unpacked = dir.join("tmp");
+    std::fs::create_dir_all(&unpacked).unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_m1cs"))
+        .arg("run")
+        .arg("--ssp")
+        .arg(&broken)
+        .arg("--out")
+        .arg(&out)
+        .env("TMPDIR", &unpacked)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(
+        err.contains(&format!("{}: resources/edge_sensors.fmu", broken.display())),
+        "{err}"
+    );
+    assert!(
+        !err.contains(&*unpacked.to_string_lossy()),
+        "names the temporary folder: {err}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}

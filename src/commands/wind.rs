@@ -183,8 +183,8 @@ fn base_system(a: &WindArgs) -> SystemArgs {
         optical: false,
         zenith: None,
         temperature: 0.0,
-        duration: a.duration,
-        step: a.step,
+        duration: Some(a.duration),
+        step: Some(a.step),
     }
 }
 

@@ -37,8 +37,25 @@ pub struct SspSystem {
     pub system: System,
     /// Whether the file carried a base step (else the caller's default applies).
     pub has_step: bool,
+    /// The archive and where it is unpacked (None for a `.ssd` file).
+    unpacked: Option<(PathBuf, PathBuf)>,
     /// Unpacked archive, removed when dropped.
     _dir: Option<crate::fmu::TempDir>,
+}
+
+impl SspSystem {
+    /// `text` (an error message, say) with every path inside the unpacked archive named as
+    /// the user knows it, `X.ssp: resources/x.fmu`, instead of the temporary folder.
+    pub fn localize(&self, text: &str) -> String {
+        match &self.unpacked {
+            Some((archive, dir)) => {
+                let mut prefix = dir.display().to_string();
+                prefix.push('/');
+                text.replace(&prefix, &format!("{}: ", archive.display()))
+            }
+            None => text.to_string(),
+        }
+    }
 }
 
 fn attr(e: &BytesStart<'_>, name: &str) -> Option<String> {
@@ -272,9 +289,14 @@ impl SsdReader<'_> {
         let fmu = resolve_source(&self.at.base, &source)
             .map_err(|why| self.named(format!("component {cname}: source {source}: {why}")))?;
         if !fmu.is_file() {
+            let shown = match (&self.at.dir, fmu.strip_prefix(&self.at.base)) {
+                (Some(_), Ok(inside)) => {
+                    format!("{} has no {}", self.path.display(), inside.display())
+                }
+                _ => fmu.display().to_string(),
+            };
             return Err(self.named(format!(
-                "component {cname}: source {source} not found ({})",
-                fmu.display()
+                "component {cname}: source {source} not found ({shown})"
             )));
         }
         self.system.components.push(Component {
@@ -394,6 +416,10 @@ pub fn read(path: &Path) -> Result<SspSystem> {
     Ok(SspSystem {
         system,
         has_step,
+        unpacked: at
+            .dir
+            .as_ref()
+            .map(|d| (path.to_path_buf(), d.path().to_path_buf())),
         _dir: at.dir,
     })
 }

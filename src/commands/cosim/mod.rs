@@ -125,13 +125,28 @@ pub struct SystemArgs {
     /// With `--zenith`: the temperature change from the alignment baseline (K).
     #[arg(long, default_value_t = 0.0, requires = "zenith")]
     pub temperature: f64,
-    /// Simulated duration (s).
-    #[arg(long, default_value_t = DURATION)]
-    pub duration: f64,
-    /// Base communication step (s): a multiple of the 0.2 ms servo period for the mirror and
-    /// segments FMUs. With `--cell split` keep it at 2e-4 with Gauss-Seidel order.
-    #[arg(long, default_value_t = STEP)]
-    pub step: f64,
+    /// Simulated duration (s) [default: 5]. With `--ssp`, overrides the file's stop time
+    /// (saying so).
+    #[arg(long)]
+    pub duration: Option<f64>,
+    /// Base communication step (s) [default: 0.001]: a multiple of the 0.2 ms servo period for
+    /// the mirror and segments FMUs. With `--cell split` keep it at 2e-4 with Gauss-Seidel
+    /// order. With `--ssp`, overrides the file's step (saying so; components stepping slower than
+    /// the base step keep their periods).
+    #[arg(long)]
+    pub step: Option<f64>,
+}
+
+impl SystemArgs {
+    /// The simulated duration (s).
+    pub fn duration(&self) -> f64 {
+        self.duration.unwrap_or(DURATION)
+    }
+
+    /// The base communication step (s).
+    pub fn step(&self) -> f64 {
+        self.step.unwrap_or(STEP)
+    }
 }
 
 /// `m1cs system`.
@@ -150,8 +165,9 @@ pub struct RunCmd {
     #[command(flatten)]
     pub system: SystemArgs,
     /// Run this .ssp (or .ssd) instead of a standard system. Its DefaultExperiment and master
-    /// annotation set the stop time and the step; `--duration` and `--step` only fill in what
-    /// the file leaves out.
+    /// annotation set the stop time, the step, the rates and the order; `--stop-time` (or
+    /// `--duration`), `--step`, `--uniform` and `--order` override them, each with a note on
+    /// stderr, and fill in what the file leaves out.
     #[arg(long)]
     pub ssp: Option<PathBuf>,
     /// With `--ssp`: stop at this time (s) instead of the file's stop time.
@@ -220,10 +236,11 @@ fn fmu(a: &SystemArgs, name: &str) -> Result<PathBuf, String> {
 
 /// The standard closed-loop system; `closed` = false opens the global loop.
 pub fn standard_system(a: &SystemArgs, closed: bool) -> Result<System, String> {
-    if !(a.duration > 0.0 && a.step > 0.0 && a.duration >= a.step) {
+    let (duration, step) = (a.duration(), a.step());
+    if !(duration > 0.0 && step > 0.0 && duration >= step) {
         return Err(format!(
-            "--duration {} and --step {} must be positive, the duration at least one step",
-            a.duration, a.step
+            "--duration {duration} and --step {step} must be positive, the duration at least \
+             one step"
         ));
     }
     if !(a.wind_speed.is_finite() && a.wind_speed > 0.0) {
@@ -245,7 +262,7 @@ pub fn standard_system(a: &SystemArgs, closed: bool) -> Result<System, String> {
         if a.uniform {
             1
         } else {
-            ((1.0 / hz) / a.step).round().max(1.0) as usize
+            ((1.0 / hz) / step).round().max(1.0) as usize
         }
     };
     let (mirror, file) = match (a.cell, a.actuator) {
@@ -256,7 +273,7 @@ pub fn standard_system(a: &SystemArgs, closed: bool) -> Result<System, String> {
     };
     // Gauss-Seidel, `m1cs run`'s order for the standard systems, so a written .ssp runs as
     // `m1cs run` does.
-    let mut s = System::new(a.duration, a.step).order(Order::GaussSeidel);
+    let mut s = System::new(duration, step).order(Order::GaussSeidel);
     s = match a.scenario {
         Scenario::Wind => s
             .component("wind", fmu(a, "wind")?)
@@ -481,6 +498,99 @@ fn order_name(o: Order) -> &'static str {
     }
 }
 
+/// The system of `--ssp`: the file's stop time, step, rates and order, each overridden by the
+/// flag given for it (`--stop-time` or `--duration`, `--step`, `--uniform`, `--order`), with a
+/// note on stderr saying so; `--step` and `--duration` fill in what the file leaves out.
+fn ssp_system(
+    a: &RunCmd,
+    path: &Path,
+    s: &cosim::ssp::SspSystem,
+    order: Option<Order>,
+) -> Result<System, String> {
+    let mut sys = s.system.clone();
+    let file = path.display();
+    match (a.system.step, s.has_step) {
+        (Some(h), true) if h != sys.step => {
+            if !(h.is_finite() && h > 0.0) {
+                return Err(format!("--step {h}: must be positive"));
+            }
+            // Components at the base step follow it; slower ones keep their periods (s).
+            let mut rescaled = Vec::new();
+            for c in sys.components.iter_mut().filter(|c| c.every > 1) {
+                let every = c.every as f64 * sys.step / h;
+                if (every - every.round()).abs() > 1e-6 * every || every.round() < 1.0 {
+                    return Err(format!(
+                        "--step {h}: {} steps every {} s in {file}, not a whole number of {h} s \
+                         steps",
+                        c.name,
+                        c.every as f64 * sys.step
+                    ));
+                }
+                rescaled.push(format!("{} every {}", c.name, every.round()));
+                c.every = every.round() as usize;
+            }
+            eprintln!(
+                "note: --step {h} overrides the step of {file} ({} s){}",
+                sys.step,
+                if rescaled.is_empty() {
+                    String::new()
+                } else {
+                    format!(
+                        "; the slower components keep their periods: {}",
+                        rescaled.join(", ")
+                    )
+                }
+            );
+            sys.step = h;
+        }
+        (Some(h), false) => sys.step = h,
+        (None, false) => sys.step = STEP,
+        _ => {}
+    }
+    let stop = match (a.stop_time, a.system.duration) {
+        (Some(t), _) => Some(t),
+        (None, Some(d)) => Some(sys.start_time + d),
+        (None, None) => None,
+    };
+    match stop {
+        Some(t) => {
+            if !(t.is_finite() && t > sys.start_time + sys.step * 0.5) {
+                return Err(format!(
+                    "stop time {t} s must be after the system's start time {} s by a step at \
+                     least",
+                    sys.start_time
+                ));
+            }
+            if sys.stop_time > sys.start_time && t != sys.stop_time {
+                eprintln!(
+                    "note: the command line's stop time {t} s overrides that of {file} ({} s)",
+                    sys.stop_time
+                );
+            }
+            sys.stop_time = t;
+        }
+        None if sys.stop_time <= sys.start_time => sys.stop_time = sys.start_time + DURATION,
+        None => {}
+    }
+    if a.system.uniform && sys.components.iter().any(|c| c.every > 1) {
+        eprintln!("note: --uniform steps every component of {file} at the base step");
+        for c in &mut sys.components {
+            c.every = 1;
+        }
+    }
+    if let Some(o) = order {
+        if o != sys.order {
+            eprintln!(
+                "note: --order {} overrides the order of {file} ({})",
+                order_name(o),
+                order_name(sys.order)
+            );
+        }
+        sys.order = o;
+    }
+    Ok(sys)
+}
+
 /// Runs `m1cs run`.
 pub fn run_cmd(a: &RunCmd) -> Result<(), String> {
     std::fs::create_dir_all(&a.out).map_err(|e| format!("{}: {e}", a.out.display()))?;
@@ -492,32 +602,7 @@ pub fn run_cmd(a: &RunCmd) -> Result<(), String> {
     let mut runs: Vec<(String, System)> = Vec::new();
     if let Some(path) = &a.ssp {
         let s = cosim::ssp::read(path).map_err(|e| e.to_string())?;
-        let mut sys = s.system.clone();
-        if !s.has_step {
-            sys.step = a.system.step;
-        }
-        if let Some(t) = a.stop_time {
-            if !(t.is_finite() && t > sys.start_time + sys.step * 0.5) {
-                return Err(format!(
-                    "--stop-time {t} must be after the system's start time {} by a step at least",
-                    sys.start_time
-                ));
-            }
-            sys.stop_time = t;
-        } else if sys.stop_time <= sys.start_time {
-            sys.stop_time = sys.start_time + a.system.duration;
-        }
-        if let Some(o) = given {
-            if o != sys.order {
-                eprintln!(
-                    "note: --order {} overrides the order of {} ({})",
-                    order_name(o),
-                    path.display(),
-                    order_name(sys.order)
-                );
-            }
-            sys.order = o;
-        }
+        let mut sys = ssp_system(a, path, &s, given)?;
         sys.zero_start = a.zero_start;
         sys.no_lookahead = a.no_lookahead;
         runs.push(("system".into(), sys));
@@ -525,7 +610,8 @@ pub fn run_cmd(a: &RunCmd) -> Result<(), String> {
         // The optics metrics are recorded when the system has an `optics` component.
         let has_optics = runs[0].1.components.iter().any(|c| c.name == "optics");
         let metrics: &[&str] = if has_optics { &METRICS } else { &[] };
-        let outcome = execute(a, runs, metrics);
+        // Paths inside the unpacked archive are named as `X.ssp: resources/x.fmu`.
+        let outcome = execute(a, runs, metrics).map_err(|e| s.localize(&e));
         drop(s);
         return outcome;
     }
