@@ -314,3 +314,64 @@ fn ssp_overrides_say_so_and_errors_name_the_archive() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `--format npy` writes the same rows as the CSV, as one float64 array (rows x columns, C
+/// order) with its column names beside it.
+#[test]
+fn npy_results_hold_the_csv_rows() {
+    let dir = scratch("npy");
+    let fmus = fmu_dir();
+    let run = |format: &str| {
+        let out = dir.join(format);
+        let o = Command::new(env!("CARGO_BIN_EXE_m1cs"))
+            .args([
+                "run",
+                "--layout",
+                "keck",
+                "--duration",
+                "0.05",
+                "--no-plots",
+            ])
+            .args([
+                "--record",
+                "mirror.z",
+                "--fmu-dir",
+                &fmus,
+                "--format",
+                format,
+            ])
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        out
+    };
+    let (header, rows) = read_csv(&run("csv").join("closed_loop.csv"));
+    let out = run("npy");
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("closed_loop.npy.json")).unwrap())
+            .unwrap();
+    let names: Vec<String> = meta["columns"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c.as_str().unwrap().to_string())
+        .collect();
+    assert_eq!(names, header);
+    assert_eq!(header.len(), 5 + 108);
+    assert_eq!(meta["rows"], rows.len());
+    let bytes = std::fs::read(out.join("closed_loop.npy")).unwrap();
+    let npy = npyz::NpyFile::new(&bytes[..]).unwrap();
+    assert_eq!(npy.shape(), &[rows.len() as u64, header.len() as u64]);
+    let values: Vec<f64> = npy.into_vec().unwrap();
+    for (k, row) in rows.iter().enumerate() {
+        // The CSV's text is the shortest representation that reads back the same float.
+        assert_eq!(
+            &values[k * header.len()..(k + 1) * header.len()],
+            &row[..],
+            "row {k}"
+        );
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -112,7 +112,7 @@ impl Settled {
 /// accumulate as rows arrive; the metrics and the displacement stay in memory only when the
 /// figures are drawn. So with `--no-plots` a run takes the same memory whatever its length.
 struct RunSink<'a> {
-    csv: cosim::system::CsvSink,
+    file: Box<dyn cosim::system::Sink>,
     /// User record entries (their columns always go to the CSV).
     asked: &'a [String],
     metrics: &'a [&'a str],
@@ -147,7 +147,7 @@ impl cosim::system::Sink for RunSink<'_> {
             .collect();
         let names =
             |keep: &[usize]| -> Vec<String> { keep.iter().map(|&k| columns[k].clone()).collect() };
-        self.csv.columns(&names(&self.to_csv), rows)?;
+        self.file.columns(&names(&self.to_csv), rows)?;
         self.memory.columns(&names(&self.to_memory), rows)
     }
 
@@ -162,7 +162,7 @@ impl cosim::system::Sink for RunSink<'_> {
         }
         self.buf.clear();
         self.buf.extend(self.to_csv.iter().map(|&k| row[k]));
-        self.csv.row(&self.buf)?;
+        self.file.row(&self.buf)?;
         if !self.to_memory.is_empty() {
             self.buf.clear();
             self.buf.extend(self.to_memory.iter().map(|&k| row[k]));
@@ -172,7 +172,7 @@ impl cosim::system::Sink for RunSink<'_> {
     }
 
     fn finish(&mut self) -> cosim::Result<()> {
-        self.csv.finish()?;
+        self.file.finish()?;
         self.memory.finish()
     }
 }
@@ -209,7 +209,18 @@ pub(super) fn record_runs(
         spectra: Vec::new(),
     };
     for (label, s) in runs {
-        let csv = a.out.join(format!("{}.csv", label.replace(' ', "_")));
+        let stem = label.replace(' ', "_");
+        let (csv, file): (_, Box<dyn cosim::system::Sink>) = match a.format {
+            Format::Csv => {
+                let p = a.out.join(format!("{stem}.csv"));
+                let sink = cosim::system::CsvSink::create(&p).map_err(|e| e.to_string())?;
+                (p, Box::new(sink))
+            }
+            Format::Npy => {
+                let p = a.out.join(format!("{stem}.npy"));
+                (p.clone(), Box::new(super::npy::NpySink::new(&p)))
+            }
+        };
         let mirror = ["mirror", "segments"]
             .into_iter()
             .find(|m| s.components.iter().any(|c| c.name == *m));
@@ -221,7 +232,7 @@ pub(super) fn record_runs(
             record.push(format!("{m}.z"));
         }
         let mut sink = RunSink {
-            csv: cosim::system::CsvSink::create(&csv).map_err(|e| e.to_string())?,
+            file,
             asked: &a.record,
             metrics,
             figures: !a.no_plots,

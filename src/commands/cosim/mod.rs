@@ -7,6 +7,7 @@
 
 mod execute;
 mod figures;
+mod npy;
 
 use execute::execute;
 pub(crate) use execute::interrupted;
@@ -186,9 +187,14 @@ pub struct RunCmd {
     #[arg(long, value_name = "PATTERN")]
     pub record: Vec<String>,
     /// Draw no figures: the mirror displacement is not kept in memory, so a run takes the
-    /// same memory whatever its length (the CSV and the summary are written as usual).
+    /// same memory whatever its length (the results file and the summary are written as usual).
     #[arg(long)]
     pub no_plots: bool,
+    /// Format of each run's results file, written as the run goes: `csv` (a header row, time
+    /// first) or `npy` (one float64 rows x columns NumPy array, memory-mappable, for TMT-size
+    /// records such as `--record mirror.z`; the column names in `<run>.npy.json`).
+    #[arg(long, value_enum, default_value_t = Format::Csv)]
+    pub format: Format,
     /// Stepping order of the master [default: gauss-seidel for the standard systems; with
     /// --ssp, the file's order (its master annotation; jacobi without one), which this flag
     /// overrides]. Gauss-Seidel steps the components in turn on their predecessors' newest
@@ -210,6 +216,15 @@ pub struct RunCmd {
     /// the same values, for timing comparisons).
     #[arg(long)]
     pub no_lookahead: bool,
+}
+
+/// Format of the results file of `m1cs run`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum Format {
+    /// Comma-separated text, full precision.
+    Csv,
+    /// A NumPy .npy array (float64, C order) and a .json with its column names.
+    Npy,
 }
 
 /// Stepping order.
