@@ -63,6 +63,9 @@ enum Cmd {
     Report(commands::report::ReportArgs),
     /// Writes a standard closed-loop system (layout x actuator x scenario) as an SSP archive.
     System(commands::cosim::SystemCmd),
+    /// The on-disk cache of computed arrays (the structure's modes, the wind's tables): where
+    /// it is, what it holds; `--clear` empties it.
+    Cache(commands::cache::CacheArgs),
     /// Reports a layout: segments, actuators, edges, sensors and the neighbour histogram.
     #[command(alias = "layout")]
     Geometry(commands::geometry::GeometryArgs),
@@ -82,6 +85,7 @@ fn main() -> ExitCode {
         Cmd::Amatrix(a) => commands::quasistatic::amatrix(&a),
         Cmd::Run(a) => commands::cosim::run_cmd(&a),
         Cmd::System(a) => commands::cosim::system(&a),
+        Cmd::Cache(a) => commands::cache::cache(&a),
         Cmd::Coupling(a) => commands::dynamics::coupling(&a),
         Cmd::Csi(a) => commands::csi::csi(&a),
         Cmd::Wind(a) => commands::wind::wind(&a),

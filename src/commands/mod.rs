@@ -1,6 +1,7 @@
 //! The subcommands of `m1cs`, one module per family. Each parses its flags, calls the library
 //! (`m1`, or the co-simulation master) and reports: a table, `--json` or `--plot`.
 
+pub mod cache;
 pub mod cosim;
 pub mod csi;
 pub mod defaults;

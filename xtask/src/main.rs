@@ -173,14 +173,22 @@ fn venv() -> Result<PathBuf, String> {
 fn test(extra: &[String]) -> Result<(), String> {
     package(&[])?;
     let python = venv()?;
-    run(cargo().args(["test", "--release", "--workspace"]))?;
+    // The tests' own on-disk cache of computed arrays (m1::linalg::cache), emptied first: the
+    // suite computes the modes and wind tables it needs once and reads them after, without
+    // touching the user's cache.
+    let cache = target_dir().join("test-cache");
+    let _ = std::fs::remove_dir_all(&cache);
+    run(cargo()
+        .args(["test", "--release", "--workspace"])
+        .env("M1CS_CACHE_DIR", &cache))?;
     // The API documentation builds without a warning (broken or private intra-doc links).
     doc(&[])?;
     let mut pytest = Command::new(python);
     pytest
         .args(["-m", "pytest", "-q", "tests/python"])
         .args(extra)
-        .env("M1CS_FMU_DIR", target_dir().join("fmu"));
+        .env("M1CS_FMU_DIR", target_dir().join("fmu"))
+        .env("M1CS_CACHE_DIR", &cache);
     run(&mut pytest)
 }
 

@@ -15,7 +15,8 @@
 //!   solvers, the monolithic models.
 //! - [`analysis`]: quasi-static analyses (Table 1), control-structure interaction, the
 //!   split-coupling study, step-response figures, the studies' default settings.
-//! - [`linalg`]: SIMD kernels, Krylov estimates, block and skyline Cholesky, the NPY/NPZ reader.
+//! - [`linalg`]: SIMD kernels, Krylov estimates, block and skyline Cholesky, the NPY/NPZ reader,
+//!   the on-disk cache of computed arrays.
 
 // The workspace denies unwrap, expect, panic and unreachable (Cargo.toml). The physics crate
 // is not an FFI boundary: its kernels assert shape invariants that callers guarantee (a

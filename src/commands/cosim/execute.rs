@@ -254,6 +254,8 @@ pub(super) fn record_runs(
             show_progress(&bar, t0, t, stop);
         });
         bar.finish_and_clear();
+        // The run's own wall time (set-up and loop), before the figures' post-processing.
+        let seconds = t0.elapsed().as_secs_f64();
         let report = outcome.map_err(|f| {
             format!(
                 "{label}: {} (results up to the failure in {})",
@@ -284,7 +286,7 @@ pub(super) fn record_runs(
             memory,
             settled: sink.stats.iter().map(|(_, n, s)| (n.clone(), *s)).collect(),
             report,
-            seconds: t0.elapsed().as_secs_f64(),
+            seconds,
         });
         if let Some(t) = interrupted {
             eprintln!(

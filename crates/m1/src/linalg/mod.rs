@@ -1,7 +1,9 @@
 //! Numerical building blocks: SIMD kernels, Krylov estimates, the block Cholesky factor, the
-//! skyline Cholesky of the FE cell, the NPY/NPZ reader, periodic cubic interpolation.
+//! skyline Cholesky of the FE cell, the NPY/NPZ reader, periodic cubic interpolation, and the
+//! on-disk cache of computed arrays (the structure's modes, the wind's tables).
 
 pub mod blockchol;
+pub mod cache;
 pub mod interpolation;
 pub mod kernels;
 pub mod krylov;

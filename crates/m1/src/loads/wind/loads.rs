@@ -2,6 +2,7 @@
 
 use super::spectrum::inverse_fft_2d;
 use super::*;
+use crate::linalg::cache::{Fingerprint, Store};
 use crate::linalg::interpolation::periodic_stencil;
 
 /// Tabulated wind loads of every segment over one screen period of frozen flow.
@@ -47,6 +48,19 @@ impl WindLoads {
     /// [`WindLoads::with_flow`] gives for another speed or rms pressure exactly what `new`
     /// gives.
     pub fn new(geometry: &Geometry, params: &WindParams) -> Result<WindLoads, M1Error> {
+        Self::new_in(geometry, params, &Store::from_env())
+    }
+
+    /// [`WindLoads::new`] with the tables from (or into) the cache `store` (the on-disk cache
+    /// of [`crate::linalg::cache`]; [`WindLoads::new`] takes the environment's).
+    ///
+    /// # Errors
+    /// As [`WindLoads::new`].
+    pub fn new_in(
+        geometry: &Geometry,
+        params: &WindParams,
+        store: &Store,
+    ) -> Result<WindLoads, M1Error> {
         params.screen.check()?;
         let unit = ScreenParams {
             pressure_rms: 1.0,
@@ -105,54 +119,42 @@ impl WindLoads {
         }
         let area = area.abs();
 
-        // Filtered spectra: c H, c H_xi, c H_eta; and the expected variance of G_0.
-        let spectrum = ScreenSpectrum::new(sp)?;
-        let psd = sp.discrete_psd();
-        let mut b0 = spectrum.coefficients;
-        let mut b1 = vec![Complex64::ZERO; n * n];
-        let mut b2 = vec![Complex64::ZERO; n * n];
-        let variance: f64 = b0
-            .par_chunks_mut(n)
-            .zip(b1.par_chunks_mut(n))
-            .zip(b2.par_chunks_mut(n))
-            .enumerate()
-            .map(|(iy, ((r0, r1), r2))| {
-                let ky = psd.wavenumber(iy);
-                let mut var = 0.0;
-                for ix in 0..n {
-                    let c = r0[ix];
-                    if c == Complex64::ZERO {
-                        continue;
-                    }
-                    let kx = psd.wavenumber(ix);
-                    let [h, hx, hy] = polygon_transform(&hexagon, [kx, ky]);
-                    var += psd.bin(ix, iy) * h.norm_sqr();
-                    r0[ix] = c * h;
-                    r1[ix] = c * hx;
-                    r2[ix] = c * hy;
-                }
-                var
-            })
-            .sum();
-
         // Segment positions in the wind frame, in samples.
         let centres: Vec<[f64; 2]> = layout.segments.iter().map(|s| to_wind(s.center)).collect();
         let along: Vec<f64> = centres.iter().map(|c| c[0] / dx).collect();
-        let mut tables = vec![0.0; 3 * nseg * n];
-        for (q, buf) in [b0, b1, b2].into_iter().enumerate() {
-            let mut buf = buf;
-            inverse_fft_2d(&mut buf, n);
-            for (i, c) in centres.iter().enumerate() {
-                let (rows, w) = periodic_stencil(c[1] / dx, n);
-                let out = &mut tables[(3 * i + q) * n..(3 * i + q + 1) * n];
-                for (r, wr) in rows.iter().zip(w) {
-                    let row = &buf[r * n..(r + 1) * n];
-                    for (o, v) in out.iter_mut().zip(row) {
-                        *o += wr * SQRT_2 * v.re;
-                    }
-                }
-            }
+        // The tables and the expected variance: from the cache when an earlier run made them
+        // for the same screen and segments, else synthesised.
+        let mut key = Fingerprint::new("wind");
+        key.bytes(
+            serde_json::to_string(sp)
+                .map_err(|e| M1Error::Numerical(format!("wind cache key: {e}")))?
+                .as_bytes(),
+        )
+        .usizes(&[n, nseg])
+        .f64s(&[dx, cos, sin]);
+        for p in hexagon.iter().chain(&centres) {
+            key.f64s(p);
         }
+        let cached = store
+            .load(&key, &["variance", "tables"])
+            .filter(|a| a[0].data.len() == 1 && a[1].shape == [3 * nseg * n]);
+        let (variance, tables) = match cached {
+            Some(mut a) => {
+                let tables = a.pop().map(|t| t.data).unwrap_or_default();
+                (a[0].data[0], tables)
+            }
+            None => {
+                let (variance, tables) = synthesise(sp, &hexagon, &centres, dx)?;
+                store.store(
+                    &key,
+                    &[
+                        ("variance", &[], &[variance]),
+                        ("tables", &[3 * nseg * n], &tables),
+                    ],
+                );
+                (variance, tables)
+            }
+        };
 
         // Wind-frame integrals -> generalised forces -> actuator forces.
         let mut to_load = Vec::with_capacity(nseg);
@@ -327,4 +329,64 @@ pub(super) fn unit2(v: [f64; 2]) -> [f64; 2] {
     } else {
         [1.0, 0.0]
     }
+}
+
+/// The screen's filtered spectra turned into every segment's tables (`3 nseg n` values: the
+/// integrals of the unit screen over the hexagon at each sample along the flow) and the
+/// expected variance of `G_0`: the random draws of the spectrum, the hexagon's transform at
+/// every wavenumber, and three inverse 2-D FFTs.
+fn synthesise(
+    sp: &ScreenParams,
+    hexagon: &[[f64; 2]],
+    centres: &[[f64; 2]],
+    dx: f64,
+) -> Result<(f64, Vec<f64>), M1Error> {
+    let n = sp.samples;
+    let nseg = centres.len();
+    // Filtered spectra: c H, c H_xi, c H_eta; and the expected variance of G_0.
+    let spectrum = ScreenSpectrum::new(sp)?;
+    let psd = sp.discrete_psd();
+    let mut b0 = spectrum.coefficients;
+    let mut b1 = vec![Complex64::ZERO; n * n];
+    let mut b2 = vec![Complex64::ZERO; n * n];
+    let variance: f64 = b0
+        .par_chunks_mut(n)
+        .zip(b1.par_chunks_mut(n))
+        .zip(b2.par_chunks_mut(n))
+        .enumerate()
+        .map(|(iy, ((r0, r1), r2))| {
+            let ky = psd.wavenumber(iy);
+            let mut var = 0.0;
+            for ix in 0..n {
+                let c = r0[ix];
+                if c == Complex64::ZERO {
+                    continue;
+                }
+                let kx = psd.wavenumber(ix);
+                let [h, hx, hy] = polygon_transform(hexagon, [kx, ky]);
+                var += psd.bin(ix, iy) * h.norm_sqr();
+                r0[ix] = c * h;
+                r1[ix] = c * hx;
+                r2[ix] = c * hy;
+            }
+            var
+        })
+        .sum();
+
+    let mut tables = vec![0.0; 3 * nseg * n];
+    for (q, buf) in [b0, b1, b2].into_iter().enumerate() {
+        let mut buf = buf;
+        inverse_fft_2d(&mut buf, n);
+        for (i, c) in centres.iter().enumerate() {
+            let (rows, w) = periodic_stencil(c[1] / dx, n);
+            let out = &mut tables[(3 * i + q) * n..(3 * i + q + 1) * n];
+            for (r, wr) in rows.iter().zip(w) {
+                let row = &buf[r * n..(r + 1) * n];
+                for (o, v) in out.iter_mut().zip(row) {
+                    *o += wr * SQRT_2 * v.re;
+                }
+            }
+        }
+    }
+    Ok((variance, tables))
 }

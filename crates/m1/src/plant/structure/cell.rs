@@ -10,6 +10,7 @@ use super::{CellParams, Flexibility, ModalModel, StaticFe};
 use crate::M1Error;
 use crate::aperture::geometry::{Geometry, GeometryParams};
 use crate::aperture::layout::Layout;
+use crate::linalg::cache::{Fingerprint, Store};
 use crate::linalg::skyline::Skyline;
 
 /// One actuator attachment: `z = x[dof] + c[1] x[dof + 1] + c[2] x[dof + 2]` (`c[0] = 1`).
@@ -280,8 +281,62 @@ impl CellModel {
     }
 
     /// Every mode of the model (dense self-adjoint eigensolve of `M^-1/2 K M^-1/2`), with the
-    /// exact static correction of the FE model attached.
+    /// exact static correction of the FE model attached. The frequencies and shapes come from
+    /// the on-disk cache when an earlier run computed them for the same stiffness, masses and
+    /// attachments ([`crate::linalg::cache`]; `M1CS_CACHE=off` turns it off).
+    ///
+    /// # Errors
+    /// A mode with a non-positive eigenvalue, or a failed eigensolve.
     pub fn modes(&self) -> Result<ModalModel, M1Error> {
+        self.modes_in(&Store::from_env())
+    }
+
+    /// [`Self::modes`] with the cache `store`.
+    ///
+    /// # Errors
+    /// As [`Self::modes`].
+    pub fn modes_in(&self, store: &Store) -> Result<ModalModel, M1Error> {
+        let (n, na) = (self.ndof, self.n_actuators());
+        let mut key = Fingerprint::new("modes");
+        key.usizes(&[n, na, self.pier_dof])
+            .f64s(&self.stiffness)
+            .f64s(&self.mass)
+            .f64s(&[self.k_pier]);
+        for a in &self.attachments {
+            key.usizes(&[a.dof]).f64s(&a.coef);
+        }
+        if let Some(mut arrays) = store.load(&key, &["frequencies", "phi_cell", "phi_pier"])
+            && arrays[0].shape == [n]
+            && arrays[1].shape == [na, n]
+            && arrays[2].shape == [n]
+        {
+            let phi_pier = arrays.pop().map(|a| a.data).unwrap_or_default();
+            let phi_cell = arrays.pop().map(|a| a.data).unwrap_or_default();
+            let frequencies = arrays.pop().map(|a| a.data).unwrap_or_default();
+            return Ok(ModalModel {
+                na,
+                frequencies,
+                damping_ratios: None,
+                phi_cell,
+                phi_pier,
+                k_pier: self.k_pier,
+                flexibility: Flexibility::FiniteElement(StaticFe::new(self)?),
+            });
+        }
+        let m = self.solve_modes()?;
+        store.store(
+            &key,
+            &[
+                ("frequencies", &[n], &m.frequencies),
+                ("phi_cell", &[na, n], &m.phi_cell),
+                ("phi_pier", &[n], &m.phi_pier),
+            ],
+        );
+        Ok(m)
+    }
+
+    /// [`Self::modes`] computed (the dense eigensolve).
+    fn solve_modes(&self) -> Result<ModalModel, M1Error> {
         let n = self.ndof;
         let d: Vec<f64> = self.mass.iter().map(|m| 1.0 / m.sqrt()).collect();
         let kt = faer::Mat::<f64>::from_fn(n, n, |i, j| {
