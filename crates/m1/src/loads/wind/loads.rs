@@ -346,6 +346,8 @@ fn synthesise(
     // Filtered spectra: c H, c H_xi, c H_eta; and the expected variance of G_0.
     let spectrum = ScreenSpectrum::new(sp)?;
     let psd = sp.discrete_psd();
+    let k: Vec<f64> = (0..n).map(|i| psd.wavenumber(i)).collect();
+    let grid = PolygonGrid::new(hexagon, &k, &k);
     let mut b0 = spectrum.coefficients;
     let mut b1 = vec![Complex64::ZERO; n * n];
     let mut b2 = vec![Complex64::ZERO; n * n];
@@ -355,15 +357,13 @@ fn synthesise(
         .zip(b2.par_chunks_mut(n))
         .enumerate()
         .map(|(iy, ((r0, r1), r2))| {
-            let ky = psd.wavenumber(iy);
             let mut var = 0.0;
             for ix in 0..n {
                 let c = r0[ix];
                 if c == Complex64::ZERO {
                     continue;
                 }
-                let kx = psd.wavenumber(ix);
-                let [h, hx, hy] = polygon_transform(hexagon, [kx, ky]);
+                let [h, hx, hy] = grid.at(ix, iy);
                 var += psd.bin(ix, iy) * h.norm_sqr();
                 r0[ix] = c * h;
                 r1[ix] = c * hx;

@@ -85,10 +85,10 @@ mod spectrum;
 mod tests;
 
 pub use loads::WindLoads;
-pub use polygon::{equivalent_forces, polygon_moments, polygon_transform};
+pub use polygon::{PolygonGrid, equivalent_forces, polygon_moments, polygon_transform};
 pub use spectrum::{DiscretePsd, ScreenSpectrum};
 
-use spectrum::bin_wavenumber;
+use spectrum::{bin_wavenumber, signed};
 
 use std::f64::consts::{PI, SQRT_2, TAU};
 
@@ -258,16 +258,33 @@ impl ScreenParams {
         let n = self.samples;
         let dk = 1.0 / self.size;
         let total: f64 = self.outer_scales.iter().map(|c| c.fraction).sum();
+        // The spectrum is even in kx and in ky: each component's values on a quarter of the
+        // grid, by (|signed ix|, |signed iy|), serve every bin (a quarter of the power laws).
+        let h = n / 2 + 1;
+        let quarter = |l0: f64| -> Vec<f64> {
+            let mut q = vec![0.0; h * h];
+            for (ay, row) in q.chunks_exact_mut(h).enumerate() {
+                for (ax, v) in row.iter_mut().enumerate() {
+                    let (kx, ky) = (ax as f64 * dk, ay as f64 * dk);
+                    *v = von_karman_psd(kx.hypot(ky), 1.0, l0);
+                }
+            }
+            q
+        };
         let mut weights = Vec::new();
+        let mut units = Vec::new();
         for c in &self.outer_scales {
             if c.fraction <= 0.0 {
                 continue;
             }
+            let unit = quarter(c.outer_scale);
+            // Summed over the whole grid in bin order, as the bins are drawn.
             let mut sum = 0.0;
             for iy in 0..n {
                 for ix in 0..n {
-                    if let Some((kx, ky)) = bin_wavenumber(ix, iy, n, dk) {
-                        sum += von_karman_psd(kx.hypot(ky), 1.0, c.outer_scale);
+                    if bin_wavenumber(ix, iy, n, dk).is_some() {
+                        sum += unit[signed(iy, n).unsigned_abs() as usize * h
+                            + signed(ix, n).unsigned_abs() as usize];
                     }
                 }
             }
@@ -275,8 +292,24 @@ impl ScreenParams {
             // Each bin carries Phi(k) dk^2; the unit-variance sum above is rescaled to the
             // component's variance.
             weights.push((c.outer_scale, if sum > 0.0 { variance / sum } else { 0.0 }));
+            units.push(unit);
         }
-        DiscretePsd { n, dk, weights }
+        // The weighted sum in the order DiscretePsd::at takes the components.
+        let quadrant = (0..h * h)
+            .map(|j| {
+                weights
+                    .iter()
+                    .zip(&units)
+                    .map(|(&(_, w), u)| w * u[j])
+                    .sum()
+            })
+            .collect();
+        DiscretePsd {
+            n,
+            dk,
+            weights,
+            quadrant,
+        }
     }
 }
 

@@ -9,15 +9,21 @@ pub struct DiscretePsd {
     pub(super) dk: f64,
     /// (outer scale, factor on the unit-variance von Karman spectrum) per component.
     pub(super) weights: Vec<(f64, f64)>,
+    /// [`Self::at`] on the grid by `(|signed ix|, |signed iy|)`, row-major with `n / 2 + 1`
+    /// columns: the spectrum is even in each wavenumber, so a quarter of the grid holds every
+    /// value (each computed exactly as [`Self::at`] computes it).
+    pub(super) quadrant: Vec<f64>,
 }
 
 impl DiscretePsd {
     /// Variance (Pa^2) carried by the bin `(ix, iy)` of the FFT grid (0 at the mean and Nyquist).
     pub fn bin(&self, ix: usize, iy: usize) -> f64 {
-        match bin_wavenumber(ix, iy, self.n, self.dk) {
-            Some((kx, ky)) => self.at(kx, ky),
-            None => 0.0,
+        if bin_wavenumber(ix, iy, self.n, self.dk).is_none() {
+            return 0.0;
         }
+        let h = self.n / 2 + 1;
+        self.quadrant[signed(iy, self.n).unsigned_abs() as usize * h
+            + signed(ix, self.n).unsigned_abs() as usize]
     }
 
     /// Variance density times `dk^2` at wavenumber `(kx, ky)` (cycles/m), as for a grid bin.
