@@ -327,7 +327,8 @@ pub(super) fn summary_row(o: &RunOutcome, duration: f64) -> serde_json::Value {
             .collect::<serde_json::Map<_, _>>(),
         "rows": o.report.rows,
         "interrupted_at_s": o.report.interrupted,
-        "ended_by": o.report.ended.as_ref().map(|e| json!({"component": e.component, "time_s": e.time})),
+        "ended_by": o.report.ended.as_ref()
+            .map(|e| json!({"component": e.component, "time_s": e.time})),
         "rms_surface_m": rms("optics.rms_surface"),
         "focus_mode_m": rms("optics.focus_mode"),
         "rms_surface_without_focus_m": rms("optics.rms_surface_without_focus"),

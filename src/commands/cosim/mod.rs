@@ -180,10 +180,11 @@ pub struct RunCmd {
     /// Record every N base steps (the spectra reach half the recording rate).
     #[arg(long, default_value_t = 1)]
     pub decimation: usize,
-    /// Also record these outputs into each run's CSV (repeatable): `component.signal` (an
-    /// array by its base name, e.g. `mirror.z`), or a pattern where `*` stands for any run of
-    /// characters and `?` for one, e.g. `mirror.z[*]`, `*.rms_surface`, `sensors.*`. Real,
-    /// Integer and Boolean outputs (a Boolean as 0/1). The CSV is written as the run goes.
+    /// Also record these outputs into each run's results file (repeatable):
+    /// `component.signal` (an array by its base name, e.g. `mirror.z`), or a pattern where `*`
+    /// stands for any run of characters and `?` for one, e.g. `mirror.z[*]`, `*.rms_surface`,
+    /// `sensors.*`. Real, Integer and Boolean outputs (a Boolean as 0/1). The file is written
+    /// as the run goes.
     #[arg(long, value_name = "PATTERN")]
     pub record: Vec<String>,
     /// Draw no figures: the mirror displacement is not kept in memory, so a run takes the
