@@ -1168,3 +1168,48 @@ fn results_say_who_ended_the_run_and_when() {
         assert_eq!(r.n_rows(), 101);
     }
 }
+
+/// A component that ends the run while its step is on Gauss-Seidel's look-ahead thread: the
+/// run ends exactly as in the sequential order (the same rows, the same `ended`), though the
+/// master went on with the others meanwhile; and the same when it ends in the very last step.
+/// A (its own FMU file, not recorded, read by nobody) may go to the look-ahead thread; B is
+/// recorded.
+#[test]
+fn an_end_on_the_lookahead_thread_is_the_sequential_end() {
+    use cosim::system::SchedulerParams;
+    let (a, b) = (probe("lookahead_a"), probe("lookahead_b"));
+    for terminate_at in [0.1, 0.99] {
+        let sys = System::new(1.0, H)
+            .component("A", &a)
+            .parameter("A", "terminate_at", Value::Real(terminate_at))
+            .component("B", &b)
+            .order(Order::GaussSeidel)
+            .scheduler(SchedulerParams {
+                lookahead_min_seconds: 0.0,
+                ..SchedulerParams::default()
+            });
+        let mut sequential = sys.clone();
+        sequential.no_lookahead = true;
+        let what = format!("terminate_at {terminate_at}");
+        let seq = run_ok(&sequential, &["B.t_end"], &what);
+        let mut sim = cosim::Simulation::new(&sys, &["B.t_end".into()]).unwrap();
+        sim.step().unwrap();
+        sim.step().unwrap();
+        assert!(
+            sim.lookahead_steps() > 0,
+            "{what}: A never went to the look-ahead thread"
+        );
+        drop(sim);
+        let la = run_ok(&sys, &["B.t_end"], &what);
+        assert_eq!(la.values(), seq.values(), "{what}: the rows differ");
+        assert_eq!(la.ended, seq.ended, "{what}");
+        let ended = la.ended.as_ref().expect("ended");
+        assert_eq!(ended.component, "A");
+        assert!(
+            (ended.time - terminate_at).abs() < 1e-9,
+            "{what}: {}",
+            ended.time
+        );
+        assert!((la.last_row().unwrap()[0] - terminate_at).abs() < 1e-9);
+    }
+}

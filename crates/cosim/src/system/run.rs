@@ -325,47 +325,81 @@ pub fn run_into(
         .max(0.0) as usize;
     sink.columns(&columns, steps / decimation + 1)
         .map_err(|e| Box::new(Failure::from(e)))?;
-    let mut row = vec![0.0; columns.len()];
+    let width = columns.len();
+    let mut row = vec![0.0; width];
     let mut rows = 0usize;
-    let mut sample = |sim: &Simulation, sink: &mut dyn Sink| {
+    // Rows taken after the step now on the look-ahead thread began wait here (with their base
+    // step) until it is back: if that step fails or ends the run, the sequential order would
+    // have stopped before them, and they are dropped (so the look-ahead changes no row and no
+    // outcome). `flush(upto)` writes the held rows of base steps up to `upto`.
+    let mut held: Vec<f64> = Vec::new();
+    let mut held_at: Vec<u64> = Vec::new();
+    let mut flush = |sink: &mut dyn Sink,
+                     held: &mut Vec<f64>,
+                     held_at: &mut Vec<u64>,
+                     upto: u64|
+     -> Result<()> {
+        let n = held_at.iter().take_while(|&&a| a <= upto).count();
+        for h in held[..n * width].chunks_exact(width) {
+            sink.row(h)?;
+            rows += 1;
+        }
+        held.drain(..n * width);
+        held_at.drain(..n);
+        Ok(())
+    };
+    let sample = |sim: &Simulation, row: &mut [f64]| {
         row[0] = sim.time();
         sim.recorded_values(&mut row[1..]);
-        rows += 1;
-        sink.row(&row)
     };
-    let mut failed = sample(&sim, sink).err();
+    sample(&sim, &mut row);
+    held.extend_from_slice(&row);
+    held_at.push(0);
+    let mut stopped = flush(sink, &mut held, &mut held_at, 0).err();
     let mut k = 0usize;
     let t0 = Instant::now();
-    let (mut ended, mut interrupted) = (None, None);
-    while failed.is_none() && !sim.finished() {
+    let mut interrupted = None;
+    while stopped.is_none() && !sim.finished() {
         if options.stop.is_some_and(|s| s.load(Ordering::Relaxed)) {
             interrupted = Some(sim.time());
             break;
         }
-        match sim.step() {
-            Ok(()) => {}
-            Err(CosimError::Ended { component, time }) => {
-                ended = Some(Ended { component, time });
-                break;
-            }
-            Err(e) => {
-                failed = Some(e);
-                break;
-            }
+        if let Err(e) = sim.step() {
+            stopped = Some(e);
+            break;
         }
         k += 1;
-        if k.is_multiple_of(decimation)
-            && let Err(e) = sample(&sim, sink)
-        {
-            failed = Some(e);
+        if k.is_multiple_of(decimation) {
+            sample(&sim, &mut row);
+            held.extend_from_slice(&row);
+            held_at.push(k as u64);
+        }
+        // Rows before the step in flight began are final.
+        let upto = sim.in_flight_since().unwrap_or(u64::MAX);
+        if let Err(e) = flush(sink, &mut held, &mut held_at, upto) {
+            stopped = Some(e);
         }
         progress(sim.time(), sim.stop_time());
     }
-    // The component still on the look-ahead thread comes back (its error, if any, counts).
-    if let Err(e) = sim.settle()
-        && failed.is_none()
+    // The component still on the look-ahead thread comes back. Its step began before any step
+    // that failed since, so in the sequential order its error comes first; an error that came
+    // from it (now or inside a step) keeps only the rows up to the base step where it began.
+    let settled = sim.settle();
+    let stopped = match settled {
+        Err(e) => Some(e),
+        Ok(()) => stopped,
+    };
+    let upto = sim.lookahead_failed_at().unwrap_or(u64::MAX);
+    if let Err(e) = flush(sink, &mut held, &mut held_at, upto)
+        && stopped.is_none()
     {
-        failed = Some(e);
+        return Err(Box::new(Failure::from(e)));
+    }
+    let (mut failed, mut ended) = (None, None);
+    match stopped {
+        Some(CosimError::Ended { component, time }) => ended = Some(Ended { component, time }),
+        Some(e) => failed = Some(e),
+        None => {}
     }
     if let Err(e) = sink.finish()
         && failed.is_none()

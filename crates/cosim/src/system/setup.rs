@@ -258,6 +258,8 @@ impl Simulation {
             sources: wiring.sources(),
             stay_on_master,
             lookahead,
+            in_flight_since: None,
+            lookahead_failed_at: None,
             params: system.scheduler,
             parallel_steps: 0,
             outputs: Values::zeroed(total),

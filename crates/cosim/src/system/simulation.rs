@@ -35,6 +35,11 @@ pub struct Simulation {
     pub(super) stay_on_master: Vec<bool>,
     /// Gauss-Seidel's look-ahead thread (None: off, or Jacobi).
     pub(super) lookahead: Option<Lookahead>,
+    /// The base step at which the step now on the look-ahead thread began.
+    pub(super) in_flight_since: Option<u64>,
+    /// The base step at which a step that came back from the look-ahead thread with an error
+    /// (or an end) had begun.
+    pub(super) lookahead_failed_at: Option<u64>,
     /// The scheduler's thresholds (the look-ahead's among them: the mean step time from which a
     /// component may go to the look-ahead thread).
     pub(super) params: SchedulerParams,
@@ -93,6 +98,19 @@ impl Simulation {
     /// Jacobi base steps so far whose components stepped on more than one thread.
     pub fn parallel_steps(&self) -> u64 {
         self.parallel_steps
+    }
+
+    /// The base step at which the component now on the look-ahead thread began its step (None:
+    /// none is). Rows recorded since then are only final once it is back ([`Self::settle`]).
+    pub fn in_flight_since(&self) -> Option<u64> {
+        self.in_flight_since
+    }
+
+    /// The base step at which a step that came back from the look-ahead thread with an error
+    /// or an end had begun: the steps taken after it would not have been taken in the
+    /// sequential order, and rows recorded after it are not to be kept.
+    pub fn lookahead_failed_at(&self) -> Option<u64> {
+        self.lookahead_failed_at
     }
 
     /// Components' steps taken on the look-ahead thread so far.

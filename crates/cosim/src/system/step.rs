@@ -228,7 +228,10 @@ impl Simulation {
             && let Some(comp) = self.comps[i].take()
         {
             match la.hand_over(i, comp, t, h, left) {
-                Ok(()) => return Ok(()),
+                Ok(()) => {
+                    self.in_flight_since = Some(k);
+                    return Ok(());
+                }
                 Err(comp) => {
                     // The thread is gone: step it here, and no more look-ahead.
                     self.comps[i] = Some(comp);
@@ -285,8 +288,11 @@ impl Simulation {
             ..
         } = job;
         self.comps[index] = Some(comp);
+        let since = self.in_flight_since.take();
         if result.is_ok() {
             self.publish_due(self.visible);
+        } else {
+            self.lookahead_failed_at = since;
         }
         result
     }
