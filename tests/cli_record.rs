@@ -272,6 +272,12 @@ fn ssp_overrides_say_so_and_errors_name_the_archive() {
     );
     let (ok, err) = run(&["--step", "3e-4"]);
     assert!(!ok && err.contains("not a whole number"), "{err}");
+    let (ok, err) = run(&["--stop-time", "0.0105"]);
+    assert!(!ok && err.contains("whole number of steps"), "{err}");
+    assert!(
+        !out.join("system.csv").exists(),
+        "a run that failed in its set-up left a results file"
+    );
     // A broken FMU inside the archive.
     let broken = dir.join("broken.ssp");
     {
@@ -373,5 +379,58 @@ fn npy_results_hold_the_csv_rows() {
             "row {k}"
         );
     }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// `--format npy` stopped by a signal: the array's header says the rows written (the header
+/// announced the whole run), the values are whole rows, and the `.json` says the same.
+#[test]
+fn a_signal_leaves_a_whole_npy_array() {
+    let dir = scratch("npy-signal");
+    let out = dir.join("results");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_m1cs"))
+        .args(["run", "--layout", "keck", "--duration", "600", "--no-plots"])
+        .args(["--format", "npy", "--record", "mirror.z"])
+        .args(["--fmu-dir", &fmu_dir(), "--json", "--out"])
+        .arg(&out)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let npy = out.join("open_loop.npy");
+    let t0 = std::time::Instant::now();
+    while std::fs::metadata(&npy).map_or(0, |m| m.len()) < 2_000_000 {
+        assert!(t0.elapsed().as_secs() < 120, "no rows after 120 s");
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    // SAFETY: kill with a valid pid and signal.
+    assert_eq!(
+        unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGINT) },
+        0
+    );
+    let o = child.wait_with_output().unwrap();
+    assert_eq!(
+        o.status.code(),
+        Some(130),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("open_loop.npy.json")).unwrap())
+            .unwrap();
+    let rows = meta["rows"].as_u64().unwrap();
+    let cols = meta["columns"].as_array().unwrap().len() as u64;
+    assert_eq!(cols, 5 + 108);
+    assert!(rows > 100, "{rows} rows");
+    let bytes = std::fs::read(&npy).unwrap();
+    let file = npyz::NpyFile::new(&bytes[..]).unwrap();
+    assert_eq!(file.shape(), &[rows, cols]);
+    let values: Vec<f64> = file.into_vec().unwrap();
+    assert_eq!(values.len() as u64, rows * cols);
+    for k in 0..rows as usize {
+        let t = values[k * cols as usize];
+        assert!((t - k as f64 * 1e-3).abs() < 1e-9, "row {k}: t = {t}");
+    }
+    assert!(values.iter().all(|v| v.is_finite()));
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -1063,6 +1063,18 @@ fn string_connections_run_and_strings_are_not_recorded() {
     }
     let e = run_err(&sys, &["B.s_held"], "recording a String");
     assert!(e.contains("B.s_held"), "{e}");
+    // A pattern leaves the String outputs out instead of failing.
+    let r = run_ok(&sys, &["B.*"], "a pattern over B's outputs");
+    assert!(r.columns.iter().any(|c| c == "B.t_end"), "{:?}", r.columns);
+    assert!(
+        !r.columns.iter().any(|c| c == "B.s_held"),
+        "{:?}",
+        r.columns
+    );
+    // The run advances on the base-step grid: a stop time between two points is refused.
+    let off_grid = System::new(0.055, H).component("A", &path);
+    let e = run_err(&off_grid, &[], "a stop time off the grid");
+    assert!(e.contains("whole number of steps"), "{e}");
 }
 
 /// A connection between variables of different types is refused naming both ends.

@@ -79,6 +79,8 @@ pub(super) struct RunOutcome {
     /// Per metric, its rms and mean over the settled second half of the run.
     settled: Vec<(String, Settled)>,
     seconds: f64,
+    /// The system's start time (s).
+    start: f64,
 }
 
 /// Running sums of a column over the settled part of a run.
@@ -180,13 +182,17 @@ impl cosim::system::Sink for RunSink<'_> {
 /// Raised by Ctrl-C (SIGINT) or SIGTERM: the run under way stops after its current step.
 static STOP: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
-/// Installs the handler that raises [`STOP`] (once per process; a second signal while the
-/// first is being handled is the same request).
+/// Installs the handler that raises [`STOP`] (once per process); a second signal ends the
+/// process at once (exit status 130).
 fn catch_signals() {
     static ONCE: std::sync::Once = std::sync::Once::new();
     ONCE.call_once(|| {
         if let Err(e) = ctrlc::set_handler(|| {
-            STOP.store(true, std::sync::atomic::Ordering::Relaxed);
+            // A second signal while the first is being honoured (a step that does not return):
+            // leave at once, as the shell expects.
+            if STOP.swap(true, std::sync::atomic::Ordering::Relaxed) {
+                std::process::exit(130);
+            }
         }) {
             eprintln!("note: Ctrl-C will not stop the run cleanly ({e})");
         }
@@ -210,6 +216,14 @@ pub(super) fn record_runs(
     };
     for (label, s) in runs {
         let stem = label.replace(' ', "_");
+        // Last time's results go first, so that what is there after a failure is this run's.
+        for old in [
+            format!("{stem}.csv"),
+            format!("{stem}.npy"),
+            format!("{stem}.npy.json"),
+        ] {
+            let _ = std::fs::remove_file(a.out.join(old));
+        }
         let (csv, file): (_, Box<dyn cosim::system::Sink>) = match a.format {
             Format::Csv => {
                 let p = a.out.join(format!("{stem}.csv"));
@@ -257,11 +271,14 @@ pub(super) fn record_runs(
         // The run's own wall time (set-up and loop), before the figures' post-processing.
         let seconds = t0.elapsed().as_secs_f64();
         let report = outcome.map_err(|f| {
-            format!(
-                "{label}: {} (results up to the failure in {})",
-                f.error,
-                csv.display()
-            )
+            // The file exists only if the run got as far as its first row (the old one was
+            // removed before the run).
+            let kept = if csv.exists() {
+                format!(" (results up to the failure in {})", csv.display())
+            } else {
+                String::new()
+            };
+            format!("{label}: {}{kept}", f.error)
         })?;
         if let Some(e) = &report.ended {
             eprintln!(
@@ -287,6 +304,7 @@ pub(super) fn record_runs(
             settled: sink.stats.iter().map(|(_, n, s)| (n.clone(), *s)).collect(),
             report,
             seconds,
+            start: s.start_time,
         });
         if let Some(t) = interrupted {
             eprintln!(
@@ -309,7 +327,13 @@ pub(super) fn summary_row(o: &RunOutcome, duration: f64) -> serde_json::Value {
     let stat = |n: &str| o.settled.iter().find(|(m, _)| m == n).map(|(_, s)| *s);
     let rms = |n: &str| stat(n).map_or(f64::NAN, |s| s.rms());
     let timing = &o.report.timing;
-    let simulated = o.report.interrupted.map_or(duration, |t| t.min(duration));
+    // What was simulated: to the stop time, or to where a signal or a component ended it.
+    let reached = o
+        .report
+        .interrupted
+        .or(o.report.ended.as_ref().map(|e| e.time))
+        .map_or(duration, |t| (t - o.start).clamp(0.0, duration));
+    let simulated = reached.max(1e-12);
     json!({
         "run": o.label,
         "wall_seconds": o.seconds,

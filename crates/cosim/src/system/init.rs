@@ -6,7 +6,7 @@
 //! straight through (A -> B -> C) shows the propagated value at the start time, not its start
 //! value. The outputs a chain needs are read component by component, level by level: at each
 //! level every component with outputs whose inputs are all set gets its pending inputs set in
-//! one call per kind and those outputs read in one call per kind.
+//! one call per kind, then those outputs are read one by one.
 //!
 //! Only what a direct dependency needs is evaluated here: inputs on which no output depends
 //! directly receive their sources' initial outputs before the first step, as every input does
@@ -267,7 +267,7 @@ fn get_one(r: &mut Running, k: Kind, vr: u32) -> Result<Val> {
 }
 
 /// The error for an algebraic loop through unread output `start`: the cycle it sits on (or
-/// leads to), as `a.y -> b.u` steps.
+/// leads to), as its outputs in feeding order (`a.y -> b.y -> a.y`).
 fn algebraic_loop(
     system: &System,
     fmus: &[Fmu],

@@ -225,20 +225,20 @@ impl Sink for Results {
 /// values, as [`Results::write_csv`]).
 pub struct CsvSink {
     path: PathBuf,
-    out: std::io::BufWriter<std::fs::File>,
+    /// Opened when the columns are known (a run that fails in its set-up leaves no file).
+    out: Option<std::io::BufWriter<std::fs::File>>,
     rows: usize,
 }
 
 impl CsvSink {
-    /// Creates (or truncates) `path`.
+    /// A sink that writes `path` (created, or truncated, when the run knows its columns).
     ///
     /// # Errors
-    /// [`CosimError::Io`] naming the file.
+    /// None yet (kept for the callers' sake; the file's errors come with the columns).
     pub fn create(path: &Path) -> Result<Self> {
-        let f = std::fs::File::create(path).map_err(crate::error::io(path))?;
         Ok(Self {
             path: path.to_path_buf(),
-            out: std::io::BufWriter::with_capacity(1 << 16, f),
+            out: None,
             rows: 0,
         })
     }
@@ -247,23 +247,37 @@ impl CsvSink {
     pub fn rows(&self) -> usize {
         self.rows
     }
+
+    fn out(&mut self) -> Result<&mut std::io::BufWriter<std::fs::File>> {
+        self.out.as_mut().ok_or_else(|| {
+            CosimError::Invalid(format!("{}: a row before the columns", self.path.display()))
+        })
+    }
 }
 
 impl Sink for CsvSink {
     fn columns(&mut self, columns: &[String], _rows: usize) -> Result<()> {
         use std::io::Write;
-        writeln!(self.out, "{}", columns.join(",")).map_err(crate::error::io(&self.path))
+        let f = std::fs::File::create(&self.path).map_err(crate::error::io(&self.path))?;
+        let mut out = std::io::BufWriter::with_capacity(1 << 16, f);
+        writeln!(out, "{}", columns.join(",")).map_err(crate::error::io(&self.path))?;
+        self.out = Some(out);
+        Ok(())
     }
 
     fn row(&mut self, row: &[f64]) -> Result<()> {
-        write_csv_row(&mut self.out, row).map_err(crate::error::io(&self.path))?;
+        let path = self.path.clone();
+        write_csv_row(self.out()?, row).map_err(crate::error::io(&path))?;
         self.rows += 1;
         Ok(())
     }
 
     fn finish(&mut self) -> Result<()> {
         use std::io::Write;
-        self.out.flush().map_err(crate::error::io(&self.path))
+        match self.out.as_mut() {
+            Some(out) => out.flush().map_err(crate::error::io(&self.path)),
+            None => Ok(()),
+        }
     }
 }
 

@@ -55,6 +55,16 @@ fn check_experiment(system: &System) -> Result<()> {
             system.stop_time, system.start_time
         )));
     }
+    // The run advances on the base-step grid: a stop time between two points of it would make
+    // the last step end past the stopTime the FMUs were given.
+    let steps = (system.stop_time - system.start_time) / system.step;
+    if (steps - steps.round()).abs() > 1e-6 * steps.max(1.0) {
+        return Err(CosimError::Invalid(format!(
+            "the run from {} s to {} s is {steps} base steps of {} s: make it a whole number \
+             of steps",
+            system.start_time, system.stop_time, system.step
+        )));
+    }
     let mut names = std::collections::HashSet::new();
     for c in &system.components {
         if !names.insert(c.name.as_str()) {

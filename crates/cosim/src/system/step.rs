@@ -112,7 +112,10 @@ impl Simulation {
     ///
     /// # Errors
     /// The first component error, naming the component and the time;
-    /// [`CosimError::Ended`] when a component ended the simulation.
+    /// [`CosimError::Ended`] when a component ended the simulation. After an error the time
+    /// stays at the step's start, but components that stepped before the failing one (in
+    /// Gauss-Seidel order) have already published their outputs for its end: read nothing
+    /// more from the simulation but its timings. [`run_into`](super::run_into) handles this.
     pub fn step(&mut self) -> Result<()> {
         let k = self.n_steps;
         let t = self.time;

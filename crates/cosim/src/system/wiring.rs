@@ -232,10 +232,15 @@ impl Wiring {
                         continue;
                     }
                     let md = &fmus[fmu_of[c]].description;
+                    // A pattern leaves String outputs out (a name asks for one and is refused).
                     picked.extend(
                         md.variables
                             .iter()
-                            .filter(|v| v.causality == Causality::Output && vpat.matches(&v.name))
+                            .filter(|v| {
+                                v.causality == Causality::Output
+                                    && v.var_type != VarType::String
+                                    && vpat.matches(&v.name)
+                            })
                             .map(|v| (c, v)),
                     );
                 }

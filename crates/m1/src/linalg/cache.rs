@@ -49,6 +49,20 @@ impl Fingerprint {
         let mut hasher = Sha256::new();
         hasher.update(BUILD.as_bytes());
         hasher.update(kind.as_bytes());
+        // The kernels the libraries pick at run time (FFT, eigensolver) depend on the CPU: a
+        // folder shared between machines keeps their entries apart.
+        hasher.update(std::env::consts::ARCH.as_bytes());
+        hasher.update(std::env::consts::OS.as_bytes());
+        #[cfg(target_arch = "x86_64")]
+        for (name, has) in [
+            ("avx", std::arch::is_x86_feature_detected!("avx")),
+            ("avx2", std::arch::is_x86_feature_detected!("avx2")),
+            ("fma", std::arch::is_x86_feature_detected!("fma")),
+            ("avx512f", std::arch::is_x86_feature_detected!("avx512f")),
+        ] {
+            hasher.update(name.as_bytes());
+            hasher.update([u8::from(has)]);
+        }
         Self { kind, hasher }
     }
 
@@ -163,11 +177,12 @@ impl Store {
             return;
         }
         let path = dir.join(key.file_name());
+        // A random name, created exclusively (write_entry), for each writer.
         let tmp = dir.join(format!(
-            ".{}.{}.{:?}.tmp",
+            ".{}.{}.{:016x}.tmp",
             key.file_name(),
             std::process::id(),
-            std::thread::current().id()
+            rand::random::<u64>()
         ));
         if write_entry(&tmp, arrays).is_ok() && std::fs::rename(&tmp, &path).is_ok() {
             trim(dir, max_bytes());
@@ -210,10 +225,15 @@ impl Store {
 /// Reads `names` from the `.npz` at `path`: `None` if any is missing or does not check.
 fn read_entry(path: &Path, names: &[&str]) -> Option<Vec<NpyArray>> {
     let f = std::fs::File::open(path).ok()?;
+    let len = f.metadata().ok()?.len();
     let mut zip = zip::ZipArchive::new(f).ok()?;
     let mut out = Vec::with_capacity(names.len());
     for name in names {
         let mut entry = zip.by_name(&format!("{name}.npy")).ok()?;
+        // A stored entry is no larger than its file: a size beyond that is corruption.
+        if entry.size() > len {
+            return None;
+        }
         let mut bytes = Vec::with_capacity(usize::try_from(entry.size()).ok()?);
         // The zip reader checks the entry's CRC-32 once it has read it all.
         entry.read_to_end(&mut bytes).ok()?;
@@ -224,7 +244,10 @@ fn read_entry(path: &Path, names: &[&str]) -> Option<Vec<NpyArray>> {
 
 /// Writes `arrays` as an uncompressed `.npz` at `path`.
 fn write_entry(path: &Path, arrays: &[(&str, &[usize], &[f64])]) -> std::io::Result<()> {
-    let f = std::fs::File::create(path)?;
+    let f = std::fs::File::options()
+        .write(true)
+        .create_new(true)
+        .open(path)?;
     let mut zip = zip::ZipWriter::new(std::io::BufWriter::new(f));
     let large = arrays
         .iter()

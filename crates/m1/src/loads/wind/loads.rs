@@ -351,7 +351,8 @@ fn synthesise(
     let mut b0 = spectrum.coefficients;
     let mut b1 = vec![Complex64::ZERO; n * n];
     let mut b2 = vec![Complex64::ZERO; n * n];
-    let variance: f64 = b0
+    // Per row in parallel, then summed in row order (the same sum whatever the threads).
+    let per_row: Vec<f64> = b0
         .par_chunks_mut(n)
         .zip(b1.par_chunks_mut(n))
         .zip(b2.par_chunks_mut(n))
@@ -371,7 +372,8 @@ fn synthesise(
             }
             var
         })
-        .sum();
+        .collect();
+    let variance: f64 = per_row.iter().sum();
 
     let mut tables = vec![0.0; 3 * nseg * n];
     for (q, buf) in [b0, b1, b2].into_iter().enumerate() {
