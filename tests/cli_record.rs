@@ -120,6 +120,45 @@ fn record_patterns_select_any_outputs() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// Starts a 600 s Keck run of `m1cs run` (no figures) with `extra` arguments, results in `out`
+/// and `TMPDIR` at `tmp`; once `file` holds `bytes` (set-up done, the loop running) sends
+/// `signal` and returns the output. Checks the FMUs were unpacked under `tmp` meanwhile.
+fn interrupt(
+    extra: &[&str],
+    out: &Path,
+    tmp: &Path,
+    file: &Path,
+    bytes: u64,
+    signal: libc::c_int,
+) -> std::process::Output {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_m1cs"))
+        .args(["run", "--layout", "keck", "--duration", "600", "--no-plots"])
+        .args(["--fmu-dir", &fmu_dir(), "--json", "--out"])
+        .arg(out)
+        .args(extra)
+        .env("TMPDIR", tmp)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let t0 = std::time::Instant::now();
+    while std::fs::metadata(file).map_or(0, |m| m.len()) < bytes {
+        assert!(
+            t0.elapsed().as_secs() < 120,
+            "no rows after 120 s: {:?}",
+            child.try_wait()
+        );
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    assert!(
+        std::fs::read_dir(tmp).unwrap().count() > 0,
+        "the FMUs are unpacked under TMPDIR"
+    );
+    // SAFETY: kill with a valid pid and signal.
+    assert_eq!(unsafe { libc::kill(child.id() as libc::pid_t, signal) }, 0);
+    child.wait_with_output().unwrap()
+}
+
 /// SIGINT on a running `m1cs run`: the loop stops at the next step, the CSV holds the rows up
 /// to then (consecutive, complete), the summary says where it stopped, the FMUs' temporary
 /// folders are gone, and the exit status is 130. The same for SIGTERM.
@@ -130,34 +169,8 @@ fn a_signal_stops_the_run_and_keeps_its_rows() {
         let tmp = dir.join("tmp");
         std::fs::create_dir_all(&tmp).unwrap();
         let out = dir.join("results");
-        let mut child = Command::new(env!("CARGO_BIN_EXE_m1cs"))
-            .args(["run", "--layout", "keck", "--duration", "600", "--no-plots"])
-            .args(["--fmu-dir", &fmu_dir(), "--json", "--out"])
-            .arg(&out)
-            .env("TMPDIR", &tmp)
-            .stdout(std::process::Stdio::piped())
-            .stderr(std::process::Stdio::piped())
-            .spawn()
-            .unwrap();
-        // Wait until rows are being written (set-up done, the loop running).
         let csv = out.join("open_loop.csv");
-        let t0 = std::time::Instant::now();
-        while std::fs::metadata(&csv).map_or(0, |m| m.len()) < 200_000 {
-            assert!(
-                t0.elapsed().as_secs() < 120,
-                "no rows after 120 s: {:?}",
-                child.try_wait()
-            );
-            std::thread::sleep(std::time::Duration::from_millis(50));
-        }
-        assert!(
-            std::fs::read_dir(&tmp).unwrap().count() > 0,
-            "the FMUs are unpacked under TMPDIR"
-        );
-        // SAFETY: kill with a valid pid and signal.
-        let rc = unsafe { libc::kill(child.id() as libc::pid_t, signal) };
-        assert_eq!(rc, 0);
-        let o = child.wait_with_output().unwrap();
+        let o = interrupt(&[], &out, &tmp, &csv, 200_000, signal);
         let err = String::from_utf8_lossy(&o.stderr);
         assert_eq!(o.status.code(), Some(130), "{err}");
         assert!(err.contains("stopped by a signal at t ="), "{err}");
@@ -387,28 +400,11 @@ fn npy_results_hold_the_csv_rows() {
 #[test]
 fn a_signal_leaves_a_whole_npy_array() {
     let dir = scratch("npy-signal");
-    let out = dir.join("results");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_m1cs"))
-        .args(["run", "--layout", "keck", "--duration", "600", "--no-plots"])
-        .args(["--format", "npy", "--record", "mirror.z"])
-        .args(["--fmu-dir", &fmu_dir(), "--json", "--out"])
-        .arg(&out)
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
+    let (out, tmp) = (dir.join("results"), dir.join("tmp"));
+    std::fs::create_dir_all(&tmp).unwrap();
     let npy = out.join("open_loop.npy");
-    let t0 = std::time::Instant::now();
-    while std::fs::metadata(&npy).map_or(0, |m| m.len()) < 2_000_000 {
-        assert!(t0.elapsed().as_secs() < 120, "no rows after 120 s");
-        std::thread::sleep(std::time::Duration::from_millis(50));
-    }
-    // SAFETY: kill with a valid pid and signal.
-    assert_eq!(
-        unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGINT) },
-        0
-    );
-    let o = child.wait_with_output().unwrap();
+    let args = ["--format", "npy", "--record", "mirror.z"];
+    let o = interrupt(&args, &out, &tmp, &npy, 2_000_000, libc::SIGINT);
     assert_eq!(
         o.status.code(),
         Some(130),

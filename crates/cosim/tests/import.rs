@@ -2,52 +2,21 @@
 //! compiled with the system C compiler) and on this project's packaged FMUs.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use cosim::description::{Causality, Start, VarType};
 use cosim::{CosimError, Fmu, ModelDescription};
 
-const FIXTURES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures");
+mod common;
+use common::{FIXTURES, zip_fmu};
 
 fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("m1cs-cosim-test-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    common::scratch("m1cs-cosim-test", name)
 }
 
 /// Compiles tiny.c to a shared library in `dir`.
 fn compile_tiny(dir: &Path, defines: &[&str]) -> PathBuf {
-    let so = dir.join("tiny.so");
-    let mut cmd = Command::new(std::env::var("CC").unwrap_or_else(|_| "cc".into()));
-    cmd.args(["-shared", "-fPIC", "-O1", "-o"])
-        .arg(&so)
-        .arg(Path::new(FIXTURES).join("tiny.c"));
-    for d in defines {
-        cmd.arg(format!("-D{d}"));
-    }
-    let out = cmd.output().expect("run the C compiler");
-    assert!(
-        out.status.success(),
-        "cc failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    so
-}
-
-/// Zips `entries` (archive path, bytes) into `path`.
-fn zip_fmu(path: &Path, entries: &[(&str, Vec<u8>)]) {
-    let f = std::fs::File::create(path).unwrap();
-    let mut z = zip::ZipWriter::new(f);
-    let opts = zip::write::SimpleFileOptions::default()
-        .compression_method(zip::CompressionMethod::Deflated);
-    for (name, bytes) in entries {
-        z.start_file(*name, opts).unwrap();
-        z.write_all(bytes).unwrap();
-    }
-    z.finish().unwrap();
+    common::compile_fixture(dir, "tiny.c", defines)
 }
 
 fn tiny_fmu(name: &str, xml: &str, defines: &[&str], with_binary: bool) -> PathBuf {

@@ -15,7 +15,6 @@
 //! - a recorded row at `t_k` shows each output's latest value with time `<= t_k`.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -23,7 +22,8 @@ use cosim::description::{Causality, Initial, Start, VarType};
 use cosim::system::{Order, Results, System, Value, run};
 use cosim::{CosimError, Fmu, Instance};
 
-const FIXTURES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures");
+mod common;
+use common::{FIXTURES, cc, zip_fmu};
 
 /// The base step of the master tests (s).
 const H: f64 = 0.01;
@@ -49,54 +49,12 @@ mod vr {
 }
 
 fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!(
-        "m1cs-cosim-semantics-{}-{name}",
-        std::process::id()
-    ));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-/// Runs the C compiler on `args`, failing the test with its messages.
-fn cc(args: &[&std::ffi::OsStr]) {
-    let out = Command::new(std::env::var("CC").unwrap_or_else(|_| "cc".into()))
-        .args(args)
-        .output()
-        .expect("run the C compiler");
-    assert!(
-        out.status.success(),
-        "cc failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    common::scratch("m1cs-cosim-semantics", name)
 }
 
 /// Compiles probe.c to a shared library in `dir`.
 fn compile_probe(dir: &Path) -> PathBuf {
-    let so = dir.join("probe.so");
-    let src = Path::new(FIXTURES).join("probe.c");
-    cc(&[
-        "-shared".as_ref(),
-        "-fPIC".as_ref(),
-        "-O1".as_ref(),
-        "-o".as_ref(),
-        so.as_os_str(),
-        src.as_os_str(),
-    ]);
-    so
-}
-
-/// Zips `entries` (archive path, bytes) into `path`.
-fn zip_fmu(path: &Path, entries: &[(&str, Vec<u8>)]) {
-    let f = std::fs::File::create(path).unwrap();
-    let mut z = zip::ZipWriter::new(f);
-    let opts = zip::write::SimpleFileOptions::default()
-        .compression_method(zip::CompressionMethod::Deflated);
-    for (name, bytes) in entries {
-        z.start_file(*name, opts).unwrap();
-        z.write_all(bytes).unwrap();
-    }
-    z.finish().unwrap();
+    common::compile_fixture(dir, "probe.c", &[])
 }
 
 fn probe_xml() -> String {

@@ -313,15 +313,7 @@ impl CellModel {
             let phi_pier = arrays.pop().map(|a| a.data).unwrap_or_default();
             let phi_cell = arrays.pop().map(|a| a.data).unwrap_or_default();
             let frequencies = arrays.pop().map(|a| a.data).unwrap_or_default();
-            return Ok(ModalModel {
-                na,
-                frequencies,
-                damping_ratios: None,
-                phi_cell,
-                phi_pier,
-                k_pier: self.k_pier,
-                flexibility: Flexibility::FiniteElement(StaticFe::new(self)?),
-            });
+            return self.modal_model(frequencies, phi_cell, phi_pier);
         }
         let m = self.solve_modes()?;
         store.store(
@@ -371,8 +363,18 @@ impl CellModel {
         let phi_pier = (0..n)
             .map(|j| d[self.pier_dof] * u[(self.pier_dof, j)])
             .collect();
+        self.modal_model(frequencies, phi_cell, phi_pier)
+    }
+
+    /// The modal model of these modes, with the FE model's exact static correction.
+    fn modal_model(
+        &self,
+        frequencies: Vec<f64>,
+        phi_cell: Vec<f64>,
+        phi_pier: Vec<f64>,
+    ) -> Result<ModalModel, M1Error> {
         Ok(ModalModel {
-            na,
+            na: self.n_actuators(),
             frequencies,
             damping_ratios: None,
             phi_cell,
