@@ -53,11 +53,13 @@ impl Values {
 /// comes from in the shared buffer, and its outputs (connected or recorded) and where they go.
 #[derive(Debug, Default)]
 pub(super) struct Port<T> {
-    /// Value references of its connected inputs, the slot each comes from, and their values
-    /// gathered for the next step.
+    /// Value references of its connected inputs and their values gathered for the next step.
     pub(super) in_vrs: Vec<u32>,
-    pub(super) in_src: Vec<usize>,
     pub(super) in_buf: Vec<T>,
+    /// Where the inputs come from in the shared buffer, as runs of consecutive slots `(first
+    /// source slot, first input, length)`: an array input connected to an array output is one
+    /// copy instead of one per scalar.
+    in_runs: Vec<(usize, usize, usize)>,
     /// Value references of its outputs, the first of their consecutive slots, and their latest
     /// values (published after its step, when they are due).
     pub(super) out_vrs: Vec<u32>,
@@ -70,10 +72,17 @@ impl<T: Clone + Default> Port<T> {
     /// published from global slot `out_slot` on.
     pub(super) fn new(inputs: Vec<(u32, usize)>, out_vrs: Vec<u32>, out_slot: usize) -> Self {
         let (in_vrs, in_src): (Vec<u32>, Vec<usize>) = inputs.into_iter().unzip();
+        let mut in_runs: Vec<(usize, usize, usize)> = Vec::new();
+        for (k, &src) in in_src.iter().enumerate() {
+            match in_runs.last_mut() {
+                Some((s, d, n)) if *s + *n == src && *d + *n == k => *n += 1,
+                _ => in_runs.push((src, k, 1)),
+            }
+        }
         Self {
+            in_runs,
             in_buf: vec![T::default(); in_vrs.len()],
             in_vrs,
-            in_src,
             out_buf: vec![T::default(); out_vrs.len()],
             out_vrs,
             out_slot,
@@ -82,8 +91,8 @@ impl<T: Clone + Default> Port<T> {
 
     /// Copies its inputs out of the shared buffer `shared`.
     pub(super) fn gather(&mut self, shared: &[T]) {
-        for (b, &s) in self.in_buf.iter_mut().zip(&self.in_src) {
-            b.clone_from(&shared[s]);
+        for &(src, dst, n) in &self.in_runs {
+            self.in_buf[dst..dst + n].clone_from_slice(&shared[src..src + n]);
         }
     }
 
