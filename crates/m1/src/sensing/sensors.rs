@@ -287,6 +287,238 @@ fn relative_difference(a: &SparseColMat<usize, f64>, b: &SparseColMat<usize, f64
     }
 }
 
+/// Columns per block of [`BlockRows`]: a segment's three actuators (`z`) or its three in-plane
+/// coordinates (`w`), the columns a sensor reads of each of its two segments.
+const BLOCK: usize = 3;
+
+/// Lanes of a [`BlockRows`] coefficient: the height and the gap coefficient of each of a pair
+/// of rows, `[h_a, g_a, h_b, g_b]` (one AVX2 register of `f64`; narrower instruction sets take
+/// two registers or scalars).
+const LANES: usize = 4;
+
+/// The readings' operators `[S A_hz  S A_hw]` and `[A_gz  A_gw]` stored by rows, for
+/// [`EdgeSensors::read_into_at`]; see [`BlockRows`] for the layout.
+///
+/// Why: the reading runs every sample (1 kHz) in the closed loop. Scattering the four CSC
+/// blocks column by column (`y[r] += v x_j`) costs a dependent read-modify-write of `y` per
+/// entry and four passes over the outputs; gathering by rows reads `x` at the row's columns,
+/// keeps the sums in registers and writes `y[n]` and `gap[n]` once. The `z` and `w` parts are
+/// kept apart, so a reading with `w = 0` skips the `w` part.
+///
+/// Each row's sums run over its columns in increasing order, the `z` part first: the order in
+/// which the column scatter accumulated, so the readings are the same bit for bit (for finite
+/// inputs: the explicit zeros of the padding add `0 x = ±0`, which leaves a sum unchanged).
+#[derive(Debug, Clone)]
+struct RowOperator {
+    /// The `z` part (`S A_hz` and `A_gz`).
+    z: BlockRows,
+    /// The `w` part (`S A_hw` and `A_gw`).
+    w: BlockRows,
+}
+
+/// One part of a [`RowOperator`]: two `n_s x n_a` matrices (height and gap) on their union
+/// pattern, by rows, two rows at a time, in blocks of [`BLOCK`] consecutive columns.
+///
+/// Why this layout: a sensor's row holds the three columns of each of its two segments, its
+/// height and its gap depend on the same columns, and the two sensors of an edge (rows `2 e`
+/// and `2 e + 1` of the geometry) read the same two segments. So rows `2 p` and `2 p + 1` are
+/// stored together on the union of their patterns, in whole blocks: one block index (`u32`,
+/// to cut memory traffic further) and one range check per block of 3 columns, and per column
+/// one `x` value broadcast against the four coefficients `[h_a, g_a, h_b, g_b]`, i.e. one
+/// vector multiply and add for four multiply-adds, with no shuffling of `x`. Every pair holds
+/// `width` blocks (the most any pair has; shorter pairs, and the missing row of a last single
+/// row, are padded with zeros in block 0), so the loops have fixed trip counts.
+#[derive(Debug, Clone)]
+struct BlockRows {
+    /// Blocks per row pair.
+    width: usize,
+    /// Each block's index `c / BLOCK` (its columns are `c..c + BLOCK`): pair `p`'s blocks are
+    /// `p width..(p + 1) width`, in increasing column order.
+    block: Vec<u32>,
+    /// The coefficients of each block's column `k`, `[h_a, g_a, h_b, g_b]` (rows `a = 2 p`,
+    /// `b = 2 p + 1`).
+    val: Vec<[[f64; LANES]; BLOCK]>,
+}
+
+impl BlockRows {
+    /// The rows of `height` and `gap` (same shape, `n_a` columns a multiple of [`BLOCK`]) on
+    /// their union pattern.
+    ///
+    /// # Errors
+    /// [`M1Error::InvalidInput`] if the number of columns is not a multiple of [`BLOCK`] or
+    /// does not fit in `u32`.
+    fn new(
+        height: &SparseColMat<usize, f64>,
+        gap: &SparseColMat<usize, f64>,
+    ) -> Result<Self, M1Error> {
+        let (nrows, ncols) = (height.nrows(), height.ncols());
+        if ncols % BLOCK != 0 || u32::try_from(ncols).is_err() {
+            return Err(M1Error::InvalidInput(format!(
+                "{ncols} sensor-matrix columns: not a multiple of {BLOCK} that fits in u32"
+            )));
+        }
+        // Each row pair's blocks as (block index, coefficients).
+        let mut pairs: Vec<Vec<(u32, [[f64; LANES]; BLOCK])>> = vec![Vec::new(); nrows.div_ceil(2)];
+        for (a, output) in [(height, 0), (gap, 1)] {
+            let sym = a.symbolic();
+            let (cp, ri, v) = (sym.col_ptr(), sym.row_idx(), a.val());
+            for j in 0..ncols.min(a.ncols()) {
+                // `j < ncols`, which fits in u32 (checked above).
+                let first = (j / BLOCK) as u32;
+                for k in cp[j]..cp[j + 1] {
+                    let (pair, lane) = (&mut pairs[ri[k] / 2], 2 * (ri[k] % 2) + output);
+                    let b = match pair.iter().position(|e| e.0 == first) {
+                        Some(b) => b,
+                        None => {
+                            pair.push((first, [[0.0; LANES]; BLOCK]));
+                            pair.len() - 1
+                        }
+                    };
+                    pair[b].1[j % BLOCK][lane] += v[k];
+                }
+            }
+        }
+        // At least one block, so that the rows split into chunks of `width` (a zero block
+        // adds nothing).
+        let width = pairs.iter().map(Vec::len).max().unwrap_or(0).max(1);
+        let mut out = Self {
+            width,
+            block: vec![0; pairs.len() * width],
+            val: vec![[[0.0; LANES]; BLOCK]; pairs.len() * width],
+        };
+        for (p, pair) in pairs.iter_mut().enumerate() {
+            pair.sort_by_key(|e| e.0);
+            for (b, (first, val)) in pair.iter().enumerate() {
+                out.block[p * width + b] = *first;
+                out.val[p * width + b] = *val;
+            }
+        }
+        Ok(out)
+    }
+}
+
+/// Adds the products of a row pair's blocks (indices `block`, coefficients `val`) with `x`,
+/// split into blocks, to its sums `acc` (`[y_a, gap_a, y_b, gap_b]`), each row's in column
+/// order.
+#[inline(always)]
+fn pair_add(
+    block: &[u32],
+    val: &[[[f64; LANES]; BLOCK]],
+    x: &[[f64; BLOCK]],
+    acc: &mut [f64; LANES],
+) {
+    for (b, v) in block.iter().zip(val) {
+        // Every block lies within `x` (the construction and the caller's size check see to
+        // it); the fallback only spares a bounds check with a branch.
+        let xb = x.get(*b as usize).unwrap_or(&[0.0; BLOCK]);
+        for (vk, xk) in v.iter().zip(xb) {
+            for (a, c) in acc.iter_mut().zip(vk) {
+                *a += c * xk;
+            }
+        }
+    }
+}
+
+impl RowOperator {
+    /// The operators of the four blocks (`n_a` a multiple of [`BLOCK`]).
+    ///
+    /// # Errors
+    /// [`M1Error::InvalidInput`] if the number of columns is not a multiple of [`BLOCK`] or
+    /// does not fit in `u32`.
+    fn new(
+        height_z: &SparseColMat<usize, f64>,
+        height_w: &SparseColMat<usize, f64>,
+        gap_z: &SparseColMat<usize, f64>,
+        gap_w: &SparseColMat<usize, f64>,
+    ) -> Result<Self, M1Error> {
+        Ok(Self {
+            z: BlockRows::new(height_z, gap_z)?,
+            w: BlockRows::new(height_w, gap_w)?,
+        })
+    }
+
+    /// `y = [H_z H_w] [z; w] (+ y_offset)` and `gap = g_0 + [G_z G_w] [z; w] (+ gap_offset)`,
+    /// in one pass over the rows; the `w` part is skipped when `w_zero` (`w` all zero). Slices
+    /// have the operator's sizes (the caller checks). Dispatched to the processor's widest
+    /// vectors; each lane is one sum in column order whatever their width, so the result does
+    /// not depend on the processor.
+    #[allow(clippy::too_many_arguments)]
+    fn read(
+        &self,
+        z: &[f64],
+        w: &[f64],
+        w_zero: bool,
+        nominal_gap: f64,
+        y_offset: Option<&[f64]>,
+        gap_offset: Option<&[f64]>,
+        y: &mut [f64],
+        gap: &mut [f64],
+    ) {
+        struct Op<'a> {
+            rows: &'a RowOperator,
+            x: [&'a [[f64; BLOCK]]; 2],
+            w_zero: bool,
+            nominal_gap: f64,
+            out: [&'a mut [f64]; 2],
+        }
+        impl pulp::WithSimd for Op<'_> {
+            type Output = ();
+            #[inline(always)]
+            fn with_simd<S: pulp::Simd>(self, _simd: S) {
+                // Every sensor reads two segments: with two blocks per pair, a constant the
+                // compiler sees, the block loops unroll.
+                match (self.rows.z.width, self.rows.w.width) {
+                    (2, 2) => self.run(2, 2),
+                    (wz, ww) => self.run(wz, ww),
+                }
+            }
+        }
+        impl Op<'_> {
+            /// The readings, with `wz` and `ww` blocks per row pair in the `z` and `w` parts.
+            #[inline(always)]
+            fn run(self, wz: usize, ww: usize) {
+                let Op {
+                    rows,
+                    x: [z, w],
+                    w_zero,
+                    nominal_gap,
+                    out: [y, gap],
+                } = self;
+                let (zb, wb) = (&rows.z, &rows.w);
+                let parts = (zb.block.chunks_exact(wz).zip(zb.val.chunks_exact(wz)))
+                    .zip(wb.block.chunks_exact(ww).zip(wb.val.chunks_exact(ww)));
+                let outputs = y.chunks_mut(2).zip(gap.chunks_mut(2));
+                for ((yp, gp), ((zs, zv), (ws, wv))) in outputs.zip(parts) {
+                    let mut acc = [0.0, nominal_gap, 0.0, nominal_gap];
+                    pair_add(zs, zv, z, &mut acc);
+                    if !w_zero {
+                        pair_add(ws, wv, w, &mut acc);
+                    }
+                    for (r, (yr, gr)) in yp.iter_mut().zip(gp.iter_mut()).enumerate() {
+                        *yr = acc[2 * r];
+                        *gr = acc[2 * r + 1];
+                    }
+                }
+            }
+        }
+        pulp::Arch::new().dispatch(Op {
+            rows: self,
+            x: [z.as_chunks::<BLOCK>().0, w.as_chunks::<BLOCK>().0],
+            w_zero,
+            nominal_gap,
+            out: [y, gap],
+        });
+        // Added last, as the column scatter did: the same sums bit for bit.
+        for (out, offset) in [(y, y_offset), (gap, gap_offset)] {
+            if let Some(offset) = offset {
+                for (v, o) in out.iter_mut().zip(offset) {
+                    *v += o;
+                }
+            }
+        }
+    }
+}
+
 /// The edge sensors of one mirror with one realisation of their errors.
 #[derive(Debug, Clone)]
 pub struct EdgeSensors {
@@ -298,6 +530,8 @@ pub struct EdgeSensors {
     gap_z: SparseColMat<usize, f64>,
     /// `A_gw` of the installed geometry.
     gap_w: SparseColMat<usize, f64>,
+    /// The four blocks above by rows, for reading (built with them; see [`RowOperator`]).
+    rows: RowOperator,
     gains: Vec<f64>,
     nominal_gap: f64,
     noise_rms: f64,
@@ -386,7 +620,9 @@ impl EdgeSensors {
                 *d = errors.drift_per_week * rng.random_range(-1.0..=1.0);
             }
         }
+        let rows = RowOperator::new(&m.a_hz, &m.a_hw, &m.a_gz, &m.a_gw)?;
         Ok(Self {
+            rows,
             height_z: m.a_hz,
             height_w: m.a_hw,
             gap_z: m.a_gz,
@@ -533,26 +769,25 @@ impl EdgeSensors {
                 });
             }
         }
-        gap.fill(self.nominal_gap);
-        mul_add(&self.gap_z, z, gap);
-        mul_add(&self.gap_w, w, gap);
-        if self.gap_installed {
-            for (g, d) in gap.iter_mut().zip(&self.gap_offset) {
-                *g += d;
-            }
-        }
+        // One check here saves the w part's gather on every row when w is zero (as the
+        // column scatter skipped zero entries).
+        let w_zero = w.iter().all(|v| *v == 0.0);
+        let gap_offset = self.gap_installed.then_some(self.gap_offset.as_slice());
         match &self.split {
-            None => {
-                y.fill(0.0);
-                mul_add(&self.height_z, z, y);
-                mul_add(&self.height_w, w, y);
-                if let Some(offset) = &self.height_offset {
-                    for (v, o) in y.iter_mut().zip(offset) {
-                        *v += o;
-                    }
-                }
-            }
+            None => self.rows.read(
+                z,
+                w,
+                w_zero,
+                self.nominal_gap,
+                self.height_offset.as_deref(),
+                gap_offset,
+                y,
+                gap,
+            ),
             Some([split_z, split_w]) => {
+                // The gap (the law needs it before the height; `y` is overwritten below).
+                self.rows
+                    .read(z, w, w_zero, self.nominal_gap, None, gap_offset, y, gap);
                 let law = &self.gap_law;
                 for (n, v) in y.iter_mut().enumerate() {
                     let dg = gap[n] - self.nominal_gap;
@@ -916,5 +1151,189 @@ mod tests {
             e.to_string().contains("install_segment_clocking_rms"),
             "{e}"
         );
+    }
+
+    /// `A` as a dense row-major matrix, from its CSC entries.
+    fn dense(a: &SparseColMat<usize, f64>) -> Vec<Vec<f64>> {
+        let mut d = vec![vec![0.0; a.ncols()]; a.nrows()];
+        for t in a.triplet_iter() {
+            d[t.row][t.col] += *t.val;
+        }
+        d
+    }
+
+    /// `sum_c a[n][c] x[c]` and `sum_c |a[n][c] x[c]|` of a dense row.
+    fn dot_and_scale(row: &[f64], x: &[f64]) -> (f64, f64) {
+        row.iter()
+            .zip(x)
+            .fold((0.0, 0.0), |(s, m), (a, b)| (s + a * b, m + (a * b).abs()))
+    }
+
+    /// `|a - b| <= 1e-12 scale` for each entry, with `scale` the sum of the magnitudes of the
+    /// terms summed (the size of the round-off of any summation order).
+    fn assert_close(what: &str, a: &[f64], b: &[f64], scale: &[f64]) {
+        for (n, ((a, b), s)) in a.iter().zip(b).zip(scale).enumerate() {
+            assert!(
+                (a - b).abs() <= 1e-12 * s,
+                "{what}[{n}]: {a} vs {b} (scale {s})"
+            );
+        }
+    }
+
+    /// The readings (row-gathered) equal a dense reference `H_z z + H_w (w + w_0)` and
+    /// `g_0 + G_z z + G_w w + dg_installed` built from the CSC matrices, to round-off: for
+    /// ideal sensors, with gain and installation errors of the sensors and the segments (the
+    /// offsets), on the curved and the flat mirror (ideal: `A_gz = 0`, `A_hw = 0`, so the gap's
+    /// pattern differs from the height's), with `w` random and zero.
+    #[test]
+    fn the_readings_equal_a_dense_reference() {
+        let l = Layout::preset("keck").unwrap();
+        let mut flat = GeometryParams::for_layout(&l);
+        flat.flat = true;
+        let installed = SensorErrors {
+            gain_rms: 0.01,
+            position_rms: 1e-3,
+            tilt_rms: 1e-3,
+            segment_position_rms: 1e-4,
+            segment_clocking_rms: 1e-4,
+            sensor_gap_rms: 1e-5,
+            seed: 11,
+            ..SensorErrors::default()
+        };
+        let mut rng = StdRng::seed_from_u64(42);
+        for (params, errors) in [
+            (GeometryParams::for_layout(&l), SensorErrors::default()),
+            (GeometryParams::for_layout(&l), installed),
+            (flat, installed),
+            (flat, SensorErrors::default()),
+        ] {
+            let g = Geometry::new(&l, params).unwrap();
+            let s = EdgeSensors::new(&g, &errors).unwrap();
+            let (na, ns) = (s.n_actuators(), s.n_sensors());
+            let (gz, gw) = s.gap_matrices();
+            if params.flat && errors == SensorErrors::default() {
+                // The ideal flat mirror: no gap from z, no height from w.
+                assert!(gz.val().is_empty() && s.height_in_plane_matrix().val().is_empty());
+            }
+            let [hz, hw, gz, gw] =
+                [s.height_matrix(), s.height_in_plane_matrix(), gz, gw].map(dense);
+            let w0 = s.segment_placement().to_vec();
+            let z: Vec<f64> = (0..na).map(|_| 1e-6 * gauss(&mut rng)).collect();
+            let random: Vec<f64> = (0..na).map(|_| 1e-5 * gauss(&mut rng)).collect();
+            for w in [random, vec![0.0; na]] {
+                let shifted: Vec<f64> = w.iter().zip(&w0).map(|(a, b)| a + b).collect();
+                let (mut y_ref, mut y_scale) = (vec![0.0; ns], vec![0.0; ns]);
+                let (mut gap_ref, mut gap_scale) = (vec![0.0; ns], vec![0.0; ns]);
+                for n in 0..ns {
+                    let (a, sa) = dot_and_scale(&hz[n], &z);
+                    let (b, sb) = dot_and_scale(&hw[n], &shifted);
+                    (y_ref[n], y_scale[n]) = (a + b, sa + sb);
+                    let (a, sa) = dot_and_scale(&gz[n], &z);
+                    let (b, sb) = dot_and_scale(&gw[n], &w);
+                    let d = s.installation_gap()[n];
+                    gap_ref[n] = g.layout.gap + a + b + d;
+                    gap_scale[n] = g.layout.gap + sa + sb + d.abs();
+                }
+                let (y, gap) = read(&s, &z, &w);
+                assert_close("y", &y, &y_ref, &y_scale);
+                assert_close("gap", &gap, &gap_ref, &gap_scale);
+            }
+        }
+    }
+
+    /// A CSC matrix from a dense row-major one (its zeros left out).
+    fn sparse(d: &[Vec<f64>]) -> SparseColMat<usize, f64> {
+        let (nrows, ncols) = (d.len(), d[0].len());
+        let (mut col_ptr, mut row_idx, mut val) = (vec![0], Vec::new(), Vec::new());
+        for c in 0..ncols {
+            for (r, row) in d.iter().enumerate() {
+                if row[c] != 0.0 {
+                    row_idx.push(r);
+                    val.push(row[c]);
+                }
+            }
+            col_ptr.push(row_idx.len());
+        }
+        SparseColMat::new(
+            faer::sparse::SymbolicSparseColMat::new_checked(nrows, ncols, col_ptr, None, row_idx),
+            val,
+        )
+    }
+
+    /// The row operator on matrices of no sensor geometry: an odd number of rows, row pairs
+    /// touching different and more than two blocks, height and gap patterns unrelated, with
+    /// and without offsets and `w`, equals the dense products to round-off; and the scatter's
+    /// sums bit for bit.
+    #[test]
+    fn the_row_operator_equals_dense_products_on_any_pattern() {
+        let (nrows, ncols) = (7, 12);
+        let mut rng = StdRng::seed_from_u64(3);
+        let mut random = |density: f64| -> Vec<Vec<f64>> {
+            (0..nrows)
+                .map(|_| {
+                    (0..ncols)
+                        .map(|_| {
+                            if rng.random_range(0.0..1.0) < density {
+                                gauss(&mut rng)
+                            } else {
+                                0.0
+                            }
+                        })
+                        .collect()
+                })
+                .collect()
+        };
+        let [hz, hw, gz, gw] = [random(0.3), random(0.5), random(0.2), random(0.0)];
+        let op = RowOperator::new(&sparse(&hz), &sparse(&hw), &sparse(&gz), &sparse(&gw)).unwrap();
+        assert!(op.z.width > 2, "the general path: {}", op.z.width);
+        let mut rng = StdRng::seed_from_u64(4);
+        let mut draw = |n: usize| -> Vec<f64> { (0..n).map(|_| gauss(&mut rng)).collect() };
+        let (z, w, y_off, gap_off) = (draw(ncols), draw(ncols), draw(nrows), draw(nrows));
+        let g0 = 0.5;
+        for (w, offsets) in [(w.clone(), false), (w, true), (vec![0.0; ncols], true)] {
+            let w_zero = w.iter().all(|v| *v == 0.0);
+            let (yo, go) = if offsets {
+                (Some(y_off.as_slice()), Some(gap_off.as_slice()))
+            } else {
+                (None, None)
+            };
+            let (mut y, mut gap) = (vec![f64::NAN; nrows], vec![f64::NAN; nrows]);
+            op.read(&z, &w, w_zero, g0, yo, go, &mut y, &mut gap);
+            let (mut y_scatter, mut gap_scatter) = (vec![0.0; nrows], vec![g0; nrows]);
+            mul_add(&sparse(&hz), &z, &mut y_scatter);
+            mul_add(&sparse(&hw), &w, &mut y_scatter);
+            mul_add(&sparse(&gz), &z, &mut gap_scatter);
+            mul_add(&sparse(&gw), &w, &mut gap_scatter);
+            for n in 0..nrows {
+                let (a, sa) = dot_and_scale(&hz[n], &z);
+                let (b, sb) = dot_and_scale(&hw[n], &w);
+                let o = yo.map_or(0.0, |o| o[n]);
+                assert!(
+                    (y[n] - (a + b + o)).abs() <= 1e-12 * (sa + sb + o.abs()),
+                    "y[{n}]"
+                );
+                let (a, sa) = dot_and_scale(&gz[n], &z);
+                let (b, sb) = dot_and_scale(&gw[n], &w);
+                let o = go.map_or(0.0, |o| o[n]);
+                let scale = g0 + sa + sb + o.abs();
+                assert!(
+                    (gap[n] - (g0 + a + b + o)).abs() <= 1e-12 * scale,
+                    "gap[{n}]"
+                );
+            }
+            for (out, offset) in [(&mut y_scatter, yo), (&mut gap_scatter, go)] {
+                if let Some(offset) = offset {
+                    for (v, o) in out.iter_mut().zip(offset) {
+                        *v += o;
+                    }
+                }
+            }
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&y), bits(&y_scatter));
+            assert_eq!(bits(&gap), bits(&gap_scatter));
+        }
+        // Columns that do not split into segments' blocks are refused.
+        let odd = sparse(&vec![vec![1.0; 4]; 2]);
+        assert!(RowOperator::new(&odd, &odd, &odd, &odd).is_err());
     }
 }
