@@ -9,7 +9,6 @@ use super::model::SegmentModel;
 use super::sampled::propagate;
 use super::{Channel, Gamma, N_IN, N_STATE, Phi, modal_basis, state};
 use crate::M1Error;
-use crate::linalg::kernels::axpy;
 
 /// Propagators of both channel kinds for one step size.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -189,29 +188,19 @@ impl SegmentArray {
         Ok(())
     }
 
-    /// Applies one linear map per channel kind to every channel: X <- P X + S w.
+    /// Applies one linear map per channel kind to every channel: X <- P X + S w, in one pass
+    /// over the states ([`ApplyMaps`], compiled for the processor's vector instructions).
     fn apply(&mut self, maps: &[(Phi, Gamma); 2]) {
         for (k, (p, s)) in maps.iter().enumerate() {
             let n = self.x[k].len() / N_STATE;
-            let x = &self.x[k];
-            let w = &self.w[k];
-            let next = &mut self.next[k];
-            for i in 0..N_STATE {
-                let out = &mut next[i * n..(i + 1) * n];
-                out.fill(0.0);
-                for j in 0..N_STATE {
-                    let a = p[(i, j)];
-                    if a != 0.0 {
-                        axpy(out, a, &x[j * n..(j + 1) * n]);
-                    }
-                }
-                for l in 0..N_IN {
-                    let a = s[(i, l)];
-                    if a != 0.0 {
-                        axpy(out, a, &w[l * n..(l + 1) * n]);
-                    }
-                }
-            }
+            pulp::Arch::new().dispatch(ApplyMaps {
+                p,
+                s,
+                n,
+                x: &self.x[k],
+                w: &self.w[k],
+                next: &mut self.next[k],
+            });
             std::mem::swap(&mut self.x[k], &mut self.next[k]);
         }
     }
@@ -289,5 +278,73 @@ impl SegmentArray {
     /// The full state, by kind (piston, tilt), for checkpoints.
     pub fn state(&self) -> [&[f64]; 2] {
         [&self.x[0], &self.x[1]]
+    }
+}
+
+/// `next = P x + S w` for `n` channels stored by state (`x[j n + c]`, `w[l n + c]`), a SIMD
+/// operation for [`pulp::Arch::dispatch`]. Each vector of channels is read once, all its
+/// states and inputs, and its new states are written once (a pass of state-by-state axpys
+/// reads every state `N_STATE` times); each new state is summed in the order of the map's
+/// columns, states then inputs, with fused multiply-adds where the processor has them.
+struct ApplyMaps<'a> {
+    p: &'a Phi,
+    s: &'a Gamma,
+    n: usize,
+    x: &'a [f64],
+    w: &'a [f64],
+    next: &'a mut [f64],
+}
+
+impl pulp::WithSimd for ApplyMaps<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
+        let n = self.n;
+        let (p, s) = (self.p, self.s);
+        let xs: [&[f64]; N_STATE] = std::array::from_fn(|j| &self.x[j * n..(j + 1) * n]);
+        let ws: [&[f64]; N_IN] = std::array::from_fn(|l| &self.w[l * n..(l + 1) * n]);
+        let mut rows = self.next.chunks_exact_mut(n);
+        let mut outs: [&mut [f64]; N_STATE] =
+            std::array::from_fn(|_| rows.next().unwrap_or_default());
+        let xh: [&[S::f64s]; N_STATE] = std::array::from_fn(|j| S::as_simd_f64s(xs[j]).0);
+        let wh: [&[S::f64s]; N_IN] = std::array::from_fn(|l| S::as_simd_f64s(ws[l]).0);
+        let m = xh[0].len();
+        {
+            let mut oh: [&mut [S::f64s]; N_STATE] = {
+                let mut it = outs.iter_mut();
+                std::array::from_fn(|_| match it.next() {
+                    Some(o) => S::as_mut_simd_f64s(o).0,
+                    None => Default::default(),
+                })
+            };
+            for c in 0..m {
+                let xv: [S::f64s; N_STATE] = std::array::from_fn(|j| xh[j][c]);
+                let wv: [S::f64s; N_IN] = std::array::from_fn(|l| wh[l][c]);
+                for (i, o) in oh.iter_mut().enumerate() {
+                    let mut acc = simd.mul_f64s(simd.splat_f64s(p[(i, 0)]), xv[0]);
+                    for (j, v) in xv.iter().enumerate().skip(1) {
+                        acc = simd.mul_add_f64s(simd.splat_f64s(p[(i, j)]), *v, acc);
+                    }
+                    for (l, v) in wv.iter().enumerate() {
+                        acc = simd.mul_add_f64s(simd.splat_f64s(s[(i, l)]), *v, acc);
+                    }
+                    o[c] = acc;
+                }
+            }
+        }
+        // The channels after the last whole vector.
+        for c in n - S::as_simd_f64s(xs[0]).1.len()..n {
+            for (i, o) in outs.iter_mut().enumerate() {
+                let mut acc = p[(i, 0)] * xs[0][c];
+                for (j, x) in xs.iter().enumerate().skip(1) {
+                    acc = p[(i, j)].mul_add(x[c], acc);
+                }
+                for (l, w) in ws.iter().enumerate() {
+                    acc = s[(i, l)].mul_add(w[c], acc);
+                }
+                o[c] = acc;
+            }
+        }
     }
 }
