@@ -2,7 +2,8 @@
 //! periods, each with its coupled solve) of the TMT and Keck mirrors on the built-in cell, for
 //! several numbers of retained modes and both actuator kinds; and the quasi-static mirror
 //! (`m1::plant::static_mirror`) on TMT, with the wind changing every step and every tenth step.
-//! Wind forces change every step unless said.
+//! Wind forces change every step unless said. `voicecoil_single`: the coupled solve's matrix
+//! streamed in single precision (`CoupledMirror::set_coupling_single`).
 #![allow(clippy::expect_used, clippy::unwrap_used, clippy::panic)]
 use criterion::{Criterion, criterion_group, criterion_main};
 use m1::aperture::layout::Layout;
@@ -16,7 +17,7 @@ fn bench(c: &mut Criterion) {
     let mut g = c.benchmark_group("mirror_1ms");
     for (name, layout, modes) in [
         ("keck", Layout::keck(), vec![60usize]),
-        ("tmt", Layout::tmt(), vec![60, 150, 300]),
+        ("tmt", Layout::tmt(), vec![60, 150, 300, 1000]),
     ] {
         let cell = CellModel::new(&layout, &CellParams::default())
             .and_then(|c| c.modes())
@@ -24,12 +25,14 @@ fn bench(c: &mut Criterion) {
         let n = layout.n_segments();
         let na = 3 * n;
         for &r in &modes {
-            for (variant, model) in [
-                ("voicecoil", SegmentModel::voice_coil()),
-                ("piezo", SegmentModel::piezo()),
+            for (variant, model, single) in [
+                ("voicecoil", SegmentModel::voice_coil(), false),
+                ("voicecoil_single", SegmentModel::voice_coil(), true),
+                ("piezo", SegmentModel::piezo(), false),
             ] {
                 let mut m = CoupledMirror::new(n, model, cell.clone(), r, 0.02, 1)
                     .unwrap_or_else(|e| panic!("{name}: {e}"));
+                m.set_coupling_single(single);
                 let u = vec![0.0; na];
                 let mut f: Vec<f64> = (0..na).map(|i| (i % 7) as f64).collect();
                 let mut k = 0u64;

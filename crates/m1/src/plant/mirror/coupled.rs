@@ -61,6 +61,12 @@ pub struct CoupledMirror {
     pub(super) cols32: Vec<f32>,
     /// `[W G_p, W G_t]` with `W = (I - M B1)^-1`: r x 2r row-major.
     pub(super) wg: Vec<f64>,
+    /// The same in single precision, and `psi` in single precision: read instead of `wg` when
+    /// [`Self::coupling_single`] (half the traffic of the largest per-tick product).
+    pub(super) wg32: Vec<f32>,
+    pub(super) psi32: Vec<f32>,
+    /// Whether the coupled solve's r x 2r product streams the single-precision copy.
+    pub(super) coupling_single: bool,
     /// `[G_p, G_t]`, r x 2r row-major, in single precision: the modal force of the drive's
     /// jump at a servo sample (a small correction: the drive's change over one servo period).
     pub(super) gg: Vec<f32>,
@@ -213,6 +219,9 @@ impl CoupledMirror {
             acc32: [vec![0.0f32; r], vec![0.0f32; r]],
             cols32: vec![0.0f32; 6 * r],
             wg: row_major(&wg),
+            wg32: row_major(&wg).iter().map(|&x| x as f32).collect(),
+            psi32: vec![0.0f32; 2 * r],
+            coupling_single: true,
             gg: row_major(&gg).iter().map(|&x| x as f32).collect(),
             drive_d: cp[state::DRIVE],
             pier: 0.0,
@@ -234,6 +243,20 @@ impl CoupledMirror {
             out: vec![0.0; 3 * na],
             cols: vec![0.0; 6 * r],
         })
+    }
+
+    /// Streams the coupled solve's `r x 2r` matrix in single precision (`true`, the default)
+    /// or double precision (`false`). Single precision halves the largest per-tick memory
+    /// traffic (a TMT step with 300 modes: 14.3 MB streamed in double precision, 10.7 MB in
+    /// single); against double precision it moves the mirror's response by about 1e-9 of its
+    /// largest value (the test `coupling_precision_single_matches_double` bounds it by 1e-6).
+    pub fn set_coupling_single(&mut self, single: bool) {
+        self.coupling_single = single;
+    }
+
+    /// Whether the coupled solve streams its matrix in single precision.
+    pub fn coupling_single(&self) -> bool {
+        self.coupling_single
     }
 
     /// Number of segments.
@@ -275,6 +298,41 @@ impl CoupledMirror {
                          segments and the cell are solved together at every servo sample",
             })
         }
+    }
+
+    /// The matrices a communication step of `h` seconds streams, with how many times each is
+    /// read: `(name, bytes, reads)`. Their sum is the step's unavoidable memory traffic once
+    /// the matrices no longer fit a core's cache (a floor for benchmarks: at TMT size with 300
+    /// modes, about 10 MB per 1 ms step).
+    pub fn streamed_per_step(&self, h: f64) -> Result<Vec<(&'static str, usize, u64)>, M1Error> {
+        let ticks = self.ticks_in(h)? * u64::from(self.substeps);
+        let samples = self.ticks_in(h)?;
+        Ok(vec![
+            (
+                "mode shapes (single precision), inputs onto the modes",
+                std::mem::size_of_val(self.phic32.as_slice()),
+                1,
+            ),
+            (
+                "mode shapes (single precision), outputs back",
+                std::mem::size_of_val(self.phic32.as_slice()),
+                1,
+            ),
+            (
+                "coupling [W G_p, W G_t], one per coupled tick",
+                if self.coupling_single {
+                    std::mem::size_of_val(self.wg32.as_slice())
+                } else {
+                    std::mem::size_of_val(self.wg.as_slice())
+                },
+                ticks,
+            ),
+            (
+                "Gram matrices [G_p, G_t], one per servo sample",
+                std::mem::size_of_val(self.gg.as_slice()),
+                samples,
+            ),
+        ])
     }
 
     /// Advances `h` seconds (a whole number of ticks) with the command, the wind forces

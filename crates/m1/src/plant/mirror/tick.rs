@@ -61,15 +61,30 @@ impl CoupledMirror {
             self.psi[r + j] += self.e[1] * bh;
         }
         self.u_new.copy_from_slice(&self.rhs);
-        rows_dot::<S, 1>(
-            simd,
-            &self.wg,
-            2 * r,
-            r,
-            2 * r,
-            [&self.psi],
-            [&mut self.u_new],
-        );
+        if self.coupling_single {
+            for (d, s) in self.psi32.iter_mut().zip(&self.psi) {
+                *d = *s as f32;
+            }
+            rows_dot_f32::<S>(
+                simd,
+                &self.wg32,
+                2 * r,
+                r,
+                2 * r,
+                &self.psi32,
+                &mut self.u_new,
+            );
+        } else {
+            rows_dot::<S, 1>(
+                simd,
+                &self.wg,
+                2 * r,
+                r,
+                2 * r,
+                [&self.psi],
+                [&mut self.u_new],
+            );
+        }
         // Modes at the end of the tick.
         for j in 0..r {
             let (a, b0, b1) = (&self.a_mode[j], &self.b0[j], &self.b1[j]);
