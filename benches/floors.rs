@@ -1,0 +1,959 @@
+//! Every component of the standard wind closed loop (`m1cs run`: wind -> mirror -> edge sensors
+//! -> controller, with the optics metrics) next to its arithmetic or memory floor.
+//!
+//! For each component, in the same process:
+//! 1. its real time per communication step, driven in-process through [`fmu::Instance`] exactly
+//!    as the master drives it (`set_real` of its connected inputs, `do_step(t, h)`, `get_real`
+//!    of its outputs), with inputs that change at every step, after a warm-up;
+//! 2. a floor: the arithmetic or memory traffic the component cannot avoid, as a plain kernel
+//!    on data of the same sizes;
+//! 3. their ratio.
+//!
+//! | component | step | floor |
+//! |---|---|---|
+//! | mirror (`mirror_voicecoil`, each `--modes`) | 1 ms | the matrices one step streams ([`m1::plant::mirror::CoupledMirror::streamed_per_step`]), as separate single-precision buffers summed with SIMD the same number of times |
+//! | edge sensors | 1 ms | a CSR product with the same non-zeros, `y = H z`, `gap = g0 + G z` (fused when `H` and `G` share a pattern); and the memory floor: the non-zeros and `z` read once |
+//! | optics | 1 ms | metrics: one dot-product pass over `z`; PSSN: the FFTs of one evaluation (`m1::optics::pssn`), per step |
+//! | wind | 10 ms (100 Hz) | streaming the table entries one sample interpolates and the forces it writes |
+//! | master | 1 ms | a copy of the scalars the standard system connects per step (not measured here) |
+//!
+//! Each measurement runs in `BLOCKS` blocks of equal length (about 1.5 s in all unless
+//! `--steps` fixes the steps per block) and reports the median time per step and the minimum.
+//! The optics blocks are whole numbers of PSSN periods, so the PSSN evaluations are averaged
+//! over the steps.
+//!
+//! Run (release profile; `--bench` from cargo and unknown flags are ignored):
+//!
+//! ```text
+//! cargo bench --bench floors -- [--layout tmt|keck] [--modes 60,300] [--steps N] [--json PATH]
+//! ```
+//!
+//! The master's own time is not measured here: its actual share of a run comes from
+//! `target/release/m1cs run --json` (`master_share` x the loop time).
+#![allow(clippy::expect_used, clippy::unwrap_used, clippy::panic)]
+
+use std::hint::black_box;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use faer::sparse::SparseColMat;
+use fmu::{Instance, Model};
+use m1::aperture::layout::Layout;
+use m1::loads::wind::WindParams;
+use m1::optics::pssn::{Pssn, PssnParams, phase_structure_function, r0_at_wavelength};
+use rustfft::num_complex::Complex64;
+use serde_json::{Value, json};
+
+/// Blocks per measurement (the median and the minimum are taken over them).
+const BLOCKS: usize = 7;
+/// Wall time of a measurement's blocks when `--steps` is not given (s).
+const TARGET_SECONDS: f64 = 1.5;
+/// Warm-up before each measurement (it also estimates the cost of a step).
+const WARM_UP: Duration = Duration::from_millis(150);
+/// Precomputed input vectors cycled through, so that the inputs change at every step at no
+/// cost to the timed loop.
+const VARIANTS: usize = 8;
+/// The base communication step of the standard system (s).
+const STEP: f64 = 1e-3;
+/// The wind FMU's step in the standard system (100 Hz) (s).
+const WIND_STEP: f64 = 1e-2;
+
+struct Args {
+    layout: String,
+    modes: Vec<i32>,
+    steps: Option<usize>,
+    json: Option<PathBuf>,
+}
+
+fn parse_args() -> Args {
+    let mut a = Args {
+        layout: "tmt".into(),
+        modes: vec![60, 300],
+        steps: None,
+        json: None,
+    };
+    let mut it = std::env::args().skip(1);
+    while let Some(arg) = it.next() {
+        let (flag, inline) = match arg.split_once('=') {
+            Some((f, v)) => (f.to_string(), Some(v.to_string())),
+            None => (arg.clone(), None),
+        };
+        let mut value = |name: &str| {
+            inline
+                .clone()
+                .or_else(|| it.next())
+                .unwrap_or_else(|| panic!("{name} needs a value"))
+        };
+        match flag.as_str() {
+            "--layout" => a.layout = value("--layout"),
+            "--modes" => {
+                a.modes = value("--modes")
+                    .split(',')
+                    .map(|m| {
+                        m.trim()
+                            .parse()
+                            .unwrap_or_else(|e| panic!("--modes {m}: {e}"))
+                    })
+                    .collect()
+            }
+            "--steps" => {
+                let s = value("--steps");
+                a.steps = Some(s.parse().unwrap_or_else(|e| panic!("--steps {s}: {e}")))
+            }
+            "--json" => a.json = Some(PathBuf::from(value("--json"))),
+            // `cargo bench` passes `--bench`; anything else unknown is ignored too.
+            _ => {}
+        }
+    }
+    a
+}
+
+/// Time per step of one measurement (s).
+#[derive(Debug, Clone, Copy)]
+struct Stats {
+    median: f64,
+    min: f64,
+    /// Steps per block.
+    steps: usize,
+}
+
+impl Stats {
+    fn scaled(self, k: f64) -> Stats {
+        Stats {
+            median: self.median * k,
+            min: self.min * k,
+            steps: self.steps,
+        }
+    }
+
+    fn json(self) -> Value {
+        json!({
+            "median_us": self.median * 1e6,
+            "min_us": self.min * 1e6,
+            "steps_per_block": self.steps,
+            "blocks": BLOCKS,
+        })
+    }
+}
+
+/// Runs `run(n)` (n steps) in [`BLOCKS`] blocks of a whole number of `granule` steps, after a
+/// warm-up.
+fn measure(fixed_steps: Option<usize>, granule: usize, mut run: impl FnMut(usize)) -> Stats {
+    let granule = granule.max(1);
+    let start = Instant::now();
+    let mut done = 0;
+    while done == 0 || start.elapsed() < WARM_UP {
+        run(granule);
+        done += granule;
+    }
+    let per_step = start.elapsed().as_secs_f64() / done as f64;
+    let wanted =
+        fixed_steps.unwrap_or_else(|| (TARGET_SECONDS / BLOCKS as f64 / per_step).ceil() as usize);
+    let steps = wanted.max(1).div_ceil(granule) * granule;
+    let mut t: Vec<f64> = (0..BLOCKS)
+        .map(|_| {
+            let s = Instant::now();
+            run(steps);
+            s.elapsed().as_secs_f64() / steps as f64
+        })
+        .collect();
+    t.sort_by(f64::total_cmp);
+    Stats {
+        median: t[BLOCKS / 2],
+        min: t[0],
+        steps,
+    }
+}
+
+/// One line of the table.
+struct Row {
+    component: &'static str,
+    case: String,
+    /// The component's time per step (None: not measured here).
+    time: Option<Stats>,
+    floor: Stats,
+    basis: String,
+    details: Value,
+}
+
+impl Row {
+    fn ratio(&self) -> Option<f64> {
+        self.time.map(|t| t.median / self.floor.median)
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Driving an FMU in-process.
+
+/// An initialised instance of model `M` for `variant`, its parameters set by `configure` first.
+fn instance<M: Model>(variant: &str, configure: impl FnOnce(&mut Instance<M>)) -> Instance<M> {
+    let id = M::INFO.model_identifier;
+    let (table, _) = M::new(variant).unwrap_or_else(|e| panic!("{id} {variant}: {e}"));
+    let guid = fmu::xml::guid(&M::INFO, &table);
+    let mut fmu = Instance::<M>::new("floors", &guid, None, None, false)
+        .unwrap_or_else(|e| panic!("{id}: instantiate: {e}"));
+    configure(&mut fmu);
+    fmu.setup_experiment(0.0, None)
+        .unwrap_or_else(|e| panic!("{id}: setup: {e}"));
+    fmu.enter_initialization_mode()
+        .unwrap_or_else(|e| panic!("{id}: initialisation mode: {e}"));
+    fmu.exit_initialization_mode()
+        .unwrap_or_else(|e| panic!("{id}: initialise: {e}"));
+    fmu
+}
+
+/// The value references of every scalar of variable `name`.
+fn vrs<M: Model>(fmu: &Instance<M>, name: &str) -> Vec<u32> {
+    let v = fmu
+        .table()
+        .by_name(name)
+        .unwrap_or_else(|| panic!("{}: no variable {name}", M::INFO.model_identifier));
+    (v.vr..v.vr + v.len as u32).collect()
+}
+
+fn set_integer<M: Model>(fmu: &mut Instance<M>, name: &str, x: i32) {
+    let vr = vrs(fmu, name);
+    fmu.set_integer(&vr, &[x])
+        .unwrap_or_else(|e| panic!("set {name}: {e}"));
+}
+
+fn set_real<M: Model>(fmu: &mut Instance<M>, name: &str, x: f64) {
+    let vr = vrs(fmu, name);
+    fmu.set_real(&vr, &[x])
+        .unwrap_or_else(|e| panic!("set {name}: {e}"));
+}
+
+fn get_scalar<M: Model>(fmu: &mut Instance<M>, name: &str) -> f64 {
+    let vr = vrs(fmu, name);
+    let mut x = [f64::NAN];
+    fmu.get_real(&vr, &mut x)
+        .unwrap_or_else(|e| panic!("get {name}: {e}"));
+    x[0]
+}
+
+/// One step: `set_real` of each input, `do_step(t, h)`, `get_real` of each output.
+fn step<M: Model>(
+    fmu: &mut Instance<M>,
+    h: f64,
+    inputs: &[(&[u32], &[f64])],
+    outputs: &mut [(&[u32], &mut [f64])],
+) {
+    for (vr, x) in inputs {
+        fmu.set_real(vr, x).expect("set_real of an input");
+    }
+    let t = fmu.time();
+    fmu.do_step(t, h).expect("do_step");
+    for (vr, out) in outputs.iter_mut() {
+        fmu.get_real(vr, out).expect("get_real of an output");
+    }
+    black_box(outputs);
+}
+
+/// [`VARIANTS`] versions of a vector of length `n`: a fixed pattern of amplitude `scale`, each
+/// version perturbed by a different 1 %.
+fn variants(n: usize, scale: f64) -> Vec<Vec<f64>> {
+    (0..VARIANTS)
+        .map(|k| {
+            (0..n)
+                .map(|i| {
+                    let x = i as f64;
+                    scale
+                        * ((0.731 * x).sin()
+                            + 0.3 * (2.17 * x).cos()
+                            + 0.01 * (0.37 * x + k as f64).sin())
+                })
+                .collect()
+        })
+        .collect()
+}
+
+// ---------------------------------------------------------------------------------------------
+// Floor kernels.
+
+/// Sum of a single-precision buffer in SIMD, eight independent accumulators: a pure read of
+/// the buffer at the bandwidth of wherever it lives.
+struct Sum<'a>(&'a [f32]);
+
+impl pulp::WithSimd for Sum<'_> {
+    type Output = f32;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) -> f32 {
+        let (head, tail) = S::as_simd_f32s(self.0);
+        let zero = simd.splat_f32s(0.0);
+        let mut acc = [zero; 8];
+        let mut chunks = head.chunks_exact(8);
+        for c in &mut chunks {
+            for (a, &v) in acc.iter_mut().zip(c) {
+                *a = simd.add_f32s(*a, v);
+            }
+        }
+        let mut total = zero;
+        for a in acc {
+            total = simd.add_f32s(total, a);
+        }
+        for &v in chunks.remainder() {
+            total = simd.add_f32s(total, v);
+        }
+        simd.reduce_sum_f32s(total) + tail.iter().sum::<f32>()
+    }
+}
+
+fn stream(arch: pulp::Arch, x: &[f32]) -> f32 {
+    arch.dispatch(Sum(x))
+}
+
+/// A buffer of `bytes` bytes of single-precision values (rounded up to whole values).
+fn buffer(bytes: usize) -> Vec<f32> {
+    (0..bytes.div_ceil(4))
+        .map(|i| 1e-3 * (i % 97) as f32)
+        .collect()
+}
+
+/// A row-major sparse matrix (compressed rows, 32-bit column indices), with `L` values per
+/// non-zero (`L` matrices on one pattern).
+struct Csr<const L: usize> {
+    ptr: Vec<usize>,
+    col: Vec<u32>,
+    val: Vec<[f64; L]>,
+}
+
+impl<const L: usize> Csr<L> {
+    /// The matrices `a` (same shape) on the pattern of the first, by rows (the others' values
+    /// at the same entries; [`SensorCsr`] checks the patterns agree).
+    fn from_csc(a: [&SparseColMat<usize, f64>; L]) -> Self {
+        let s = a[0].symbolic();
+        let (cp, ri) = (s.col_ptr(), s.row_idx());
+        let m = a[0].nrows();
+        let mut ptr = vec![0usize; m + 1];
+        for j in 0..a[0].ncols() {
+            for &r in &ri[cp[j]..cp[j + 1]] {
+                ptr[r + 1] += 1;
+            }
+        }
+        for r in 0..m {
+            ptr[r + 1] += ptr[r];
+        }
+        let nnz = ptr[m];
+        let (mut col, mut val) = (vec![0u32; nnz], vec![[0.0; L]; nnz]);
+        let mut next = ptr.clone();
+        for j in 0..a[0].ncols() {
+            for k in cp[j]..cp[j + 1] {
+                let d = &mut next[ri[k]];
+                col[*d] = u32::try_from(j).expect("columns fit in u32");
+                val[*d] = std::array::from_fn(|l| a[l].val()[k]);
+                *d += 1;
+            }
+        }
+        Csr { ptr, col, val }
+    }
+
+    fn nnz(&self) -> usize {
+        self.val.len()
+    }
+
+    fn bytes(&self) -> usize {
+        8 * self.ptr.len() + 4 * self.col.len() + 8 * L * self.val.len()
+    }
+
+    /// `y_l = offset_l + A_l x`, one dot per row (the `L` sums of a row together).
+    #[inline(always)]
+    fn mul(&self, x: &[f64], offset: [f64; L], mut y: [&mut [f64]; L]) {
+        let rows = y.iter().map(|yl| yl.len()).min().unwrap_or(0);
+        for r in 0..rows {
+            let (a, b) = (self.ptr[r], self.ptr[r + 1]);
+            let mut s = offset;
+            for (v, &c) in self.val[a..b].iter().zip(&self.col[a..b]) {
+                let xc = x[c as usize];
+                for (sl, vl) in s.iter_mut().zip(v) {
+                    *sl += vl * xc;
+                }
+            }
+            for (yl, sl) in y.iter_mut().zip(s) {
+                yl[r] = sl;
+            }
+        }
+    }
+}
+
+/// The sensors' `z` operators by rows: `H` and `G` fused on one pattern when they share it
+/// (one column index and one `x` read for both), otherwise apart.
+struct SensorCsr {
+    fused: bool,
+    both: Csr<2>,
+    height: Csr<1>,
+    gap: Csr<1>,
+    nnz_height: usize,
+    nnz_gap: usize,
+}
+
+impl SensorCsr {
+    fn new(h: &SparseColMat<usize, f64>, g: &SparseColMat<usize, f64>) -> Self {
+        let (height, gap) = (Csr::from_csc([h]), Csr::from_csc([g]));
+        let fused = height.ptr == gap.ptr && height.col == gap.col;
+        let both = if fused {
+            Csr::from_csc([h, g])
+        } else {
+            Csr {
+                ptr: vec![0],
+                col: Vec::new(),
+                val: Vec::new(),
+            }
+        };
+        let (nnz_height, nnz_gap) = (height.nnz(), gap.nnz());
+        SensorCsr {
+            fused,
+            both,
+            height,
+            gap,
+            nnz_height,
+            nnz_gap,
+        }
+    }
+
+    fn bytes(&self) -> usize {
+        if self.fused {
+            self.both.bytes()
+        } else {
+            self.height.bytes() + self.gap.bytes()
+        }
+    }
+
+    /// `y = H x`, `gap = g0 + G x`.
+    #[inline(never)]
+    fn mul(&self, x: &[f64], g0: f64, y: &mut [f64], gap: &mut [f64]) {
+        if self.fused {
+            self.both.mul(x, [0.0, g0], [y, gap]);
+        } else {
+            self.height.mul(x, [0.0], [y]);
+            self.gap.mul(x, [g0], [gap]);
+        }
+    }
+}
+
+/// `(sum x w, sum x^2)` in one pass, four accumulators each.
+#[inline(never)]
+fn dot_pass(x: &[f64], w: &[f64]) -> (f64, f64) {
+    let (mut s, mut q) = ([0.0; 4], [0.0; 4]);
+    let (xc, wc) = (x.chunks_exact(4), w.chunks_exact(4));
+    let (xr, wr) = (xc.remainder(), wc.remainder());
+    for (a, b) in xc.zip(wc) {
+        for l in 0..4 {
+            s[l] += a[l] * b[l];
+            q[l] += a[l] * a[l];
+        }
+    }
+    let (mut s, mut q) = (s.iter().sum::<f64>(), q.iter().sum::<f64>());
+    for (a, b) in xr.iter().zip(wr) {
+        s += a * b;
+        q += a * a;
+    }
+    (s, q)
+}
+
+fn mb(bytes: f64) -> String {
+    if bytes >= 1e6 {
+        format!("{:.2} MB", bytes / 1e6)
+    } else {
+        format!("{:.1} kB", bytes / 1e3)
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The components.
+
+fn mirror(layout: &str, modes: i32, steps: Option<usize>, arch: pulp::Arch, rows: &mut Vec<Row>) {
+    let t0 = Instant::now();
+    let mut fmu = instance::<mirror::VoiceCoil>(layout, |f| set_integer(f, "n_modes", modes));
+    let setup = t0.elapsed().as_secs_f64();
+    let solver = fmu
+        .running()
+        .and_then(|r| r.solver())
+        .expect("the mirror FMU runs the coupled solver");
+    let retained = solver.structure().n_modes();
+    let streamed = solver
+        .streamed_per_step(STEP)
+        .expect("the mirror's streamed matrices");
+    eprintln!("mirror, {modes} modes ({retained} retained): set up in {setup:.2} s");
+    let (u, f, p, z) = (
+        vrs(&fmu, "u_cmd"),
+        vrs(&fmu, "f_wind"),
+        vrs(&fmu, "pier_z"),
+        vrs(&fmu, "z"),
+    );
+    let na = u.len();
+    let (us, fs) = (variants(na, 1e-7), variants(na, 0.5));
+    let ps: Vec<[f64; 1]> = (0..VARIANTS).map(|k| [1e-9 * (k as f64 - 3.5)]).collect();
+    let mut out = vec![0.0; na];
+    let mut k = 0;
+    let time = measure(steps, 1, |n| {
+        for _ in 0..n {
+            let j = k % VARIANTS;
+            k += 1;
+            step(
+                &mut fmu,
+                STEP,
+                &[(&u, &us[j]), (&f, &fs[j]), (&p, &ps[j])],
+                &mut [(&z, &mut out)],
+            );
+        }
+    });
+    drop(fmu);
+
+    let buffers: Vec<(Vec<f32>, u64)> = streamed
+        .iter()
+        .map(|&(_, bytes, reads)| (buffer(bytes), reads))
+        .collect();
+    let bytes: f64 = streamed.iter().map(|&(_, b, r)| b as f64 * r as f64).sum();
+    let footprint: usize = streamed.iter().map(|&(_, b, _)| b).sum();
+    let floor = measure(steps, 1, |n| {
+        for _ in 0..n {
+            let mut s = 0.0;
+            for (b, reads) in &buffers {
+                for _ in 0..*reads {
+                    s += stream(arch, black_box(b));
+                }
+            }
+            black_box(s);
+        }
+    });
+    let (floor_gbs, component_gbs) = (bytes / floor.median / 1e9, bytes / time.median / 1e9);
+    rows.push(Row {
+        component: "mirror",
+        case: format!("voice coil, {modes} modes ({retained} retained), 1 ms step"),
+        time: Some(time),
+        floor,
+        basis: format!(
+            "{} streamed per step ({} of buffers) at {floor_gbs:.1} GB/s; component {component_gbs:.1} GB/s",
+            mb(bytes),
+            mb(footprint as f64),
+        ),
+        details: json!({
+            "modes": modes,
+            "retained_modes": retained,
+            "setup_s": setup,
+            "bytes_per_step": bytes,
+            "buffer_bytes": footprint,
+            "floor_gb_per_s": floor_gbs,
+            "component_gb_per_s": component_gbs,
+            "streamed": streamed
+                .iter()
+                .map(|&(name, b, r)| json!({"matrix": name, "bytes": b, "reads_per_step": r}))
+                .collect::<Vec<_>>(),
+        }),
+    });
+}
+
+fn edge_sensors(layout: &str, steps: Option<usize>, arch: pulp::Arch, rows: &mut Vec<Row>) {
+    let t0 = Instant::now();
+    let mut fmu = instance::<edge_sensors_model::EdgeSensorsModel>(layout, |_| {});
+    let setup = t0.elapsed().as_secs_f64();
+    eprintln!("edge sensors: set up in {setup:.2} s");
+    let (z, y, gap) = (vrs(&fmu, "z"), vrs(&fmu, "y"), vrs(&fmu, "gap"));
+    let (na, ns) = (z.len(), y.len());
+    let zs = variants(na, 1e-7);
+    let sensors = fmu.running().expect("initialised").edge_sensors();
+    let a = SensorCsr::new(sensors.height_matrix(), sensors.gap_matrices().0);
+    let g0 = sensors.nominal_gap();
+    let (mut yo, mut go) = (vec![0.0; ns], vec![0.0; ns]);
+    let mut k = 0;
+    let time = measure(steps, 1, |n| {
+        for _ in 0..n {
+            let j = k % VARIANTS;
+            k += 1;
+            step(
+                &mut fmu,
+                STEP,
+                &[(&z, &zs[j])],
+                &mut [(&y, &mut yo), (&gap, &mut go)],
+            );
+        }
+    });
+    let mut k = 0;
+    let csr = measure(steps, 1, |n| {
+        for _ in 0..n {
+            let x = black_box(&zs[k % VARIANTS]);
+            k += 1;
+            a.mul(x, g0, &mut yo, &mut go);
+            black_box((&yo, &go));
+        }
+    });
+    // The traffic no kernel avoids: the non-zero coefficients read once, z read, y and gap
+    // written.
+    let coefficients = 8 * (a.nnz_height + a.nnz_gap);
+    let values = buffer(coefficients + 8 * na);
+    let memory = measure(steps, 1, |n| {
+        for _ in 0..n {
+            let s = f64::from(stream(arch, black_box(&values)));
+            yo.fill(s);
+            go.fill(s);
+            black_box((&yo, &go));
+        }
+    });
+    let case = format!("{ns} sensors (y and gap) from z, 1 ms step");
+    let details = json!({
+        "setup_s": setup,
+        "n_sensors": ns,
+        "nnz_height": a.nnz_height,
+        "nnz_gap": a.nnz_gap,
+        "same_pattern": a.fused,
+        "csr_bytes": a.bytes(),
+        "csr_floor": csr.json(),
+        "memory_floor": memory.json(),
+    });
+    rows.push(Row {
+        component: "edge sensors",
+        case: case.clone(),
+        time: Some(time),
+        floor: csr,
+        basis: format!(
+            "CSR y = H z, gap = g0 + G z, one dot per row{}: {} + {} non-zeros, {} of matrices",
+            if a.fused {
+                " (H and G share a pattern: one pass, two values per index)"
+            } else {
+                ""
+            },
+            a.nnz_height,
+            a.nnz_gap,
+            mb(a.bytes() as f64)
+        ),
+        details: details.clone(),
+    });
+    rows.push(Row {
+        component: "edge sensors",
+        case,
+        time: Some(time),
+        floor: memory,
+        basis: format!(
+            "memory: the {} non-zero coefficients and z read once ({}), y and gap written",
+            a.nnz_height + a.nnz_gap,
+            mb((coefficients + 8 * na) as f64)
+        ),
+        details,
+    });
+}
+
+/// Lag rows of the half OTF that carry weight in one PSSN evaluation: the same rule as
+/// `m1::optics::pssn` (lags out to where `exp(-D) < 1e-30`, plus the hat weights' reach).
+fn pssn_lag_rows(params: &PssnParams, m: usize, dx: f64) -> usize {
+    let r0 = r0_at_wavelength(params.r0, params.wavelength);
+    let d = |r: f64| phase_structure_function(r, r0, params.l0);
+    let threshold = -(1e-30f64).ln();
+    let half = m / 2;
+    let r_max = dx * m as f64;
+    if d(r_max) <= threshold {
+        return half + 1;
+    }
+    let (mut lo, mut hi) = (0.0, r_max);
+    for _ in 0..80 {
+        let mid = 0.5 * (lo + hi);
+        if d(mid) > threshold {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    (((hi + 1.5 * dx) / dx).floor() as usize + 1).min(half + 1)
+}
+
+fn optics(layout: &str, steps: Option<usize>, rows: &mut Vec<Row>) {
+    let t0 = Instant::now();
+    let mut fmu = instance::<optics_model::Optics>(layout, |_| {});
+    let setup = t0.elapsed().as_secs_f64();
+    let mut metrics_only = instance::<optics_model::Optics>(layout, |f| {
+        set_real(f, "pssn_rate", 0.0);
+    });
+    eprintln!("optics: set up in {setup:.2} s");
+    let pssn_rate = get_scalar(&mut fmu, "pssn_rate");
+    let metrics_rate = get_scalar(&mut fmu, "metrics_rate");
+    let per_pssn = ((1.0 / pssn_rate) / STEP).round().max(1.0) as usize;
+    let z = vrs(&fmu, "z");
+    let na = z.len();
+    let names = [
+        "rms_surface",
+        "focus_mode",
+        "rms_surface_without_focus",
+        "pssn",
+        "focus_mode_coefficient",
+    ];
+    let outs: Vec<Vec<u32>> = names.iter().map(|n| vrs(&fmu, n)).collect();
+    let zs = variants(na, 1e-7);
+    let mut values = vec![[0.0f64; 1]; outs.len()];
+    let mut run = |fmu: &mut Instance<optics_model::Optics>, granule: usize| {
+        let mut k = 0;
+        measure(steps, granule, |n| {
+            let mut o: Vec<(&[u32], &mut [f64])> = outs
+                .iter()
+                .zip(values.iter_mut())
+                .map(|(v, x)| (v.as_slice(), x.as_mut_slice()))
+                .collect();
+            for _ in 0..n {
+                let j = k % VARIANTS;
+                k += 1;
+                step(fmu, STEP, &[(&z, &zs[j])], &mut o);
+            }
+        })
+    };
+    let with_pssn = run(&mut fmu, per_pssn);
+    let metrics = run(&mut metrics_only, 1);
+    drop((fmu, metrics_only));
+
+    // Metrics floor: one pass over z with its arithmetic.
+    let w = variants(na, 1.0).swap_remove(0);
+    let mut k = 0;
+    let metrics_floor = measure(steps, 1, |n| {
+        for _ in 0..n {
+            let x = black_box(&zs[k % VARIANTS]);
+            k += 1;
+            black_box(dot_pass(x, &w));
+        }
+    });
+
+    // PSSN floor: the FFTs of one evaluation, planned once, on buffers of the same sizes.
+    let params = PssnParams::default();
+    let pssn = Pssn::new(&Layout::preset(layout).expect("layout"), params).expect("PSSN");
+    let (n, m) = (pssn.grid().samples(), pssn.fft_size());
+    let lag_rows = pssn_lag_rows(&params, m, pssn.grid().spacing());
+    drop(pssn);
+    let mut planner = rustfft::FftPlanner::<f64>::new();
+    let (fft, ifft) = (planner.plan_fft_forward(m), planner.plan_fft_inverse(m));
+    let zero = Complex64::new(0.0, 0.0);
+    // The cost of a transform does not depend on the values: zeros keep the repeated in-place
+    // transforms finite.
+    let mut field = vec![zero; n * m];
+    let mut spectrum = vec![zero; m * m];
+    let mut otf = vec![zero; lag_rows * m];
+    let mut scratch = vec![
+        zero;
+        fft.get_inplace_scratch_len()
+            .max(ifft.get_inplace_scratch_len())
+    ];
+    let half = m / 2;
+    let fft_per_eval = measure(steps.map(|s| s.div_ceil(per_pssn)), 1, |reps| {
+        for _ in 0..reps {
+            fft.process_with_scratch(&mut field, &mut scratch);
+            fft.process_with_scratch(&mut spectrum, &mut scratch);
+            ifft.process_with_scratch(&mut spectrum[..half * m], &mut scratch);
+            ifft.process_with_scratch(&mut otf, &mut scratch);
+            black_box((&field, &spectrum, &otf));
+        }
+    });
+    let transforms = n + m + half + lag_rows;
+    let fft_basis = format!(
+        "{transforms} complex FFTs of {m} ({n} field rows, {m} columns, {half} packed PSF rows, \
+         {lag_rows} OTF lag rows) per evaluation"
+    );
+    let pssn_floor = fft_per_eval.scaled(1.0 / per_pssn as f64);
+    let combined = Stats {
+        median: metrics_floor.median + pssn_floor.median,
+        min: metrics_floor.min + pssn_floor.min,
+        steps: metrics_floor.steps,
+    };
+    let details = json!({
+        "setup_s": setup,
+        "metrics_rate_hz": metrics_rate,
+        "pssn_rate_hz": pssn_rate,
+        "steps_per_pssn": per_pssn,
+        "pssn_samples": n,
+        "fft_size": m,
+        "lag_rows": lag_rows,
+        "ffts_per_evaluation": transforms,
+        "metrics_floor": metrics_floor.json(),
+        "fft_per_evaluation": fft_per_eval.json(),
+    });
+    rows.push(Row {
+        component: "optics",
+        case: format!(
+            "metrics at {metrics_rate} Hz + PSSN at {pssn_rate} Hz, 1 ms step (averaged over \
+             {} PSSN periods per block)",
+            with_pssn.steps / per_pssn
+        ),
+        time: Some(with_pssn),
+        floor: combined,
+        basis: format!("one pass over z ({na} values) + FFTs / {per_pssn} steps: {fft_basis}"),
+        details: details.clone(),
+    });
+    rows.push(Row {
+        component: "optics",
+        case: "metrics only (pssn_rate 0), 1 ms step".into(),
+        time: Some(metrics),
+        floor: metrics_floor,
+        basis: format!("one dot-product pass over z ({na} values)"),
+        details: details.clone(),
+    });
+    // One PSSN evaluation, from the difference of the two runs.
+    let eval = Stats {
+        median: (with_pssn.median - metrics.median) * per_pssn as f64,
+        min: (with_pssn.min - metrics.min).max(0.0) * per_pssn as f64,
+        steps: with_pssn.steps,
+    };
+    rows.push(Row {
+        component: "optics",
+        case: "one PSSN evaluation (difference of the two rows above x steps per PSSN)".into(),
+        time: Some(eval),
+        floor: fft_per_eval,
+        basis: fft_basis,
+        details,
+    });
+}
+
+fn wind(layout: &str, steps: Option<usize>, arch: pulp::Arch, rows: &mut Vec<Row>) {
+    let t0 = Instant::now();
+    let mut fmu = instance::<wind_model::Wind>(layout, |f| {
+        set_real(f, "wind_speed", WindParams::default().speed);
+    });
+    let setup = t0.elapsed().as_secs_f64();
+    eprintln!("wind: set up in {setup:.2} s");
+    let f = vrs(&fmu, "f_wind");
+    let na = f.len();
+    let nseg = na / 3;
+    let mut out = vec![0.0; na];
+    let time = measure(steps, 1, |n| {
+        for _ in 0..n {
+            step(&mut fmu, WIND_STEP, &[], &mut [(&f, &mut out)]);
+        }
+    });
+    // Per segment a sample reads 4 entries of each of its 3 tables (cubic interpolation), its
+    // 3 x 3 map to the actuator forces and its position along the flow; it writes 3 forces,
+    // which get_real reads back.
+    let read = nseg * (3 * 4 * 8 + 9 * 8 + 8);
+    let tables = buffer(read);
+    let mut forces = vec![0.0f64; na];
+    let mut copy = vec![0.0f64; na];
+    let floor = measure(steps, 1, |n| {
+        for _ in 0..n {
+            let s = f64::from(stream(arch, black_box(&tables)));
+            forces.fill(s);
+            copy.copy_from_slice(black_box(&forces));
+            black_box(&copy);
+        }
+    });
+    let basis = format!(
+        "{} read (table entries, maps) + {} of forces written and read back",
+        mb(read as f64),
+        mb((8 * na) as f64)
+    );
+    let details = json!({
+        "setup_s": setup,
+        "step_s": WIND_STEP,
+        "bytes_read": read,
+        "bytes_forces": 8 * na,
+    });
+    rows.push(Row {
+        component: "wind",
+        case: "100 Hz: per 10 ms step".into(),
+        time: Some(time),
+        floor,
+        basis: basis.clone(),
+        details: details.clone(),
+    });
+    let per_second = 1.0 / WIND_STEP;
+    rows.push(Row {
+        component: "wind",
+        case: format!("100 Hz: per simulated second ({per_second} steps)"),
+        time: Some(time.scaled(per_second)),
+        floor: floor.scaled(per_second),
+        basis,
+        details,
+    });
+}
+
+fn master(layout: &str, steps: Option<usize>, rows: &mut Vec<Row>) {
+    let l = Layout::preset(layout).expect("layout");
+    let (na, ns) = (l.n_actuators(), l.n_sensors());
+    // wind.f_wind -> mirror, mirror.z -> sensors and optics, controller.u_cmd -> mirror,
+    // sensors.y -> controller.
+    let n = 4 * na + ns;
+    let src: Vec<f64> = (0..n).map(|i| i as f64).collect();
+    let mut dst = vec![0.0; n];
+    let floor = measure(steps, 1, |k| {
+        for _ in 0..k {
+            dst.copy_from_slice(black_box(&src));
+            black_box(&dst);
+        }
+    });
+    let gbs = (8 * n) as f64 / floor.median / 1e9;
+    rows.push(Row {
+        component: "master",
+        case: "connected scalars per 1 ms step".into(),
+        time: None,
+        floor,
+        basis: format!(
+            "memcpy of {n} f64 ({}: 4 na + ns, na = {na}, ns = {ns}) at {gbs:.1} GB/s; actual: \
+             master_share x loop time of `target/release/m1cs run --json`",
+            mb((8 * n) as f64)
+        ),
+        details: json!({"scalars": n, "na": na, "ns": ns, "gb_per_s": gbs}),
+    });
+}
+
+fn main() {
+    let a = parse_args();
+    let layout = Layout::preset(&a.layout)
+        .unwrap_or_else(|e| panic!("--layout {}: {e}", a.layout))
+        .name
+        .clone();
+    let arch = pulp::Arch::new();
+    let start = Instant::now();
+    eprintln!(
+        "floors: layout {layout}, modes {:?}, {} blocks of {} per measurement",
+        a.modes,
+        BLOCKS,
+        a.steps
+            .map_or(format!("about {TARGET_SECONDS} s in all"), |s| format!(
+                "{s} steps"
+            ))
+    );
+    let mut rows = Vec::new();
+    for &modes in &a.modes {
+        mirror(&layout, modes, a.steps, arch, &mut rows);
+    }
+    edge_sensors(&layout, a.steps, arch, &mut rows);
+    optics(&layout, a.steps, &mut rows);
+    wind(&layout, a.steps, arch, &mut rows);
+    master(&layout, a.steps, &mut rows);
+
+    println!("\n## Floors: {layout}, medians of {BLOCKS} blocks per step (minimum in brackets)\n");
+    println!("| component | case | time per step (us) | floor (us) | ratio | floor basis |");
+    println!("|---|---|---|---|---|---|");
+    let us = |s: Stats| format!("{:.2} ({:.2})", s.median * 1e6, s.min * 1e6);
+    for r in &rows {
+        println!(
+            "| {} | {} | {} | {} | {} | {} |",
+            r.component,
+            r.case,
+            r.time.map_or("not measured".into(), us),
+            us(r.floor),
+            r.ratio().map_or("-".into(), |x| format!("{x:.2}")),
+            r.basis
+        );
+    }
+    println!(
+        "\nThe master's own time is not measured in-process: its share of a run is \
+         `master_share` x the loop time of `target/release/m1cs run --json`; the row above is \
+         only the floor of its data movement.\nTotal bench time {:.1} s.",
+        start.elapsed().as_secs_f64()
+    );
+    if let Some(path) = &a.json {
+        let doc = json!({
+            "layout": layout,
+            "modes": a.modes,
+            "blocks": BLOCKS,
+            "rows": rows
+                .iter()
+                .map(|r| json!({
+                    "component": r.component,
+                    "case": r.case,
+                    "time": r.time.map(Stats::json),
+                    "floor": r.floor.json(),
+                    "ratio": r.ratio(),
+                    "floor_basis": r.basis,
+                    "details": r.details,
+                }))
+                .collect::<Vec<_>>(),
+        });
+        let text = serde_json::to_string_pretty(&doc).expect("JSON");
+        std::fs::write(path, text).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        eprintln!("wrote {}", path.display());
+    }
+}
