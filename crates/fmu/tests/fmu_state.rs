@@ -276,3 +276,33 @@ fn reset_restores_the_start() {
     assert_eq!(fmu.last_time(), 0.0);
     assert_eq!(fmu.step(0.0, H), OK);
 }
+
+/// The bulk paths of fmi2SetReal and fmi2GetReal (a contiguous run of an array's value
+/// references, between steps): a non-finite value anywhere in the run is refused, naming the
+/// scalar, and nothing is written; finite values are written and read back in order.
+#[test]
+fn bulk_transfers_check_every_value_and_copy_in_order() {
+    let (mut fmu, d) = stepped();
+    let t = &d.table;
+    let u = vrs(t, "u");
+    let n = u.len();
+    assert!(n >= 2, "the test model's u is an array");
+    let before = fmu.get_reals_of(t, "u");
+    for at in 0..n {
+        for bad in [f64::NAN, f64::INFINITY] {
+            let mut vals = input(n, 3);
+            vals[at] = bad;
+            fmu.log.take();
+            assert_eq!(fmu.set_real(&u, &vals), ERROR);
+            assert!(
+                fmu.logged(&["fmi2SetReal", &format!("u[{}]", at + 1), "finite"]),
+                "{}",
+                fmu.log.dump()
+            );
+            assert_eq!(fmu.get_reals_of(t, "u"), before, "nothing written");
+        }
+    }
+    let vals = input(n, 5);
+    assert_eq!(fmu.set_real(&u, &vals), OK);
+    assert_eq!(fmu.get_reals_of(t, "u"), vals);
+}
