@@ -546,6 +546,98 @@ pub fn real_times_complex(
     });
 }
 
+/// The same small linear map applied to many columns stored by state ("structure of
+/// arrays": state `s` of column `c` at `x[s n + c]`):
+///
+/// `out[i n + c] = sum_s a[i][s] x[s n + c] + sum_l b[i][l] u_l[c]`, for `i < NS`, `c < n`;
+///
+/// and, if `dot` is given as `(w, d)`, also `d[c] += sum_i w[i] out[i n + c]`.
+///
+/// Each vector of columns is read once (all its states and inputs) and its new states are
+/// written once, with the sums in registers: a pass of state-by-state axpys reads and writes
+/// every state `NS` times. Each output is summed in the order of `a`'s columns, then `b`'s,
+/// with fused multiply-adds where the instruction set has them.
+///
+/// # Panics
+/// If a slice is shorter than `NS n` (`x`, `out`) or `n` (`u_l`, `d`): a programming error.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub fn state_map<S: Simd, const NS: usize, const NI: usize>(
+    simd: S,
+    a: &[[f64; NS]; NS],
+    b: &[[f64; NI]; NS],
+    x: &[f64],
+    u: [&[f64]; NI],
+    n: usize,
+    out: &mut [f64],
+    dot: Option<(&[f64; NS], &mut [f64])>,
+) {
+    if n == 0 {
+        return;
+    }
+    let xs: [&[f64]; NS] = std::array::from_fn(|j| &x[j * n..(j + 1) * n]);
+    let us: [&[f64]; NI] = std::array::from_fn(|l| &u[l][..n]);
+    let mut rows = out[..NS * n].chunks_exact_mut(n);
+    let mut outs: [&mut [f64]; NS] = std::array::from_fn(|_| rows.next().unwrap_or_default());
+    let xh: [&[S::f64s]; NS] = std::array::from_fn(|j| S::as_simd_f64s(xs[j]).0);
+    let uh: [&[S::f64s]; NI] = std::array::from_fn(|l| S::as_simd_f64s(us[l]).0);
+    let m = S::as_simd_f64s(xs[0]).0.len();
+    let tail = n - S::as_simd_f64s(xs[0]).1.len();
+    let (w, mut d) = match dot {
+        Some((w, d)) => (Some(w), Some(d)),
+        None => (None, None),
+    };
+    {
+        let mut it = outs.iter_mut();
+        let mut oh: [&mut [S::f64s]; NS] = std::array::from_fn(|_| match it.next() {
+            Some(o) => S::as_mut_simd_f64s(o).0,
+            None => Default::default(),
+        });
+        let mut dh = d.as_deref_mut().map(|d| S::as_mut_simd_f64s(&mut d[..n]).0);
+        for c in 0..m {
+            let xv: [S::f64s; NS] = std::array::from_fn(|j| xh[j][c]);
+            let uv: [S::f64s; NI] = std::array::from_fn(|l| uh[l][c]);
+            let mut dacc = simd.splat_f64s(0.0);
+            for (i, o) in oh.iter_mut().enumerate() {
+                let mut acc = simd.mul_f64s(simd.splat_f64s(a[i][0]), xv[0]);
+                for (j, v) in xv.iter().enumerate().skip(1) {
+                    acc = simd.mul_add_f64s(simd.splat_f64s(a[i][j]), *v, acc);
+                }
+                for (l, v) in uv.iter().enumerate() {
+                    acc = simd.mul_add_f64s(simd.splat_f64s(b[i][l]), *v, acc);
+                }
+                o[c] = acc;
+                if let Some(w) = w {
+                    dacc = simd.mul_add_f64s(simd.splat_f64s(w[i]), acc, dacc);
+                }
+            }
+            if let Some(dh) = dh.as_deref_mut() {
+                dh[c] = simd.add_f64s(dh[c], dacc);
+            }
+        }
+    }
+    // The columns after the last whole vector.
+    for c in tail..n {
+        let mut dacc = 0.0;
+        for (i, o) in outs.iter_mut().enumerate() {
+            let mut acc = a[i][0] * xs[0][c];
+            for (j, x) in xs.iter().enumerate().skip(1) {
+                acc = a[i][j].mul_add(x[c], acc);
+            }
+            for (l, u) in us.iter().enumerate() {
+                acc = b[i][l].mul_add(u[c], acc);
+            }
+            o[c] = acc;
+            if let Some(w) = w {
+                dacc = w[i].mul_add(acc, dacc);
+            }
+        }
+        if let Some(d) = d.as_deref_mut() {
+            d[c] += dacc;
+        }
+    }
+}
+
 /// `out += a x`.
 #[inline(always)]
 pub fn axpy(out: &mut [f64], a: f64, x: &[f64]) {
@@ -557,6 +649,76 @@ pub fn axpy(out: &mut [f64], a: f64, x: &[f64]) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `state_map` against the plain sums, for column counts around the vector width.
+    #[test]
+    fn state_map_equals_the_plain_sums() {
+        const NS: usize = 5;
+        const NI: usize = 2;
+        let a: [[f64; NS]; NS] = std::array::from_fn(|i| {
+            std::array::from_fn(|j| ((i * 7 + j * 3) % 11) as f64 / 5.0 - 1.0)
+        });
+        let b: [[f64; NI]; NS] =
+            std::array::from_fn(|i| std::array::from_fn(|l| ((i + 2 * l) % 5) as f64 - 2.0));
+        let w: [f64; NS] = std::array::from_fn(|i| i as f64 - 1.5);
+        for n in [0usize, 1, 3, 4, 7, 8, 9, 17, 61] {
+            let x: Vec<f64> = (0..NS * n)
+                .map(|k| ((k * 7919) % 1013) as f64 / 1013.0 - 0.5)
+                .collect();
+            let u0: Vec<f64> = (0..n).map(|c| c as f64 * 0.25).collect();
+            let u1: Vec<f64> = (0..n).map(|c| 1.0 - c as f64 * 0.5).collect();
+            let mut out = vec![f64::NAN; NS * n];
+            let mut d: Vec<f64> = (0..n).map(|c| c as f64).collect();
+            struct Op<'a> {
+                a: &'a [[f64; NS]; NS],
+                b: &'a [[f64; NI]; NS],
+                w: &'a [f64; NS],
+                x: &'a [f64],
+                u: [&'a [f64]; NI],
+                n: usize,
+                out: &'a mut [f64],
+                d: &'a mut [f64],
+            }
+            impl pulp::WithSimd for Op<'_> {
+                type Output = ();
+                fn with_simd<S: Simd>(self, simd: S) {
+                    state_map::<S, NS, NI>(
+                        simd,
+                        self.a,
+                        self.b,
+                        self.x,
+                        self.u,
+                        self.n,
+                        self.out,
+                        Some((self.w, self.d)),
+                    );
+                }
+            }
+            pulp::Arch::new().dispatch(Op {
+                a: &a,
+                b: &b,
+                w: &w,
+                x: &x,
+                u: [&u0, &u1],
+                n,
+                out: &mut out,
+                d: &mut d,
+            });
+            for c in 0..n {
+                let mut dsum = c as f64;
+                for i in 0..NS {
+                    let mut e = 0.0;
+                    for j in 0..NS {
+                        e += a[i][j] * x[j * n + c];
+                    }
+                    e += b[i][0] * u0[c] + b[i][1] * u1[c];
+                    assert!((out[i * n + c] - e).abs() <= 1e-12, "n {n} c {c} i {i}");
+                    dsum += w[i] * e;
+                }
+                assert!((d[c] - dsum).abs() <= 1e-11, "n {n} c {c}");
+            }
+        }
+    }
 
     /// A row-major `m x k` matrix with stride `lda > k`: the padding is NaN and must never be
     /// read.

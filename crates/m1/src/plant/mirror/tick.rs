@@ -5,7 +5,7 @@
 
 use super::coupled::CoupledMirror;
 use super::projection::Reconstruct;
-use crate::linalg::kernels::{axpy, rows_dot, rows_dot_f32};
+use crate::linalg::kernels::{axpy, rows_dot, rows_dot_f32, state_map};
 use crate::plant::segment::{N_STATE, state};
 
 impl CoupledMirror {
@@ -19,7 +19,7 @@ impl CoupledMirror {
         self.rhs.fill(0.0);
         self.jump.fill(0.0);
         for k in 0..2 {
-            self.tick_channels(k, sample);
+            self.tick_channels(simd, k, sample);
         }
         // The drive jumps at the sample and is held over the tick: the modal force starts the
         // tick at the end value of the last one plus that jump, then ramps (the continuous
@@ -108,11 +108,11 @@ impl CoupledMirror {
     /// The channels of kind `k` (0 piston, 1 tilt) over one tick of [`Self::tick`], on the
     /// modes: the free part (projected) and the cell-driven part without this tick's ramp, with
     /// their terms of the coupled solve's right-hand side (`rhs`, `psi`) and, at a servo sample
-    /// (`sample`), the drive's change (`jump`, `drive_step`).
+    /// (`sample`), the drive's change (`jump`, `drive_step`). Each part is one pass of
+    /// [`state_map`] over the modes (the same `N_STATE x N_STATE` map for every mode).
     #[inline(always)]
-    fn tick_channels(&mut self, k: usize, sample: bool) {
+    fn tick_channels<S: pulp::Simd>(&mut self, simd: S, k: usize, sample: bool) {
         let r = self.r;
-        const S: usize = N_STATE;
         let dr = state::DRIVE;
         let set = usize::from(!sample);
         let (p, g, ramp, c) = (
@@ -121,25 +121,22 @@ impl CoupledMirror {
             &self.ramp[k],
             &self.cell_c[k],
         );
+        let pa: [[f64; N_STATE]; N_STATE] =
+            std::array::from_fn(|i| std::array::from_fn(|s| p[(i, s)]));
+        let ca: [f64; N_STATE] = std::array::from_fn(|i| c[i]);
         let wp = &self.w_proj[k];
-        // Free part, projected: P+_i = sum_s p_is P_s + g_i0 W_u + g_i2 W_f.
-        let (src, dst) = (&self.proj[k], &mut self.scratch[k]);
-        for i in 0..S {
-            let out = &mut dst[i * r..(i + 1) * r];
-            out.fill(0.0);
-            for s in 0..S {
-                let a = p[(i, s)];
-                if a != 0.0 {
-                    axpy(out, a, &src[s * r..(s + 1) * r]);
-                }
-            }
-            for l in [0, 2] {
-                let a = g[(i, l)];
-                if a != 0.0 {
-                    axpy(out, a, &wp[l * r..(l + 1) * r]);
-                }
-            }
-        }
+        // Free part, projected: P+_i = sum_s p_is P_s + g_i0 W_u + g_i2 W_f; h += P+ c^T.
+        let gf: [[f64; 2]; N_STATE] = std::array::from_fn(|i| [g[(i, 0)], g[(i, 2)]]);
+        state_map::<S, N_STATE, 2>(
+            simd,
+            &pa,
+            &gf,
+            &self.proj[k],
+            [&wp[..r], &wp[2 * r..3 * r]],
+            r,
+            &mut self.scratch[k],
+            Some((&ca, &mut self.rhs)),
+        );
         std::mem::swap(&mut self.proj[k], &mut self.scratch[k]);
         // The free part's drive change at the sample, on the modes.
         if sample {
@@ -148,42 +145,27 @@ impl CoupledMirror {
                 self.jump[j] += new[j] - old[j];
             }
         }
-        // h += P+ c^T.
-        for i in 0..S {
-            if c[i] != 0.0 {
-                axpy(&mut self.rhs, c[i], &self.proj[k][i * r..(i + 1) * r]);
-            }
-        }
-        // Cell-driven part without this tick's ramp: Y_i = sum_s p_is xi_s + (g_i1 - ramp_i) q.
-        let (src, dst) = (&self.xi[k], &mut self.scratch[k]);
-        for i in 0..S {
-            let out = &mut dst[i * r..(i + 1) * r];
-            out.fill(0.0);
-            for s in 0..S {
-                let a = p[(i, s)];
-                if a != 0.0 {
-                    axpy(out, a, &src[s * r..(s + 1) * r]);
-                }
-            }
-            let a = g[(i, 1)] - ramp[i];
-            if a != 0.0 {
-                axpy(out, a, &self.q);
-            }
-        }
+        // Cell-driven part without this tick's ramp: Y_i = sum_s p_is xi_s + (g_i1 - ramp_i) q;
+        // psi~_k = Y c^T.
+        let gc: [[f64; 1]; N_STATE] = std::array::from_fn(|i| [g[(i, 1)] - ramp[i]]);
+        let psi = &mut self.psi[k * r..(k + 1) * r];
+        psi.fill(0.0);
+        state_map::<S, N_STATE, 1>(
+            simd,
+            &pa,
+            &gc,
+            &self.xi[k],
+            [&self.q],
+            r,
+            &mut self.scratch[k],
+            Some((&ca, psi)),
+        );
         // The cell-driven part's drive change (the ramp does not reach the drive).
         if sample {
             let (new, old) = (&self.scratch[k][dr * r..], &self.xi[k][dr * r..]);
             let out = &mut self.drive_step[k * r..(k + 1) * r];
             for j in 0..r {
                 out[j] = (new[j] - old[j]) as f32;
-            }
-        }
-        // psi~_k = Y c^T.
-        let psi = &mut self.psi[k * r..(k + 1) * r];
-        psi.fill(0.0);
-        for i in 0..S {
-            if c[i] != 0.0 {
-                axpy(psi, c[i], &self.scratch[k][i * r..(i + 1) * r]);
             }
         }
     }

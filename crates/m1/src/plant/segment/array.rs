@@ -9,6 +9,7 @@ use super::model::SegmentModel;
 use super::sampled::propagate;
 use super::{Channel, Gamma, N_IN, N_STATE, Phi, modal_basis, state};
 use crate::M1Error;
+use crate::linalg::kernels::state_map;
 
 /// Propagators of both channel kinds for one step size.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -282,10 +283,8 @@ impl SegmentArray {
 }
 
 /// `next = P x + S w` for `n` channels stored by state (`x[j n + c]`, `w[l n + c]`), a SIMD
-/// operation for [`pulp::Arch::dispatch`]. Each vector of channels is read once, all its
-/// states and inputs, and its new states are written once (a pass of state-by-state axpys
-/// reads every state `N_STATE` times); each new state is summed in the order of the map's
-/// columns, states then inputs, with fused multiply-adds where the processor has them.
+/// operation for [`pulp::Arch::dispatch`]: one pass of [`state_map`] (each vector of channels
+/// read once, its new states written once).
 struct ApplyMaps<'a> {
     p: &'a Phi,
     s: &'a Gamma,
@@ -300,51 +299,11 @@ impl pulp::WithSimd for ApplyMaps<'_> {
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, simd: S) {
-        let n = self.n;
-        let (p, s) = (self.p, self.s);
-        let xs: [&[f64]; N_STATE] = std::array::from_fn(|j| &self.x[j * n..(j + 1) * n]);
-        let ws: [&[f64]; N_IN] = std::array::from_fn(|l| &self.w[l * n..(l + 1) * n]);
-        let mut rows = self.next.chunks_exact_mut(n);
-        let mut outs: [&mut [f64]; N_STATE] =
-            std::array::from_fn(|_| rows.next().unwrap_or_default());
-        let xh: [&[S::f64s]; N_STATE] = std::array::from_fn(|j| S::as_simd_f64s(xs[j]).0);
-        let wh: [&[S::f64s]; N_IN] = std::array::from_fn(|l| S::as_simd_f64s(ws[l]).0);
-        let m = xh[0].len();
-        {
-            let mut oh: [&mut [S::f64s]; N_STATE] = {
-                let mut it = outs.iter_mut();
-                std::array::from_fn(|_| match it.next() {
-                    Some(o) => S::as_mut_simd_f64s(o).0,
-                    None => Default::default(),
-                })
-            };
-            for c in 0..m {
-                let xv: [S::f64s; N_STATE] = std::array::from_fn(|j| xh[j][c]);
-                let wv: [S::f64s; N_IN] = std::array::from_fn(|l| wh[l][c]);
-                for (i, o) in oh.iter_mut().enumerate() {
-                    let mut acc = simd.mul_f64s(simd.splat_f64s(p[(i, 0)]), xv[0]);
-                    for (j, v) in xv.iter().enumerate().skip(1) {
-                        acc = simd.mul_add_f64s(simd.splat_f64s(p[(i, j)]), *v, acc);
-                    }
-                    for (l, v) in wv.iter().enumerate() {
-                        acc = simd.mul_add_f64s(simd.splat_f64s(s[(i, l)]), *v, acc);
-                    }
-                    o[c] = acc;
-                }
-            }
-        }
-        // The channels after the last whole vector.
-        for c in n - S::as_simd_f64s(xs[0]).1.len()..n {
-            for (i, o) in outs.iter_mut().enumerate() {
-                let mut acc = p[(i, 0)] * xs[0][c];
-                for (j, x) in xs.iter().enumerate().skip(1) {
-                    acc = p[(i, j)].mul_add(x[c], acc);
-                }
-                for (l, w) in ws.iter().enumerate() {
-                    acc = s[(i, l)].mul_add(w[c], acc);
-                }
-                o[c] = acc;
-            }
-        }
+        let (p, s, n) = (self.p, self.s, self.n);
+        let a: [[f64; N_STATE]; N_STATE] =
+            std::array::from_fn(|i| std::array::from_fn(|j| p[(i, j)]));
+        let b: [[f64; N_IN]; N_STATE] = std::array::from_fn(|i| std::array::from_fn(|l| s[(i, l)]));
+        let u: [&[f64]; N_IN] = std::array::from_fn(|l| &self.w[l * n..(l + 1) * n]);
+        state_map::<S, N_STATE, N_IN>(simd, &a, &b, self.x, u, n, self.next, None);
     }
 }
