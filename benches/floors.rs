@@ -40,7 +40,7 @@ use faer::sparse::SparseColMat;
 use fmu::{Instance, Model};
 use m1::aperture::layout::Layout;
 use m1::loads::wind::WindParams;
-use m1::optics::pssn::{Pssn, PssnParams, phase_structure_function, r0_at_wavelength};
+use m1::optics::pssn::{Pssn, PssnParams};
 use rustfft::num_complex::Complex64;
 use serde_json::{Value, json};
 
@@ -633,29 +633,6 @@ fn edge_sensors(layout: &str, steps: Option<usize>, arch: pulp::Arch, rows: &mut
     });
 }
 
-/// Lag rows of the half OTF that carry weight in one PSSN evaluation: the same rule as
-/// `m1::optics::pssn` (lags out to where `exp(-D) < 1e-30`, plus the hat weights' reach).
-fn pssn_lag_rows(params: &PssnParams, m: usize, dx: f64) -> usize {
-    let r0 = r0_at_wavelength(params.r0, params.wavelength);
-    let d = |r: f64| phase_structure_function(r, r0, params.l0);
-    let threshold = -(1e-30f64).ln();
-    let half = m / 2;
-    let r_max = dx * m as f64;
-    if d(r_max) <= threshold {
-        return half + 1;
-    }
-    let (mut lo, mut hi) = (0.0, r_max);
-    for _ in 0..80 {
-        let mid = 0.5 * (lo + hi);
-        if d(mid) > threshold {
-            hi = mid;
-        } else {
-            lo = mid;
-        }
-    }
-    (((hi + 1.5 * dx) / dx).floor() as usize + 1).min(half + 1)
-}
-
 fn optics(layout: &str, steps: Option<usize>, rows: &mut Vec<Row>) {
     let t0 = Instant::now();
     let mut fmu = instance::<optics_model::Optics>(layout, |_| {});
@@ -713,7 +690,7 @@ fn optics(layout: &str, steps: Option<usize>, rows: &mut Vec<Row>) {
     let params = PssnParams::default();
     let pssn = Pssn::new(&Layout::preset(layout).expect("layout"), params).expect("PSSN");
     let (n, m) = (pssn.grid().samples(), pssn.fft_size());
-    let lag_rows = pssn_lag_rows(&params, m, pssn.grid().spacing());
+    let lag_rows = pssn.otf_lag_rows();
     drop(pssn);
     let mut planner = rustfft::FftPlanner::<f64>::new();
     let (fft, ifft) = (planner.plan_fft_forward(m), planner.plan_fft_inverse(m));

@@ -272,6 +272,12 @@ impl Pssn {
         &self.grid
     }
 
+    /// Lag rows of the half OTF an evaluation transforms (those where the atmosphere's weight
+    /// is non-negligible; at most `M / 2 + 1`): with the grid's and `M`, the sizes of its FFTs.
+    pub fn otf_lag_rows(&self) -> usize {
+        self.rows
+    }
+
     /// FFT size `M` of the padded grid.
     pub fn fft_size(&self) -> usize {
         self.size
