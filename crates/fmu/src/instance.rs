@@ -15,7 +15,7 @@ use crate::variables::{Causality, Values, VarType, Variability, Variable, Variab
 
 /// Tag at the start of every live instance, checked before any use of an instance pointer.
 pub(crate) const MAGIC: u64 = 0x4d31_4353_464d_5532; // "M1CSFMU2"
-const STATE_MAGIC: &[u8; 8] = b"M1CSST01";
+const STATE_MAGIC: &[u8; 8] = b"M1CSST02";
 
 /// The FMI 2.0 co-simulation states.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

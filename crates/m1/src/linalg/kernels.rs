@@ -556,7 +556,7 @@ pub fn real_times_complex(
 /// Each vector of columns is read once (all its states and inputs) and its new states are
 /// written once, with the sums in registers: a pass of state-by-state axpys reads and writes
 /// every state `NS` times. Each output is summed in the order of `a`'s columns, then `b`'s,
-/// with fused multiply-adds where the instruction set has them.
+/// with fused multiply-adds where the instruction set has them (never emulated in software).
 ///
 /// # Panics
 /// If a slice is shorter than `NS n` (`x`, `out`) or `n` (`u_l`, `d`): a programming error.
@@ -601,14 +601,14 @@ pub fn state_map<S: Simd, const NS: usize, const NI: usize>(
             for (i, o) in oh.iter_mut().enumerate() {
                 let mut acc = simd.mul_f64s(simd.splat_f64s(a[i][0]), xv[0]);
                 for (j, v) in xv.iter().enumerate().skip(1) {
-                    acc = simd.mul_add_f64s(simd.splat_f64s(a[i][j]), *v, acc);
+                    acc = simd.mul_add_e_f64s(simd.splat_f64s(a[i][j]), *v, acc);
                 }
                 for (l, v) in uv.iter().enumerate() {
-                    acc = simd.mul_add_f64s(simd.splat_f64s(b[i][l]), *v, acc);
+                    acc = simd.mul_add_e_f64s(simd.splat_f64s(b[i][l]), *v, acc);
                 }
                 o[c] = acc;
                 if let Some(w) = w {
-                    dacc = simd.mul_add_f64s(simd.splat_f64s(w[i]), acc, dacc);
+                    dacc = simd.mul_add_e_f64s(simd.splat_f64s(w[i]), acc, dacc);
                 }
             }
             if let Some(dh) = dh.as_deref_mut() {
@@ -622,14 +622,14 @@ pub fn state_map<S: Simd, const NS: usize, const NI: usize>(
         for (i, o) in outs.iter_mut().enumerate() {
             let mut acc = a[i][0] * xs[0][c];
             for (j, x) in xs.iter().enumerate().skip(1) {
-                acc = a[i][j].mul_add(x[c], acc);
+                acc += a[i][j] * x[c];
             }
             for (l, u) in us.iter().enumerate() {
-                acc = b[i][l].mul_add(u[c], acc);
+                acc += b[i][l] * u[c];
             }
             o[c] = acc;
             if let Some(w) = w {
-                dacc = w[i].mul_add(acc, dacc);
+                dacc += w[i] * acc;
             }
         }
         if let Some(d) = d.as_deref_mut() {

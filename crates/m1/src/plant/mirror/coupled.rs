@@ -14,6 +14,12 @@ use crate::plant::segment::{
 };
 use crate::plant::structure::{Flexibility, ModalModel, ModalSolver};
 
+/// Retained modes from which [`CoupledMirror`] streams its coupled solve's matrix in single
+/// precision by default ([`CoupledMirror::set_coupling_single`]): there the `r x 2r` matrix in
+/// double precision (720 kB at 150 modes) no longer fits a core's L2 cache of the project's
+/// machine (512 kB).
+pub const SINGLE_COUPLING_MIN_MODES: usize = 150;
+
 /// Every segment on its actuators, coupled without delay to a modal model of the cell.
 ///
 /// Arrays in and out are in actuator order (actuator k of segment i at 3 i + k).
@@ -221,7 +227,7 @@ impl CoupledMirror {
             wg: row_major(&wg),
             wg32: row_major(&wg).iter().map(|&x| x as f32).collect(),
             psi32: vec![0.0f32; 2 * r],
-            coupling_single: true,
+            coupling_single: r >= SINGLE_COUPLING_MIN_MODES,
             gg: row_major(&gg).iter().map(|&x| x as f32).collect(),
             drive_d: cp[state::DRIVE],
             pier: 0.0,
@@ -245,11 +251,13 @@ impl CoupledMirror {
         })
     }
 
-    /// Streams the coupled solve's `r x 2r` matrix in single precision (`true`, the default)
-    /// or double precision (`false`). Single precision halves the largest per-tick memory
-    /// traffic (a TMT step with 300 modes: 14.3 MB streamed in double precision, 10.7 MB in
-    /// single); against double precision it moves the mirror's response by about 1e-9 of its
-    /// largest value (the test `coupling_precision_single_matches_double` bounds it by 1e-6).
+    /// Streams the coupled solve's `r x 2r` matrix in single precision (`true`, the default
+    /// from [`SINGLE_COUPLING_MIN_MODES`] retained modes) or double precision (`false`, the
+    /// default below, where the matrix fits a core's cache and halving it gains nothing).
+    /// Single precision halves the largest per-tick memory traffic (a TMT step with 300 modes:
+    /// 14.3 MB streamed in double precision, 10.7 MB in single); against double precision it
+    /// moves the mirror's response by about 1e-9 of its largest value (the tests
+    /// `coupling_precision_*` bound it by 1e-6 for both actuators).
     pub fn set_coupling_single(&mut self, single: bool) {
         self.coupling_single = single;
     }
@@ -301,7 +309,7 @@ impl CoupledMirror {
     }
 
     /// The matrices a communication step of `h` seconds streams, with how many times each is
-    /// read: `(name, bytes, reads)`. Their sum is the step's unavoidable memory traffic once
+    /// read: `(name, bytes, reads)`, each a distinct array. Their sum is the step's unavoidable memory traffic once
     /// the matrices no longer fit a core's cache (a floor for benchmarks: at TMT size with 300
     /// modes, about 10 MB per 1 ms step).
     pub fn streamed_per_step(&self, h: f64) -> Result<Vec<(&'static str, usize, u64)>, M1Error> {
@@ -309,14 +317,9 @@ impl CoupledMirror {
         let samples = self.ticks_in(h)?;
         Ok(vec![
             (
-                "mode shapes (single precision), inputs onto the modes",
+                "mode shapes (single precision): inputs onto the modes, outputs back",
                 std::mem::size_of_val(self.phic32.as_slice()),
-                1,
-            ),
-            (
-                "mode shapes (single precision), outputs back",
-                std::mem::size_of_val(self.phic32.as_slice()),
-                1,
+                2,
             ),
             (
                 "coupling [W G_p, W G_t], one per coupled tick",

@@ -58,8 +58,9 @@
 //! (inputs onto the modes, outputs back: relative error about 1e-7 of the largest term), and so
 //! are the Gram matrices that give the modal force of the drive's jump (a correction of the
 //! size of the drive's change over one servo period). The coupled solve's `r x 2r` matrix
-//! `[W G_p, W G_t]` is streamed in single precision too by default (its products summed in
-//! double precision across the vector lanes): against double precision
+//! `[W G_p, W G_t]` is streamed in single precision too from
+//! [`SINGLE_COUPLING_MIN_MODES`] modes (each vector lane sums about `2r / 8` products
+//! in single precision, the lanes are summed in double precision): against double precision
 //! ([`CoupledMirror::set_coupling_single`]) the mirror's response moves by about 1e-9 of its
 //! largest value, and a TMT step with 300 modes streams 10.7 MB instead of 14.3 MB.
 //!
@@ -86,5 +87,5 @@ mod projection;
 mod tests;
 mod tick;
 
-pub use coupled::CoupledMirror;
+pub use coupled::{CoupledMirror, SINGLE_COUPLING_MIN_MODES};
 pub use maps::foh_mode;
