@@ -154,6 +154,16 @@ impl ActuatorLoop {
     /// # Errors
     /// [`M1Error::Unstable`] at a singular point, [`M1Error::InvalidInput`] if an SVD fails.
     pub fn point(&self, f: f64, gain: f64) -> Result<CsiPoint, M1Error> {
+        self.point_and_plant(f, gain).map(|(p, _)| p)
+    }
+
+    /// [`Self::point`] with the plant projected on the Zernike basis of the largest degree
+    /// (gain-independent; the servo-gain search reuses it).
+    pub(super) fn point_and_plant(
+        &self,
+        f: f64,
+        gain: f64,
+    ) -> Result<(CsiPoint, Mat<c64>), M1Error> {
         let k = Kinds::new(self.fm.model(), f);
         let lu = modal_lu(&self.fm, &k);
         let s = k.k_s * gain;
@@ -170,12 +180,13 @@ impl ActuatorLoop {
             .iter()
             .map(|&m| sensitivity_max(&ms, s, 3 * m))
             .collect::<Result<Vec<_>, _>>()?;
-        Ok(CsiPoint {
+        let point = CsiPoint {
             frequency_hz: f,
             zernike,
             segments,
             all_segments: self.all_from_kinds(&k, gain)?,
-        })
+        };
+        Ok((point, mz))
     }
 
     /// The exact all-segment $\sigma_{max}(S)$ at `f` (Hz) with the servo scaled by `gain`

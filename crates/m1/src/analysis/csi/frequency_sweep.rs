@@ -2,6 +2,7 @@
 //! each curve's peak, the curves ([`BasisCurve`]) and the labelled local maxima of the
 //! all-segment curve ([`LabelledPeak`]); with the grid helpers.
 
+use faer::{Mat, c64};
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -68,6 +69,10 @@ pub struct CsiSweep {
     pub all_segments: BasisCurve,
     /// Local maxima of the all-segment curve above the label threshold.
     pub all_segment_peaks: Vec<LabelledPeak>,
+    /// The plant projected on the Zernike basis of the largest degree at each frequency
+    /// (gain-independent: [`super::highest_gain`] reuses them).
+    #[serde(skip)]
+    pub(super) zernike_plants: Vec<Mat<c64>>,
 }
 
 /// Indices of the local maxima of `v` (a plateau counts at its last point; the ends count).
@@ -97,10 +102,11 @@ pub fn sweep(
     refine: usize,
     label_threshold: f64,
 ) -> Result<CsiSweep, M1Error> {
-    let eval = |fs: &[f64]| -> Result<Vec<CsiPoint>, M1Error> {
-        fs.par_iter().map(|&f| lp.point(f, 1.0)).collect()
+    let eval = |fs: &[f64]| -> Result<Vec<(CsiPoint, Mat<c64>)>, M1Error> {
+        fs.par_iter().map(|&f| lp.point_and_plant(f, 1.0)).collect()
     };
-    let mut pts = eval(grid)?;
+    let mut evaluated = eval(grid)?;
+    let pts: Vec<CsiPoint> = evaluated.iter().map(|(p, _)| p.clone()).collect();
     if refine > 0 && pts.len() > 2 {
         let mut idx: Vec<usize> = Vec::new();
         let nz = pts[0].zernike.len();
@@ -135,9 +141,10 @@ pub fn sweep(
         }
         extra.sort_by(f64::total_cmp);
         extra.dedup();
-        pts.extend(eval(&extra)?);
-        pts.sort_by(|a, b| a.frequency_hz.total_cmp(&b.frequency_hz));
+        evaluated.extend(eval(&extra)?);
+        evaluated.sort_by(|a, b| a.0.frequency_hz.total_cmp(&b.0.frequency_hz));
     }
+    let (pts, zernike_plants): (Vec<CsiPoint>, Vec<Mat<c64>>) = evaluated.into_iter().unzip();
     let freqs: Vec<f64> = pts.iter().map(|p| p.frequency_hz).collect();
     let max_degree = pts.first().map_or(0, |p| p.zernike.len().saturating_sub(1)) as u32;
     let curve = |basis: &str,
@@ -204,5 +211,6 @@ pub fn sweep(
         segments,
         all_segments,
         all_segment_peaks: peaks,
+        zernike_plants,
     })
 }

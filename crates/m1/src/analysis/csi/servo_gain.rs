@@ -240,13 +240,19 @@ impl<'a> GainSearch<'a> {
         let base = lp.fm.model();
         let degree = lp.zernike.prefix.len().saturating_sub(1);
         let nz = lp.zernike.prefix[degree];
-        // The Zernike plants of the band, gain-independent.
-        let zplants: Vec<(Kinds, Mat<c64>)> = band
+        // The Zernike plants of the band, gain-independent: the sweep's (computed again only
+        // for a sweep without them).
+        let zplants: Vec<(Kinds, Mat<c64>)> = in_band
             .par_iter()
-            .map(|&f| {
-                let k = Kinds::new(base, f);
-                let lu = modal_lu(&lp.fm, &k);
-                Ok((k, lp.zernike_projected.plant(&k, lu.as_ref())?))
+            .map(|&i| {
+                let k = Kinds::new(base, grid[i]);
+                match sweep.zernike_plants.get(i) {
+                    Some(m) if m.nrows() == nz && m.ncols() == nz => Ok((k, m.clone())),
+                    _ => {
+                        let lu = modal_lu(&lp.fm, &k);
+                        Ok((k, lp.zernike_projected.plant(&k, lu.as_ref())?))
+                    }
+                }
             })
             .collect::<Result<_, M1Error>>()?;
         let kinds: Vec<Kinds> = zplants.iter().map(|(k, _)| *k).collect();
