@@ -106,6 +106,8 @@ pub struct CoupledMirror {
     pub(super) u_new: Vec<f64>,
     pub(super) out: Vec<f64>,
     pub(super) cols: Vec<f64>,
+    /// The free part's cell force per channel (piston channels, then tilt), per step.
+    pub(super) free_force: Vec<f64>,
 }
 
 impl CoupledMirror {
@@ -248,6 +250,7 @@ impl CoupledMirror {
             u_new: vec![0.0; r],
             out: vec![0.0; 3 * na],
             cols: vec![0.0; 6 * r],
+            free_force: vec![0.0; na],
         })
     }
 

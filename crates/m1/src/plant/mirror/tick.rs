@@ -206,6 +206,17 @@ impl CoupledMirror {
                 out: [o0, o1, o2],
             });
         }
+        // The free part's cell force per channel (rows as the channels), a run of axpys over
+        // its state-major states (summed in the order of the states, as before).
+        let mut free_f = std::mem::take(&mut self.free_force);
+        for (k, (off, cnt)) in [(0, n), (n, 2 * n)].into_iter().enumerate() {
+            let x = self.free.state()[k];
+            let dst = &mut free_f[off..off + cnt];
+            dst.fill(0.0);
+            for s in 0..S {
+                axpy(dst, self.cell_c[k][s], &x[s * cnt..(s + 1) * cnt]);
+            }
+        }
         // Channel values (rows: piston channels, then tilt) to actuators, segment by segment.
         let v = self.basis;
         for seg in 0..n {
@@ -221,10 +232,9 @@ impl CoupledMirror {
             for m in 0..3 {
                 let (k, c, cnt) = idx[m];
                 let x = self.free.state()[k];
-                let free_f: f64 = (0..S).map(|s| self.cell_c[k][s] * x[s * cnt + c]).sum();
                 zm[m] = x[mp * cnt + c] + outs[rows[m]];
                 zc[m] = outs[na + rows[m]];
-                fc[m] = free_f + outs[2 * na + rows[m]] + self.cell_d * zc[m];
+                fc[m] = free_f[rows[m]] + outs[2 * na + rows[m]] + self.cell_d * zc[m];
             }
             for a in 0..3 {
                 let at = |t: &[f64; 3]| v[(a, 0)] * t[0] + v[(a, 1)] * t[1] + v[(a, 2)] * t[2];
@@ -234,6 +244,7 @@ impl CoupledMirror {
             }
         }
         self.out = outs;
+        self.free_force = free_f;
     }
 }
 
