@@ -190,3 +190,22 @@ fn sensitivity_matches_the_closed_loop_response() {
         }
     }
 }
+
+/// The servo-gain search reads the Zernike plants the sweep kept; without them it factorises
+/// again at each band frequency: both give the same limit, bit for bit (Keck, 30 modes).
+#[test]
+fn gain_search_reuses_the_sweeps_plants() {
+    let (lp, _) = keck(30, SegmentModel::voice_coil());
+    let grid = log_grid(1.0, 300.0, 40);
+    let sw = sweep(&lp, &grid, 2, 1.2).unwrap();
+    assert_eq!(sw.zernike_plants.len(), sw.frequencies_hz.len());
+    let kept = highest_gain(&lp, &sw, 15.0, 2.0, (0.05, 20.0)).unwrap();
+    let mut bare = sw.clone();
+    bare.zernike_plants.clear();
+    let again = highest_gain(&lp, &bare, 15.0, 2.0, (0.05, 20.0)).unwrap();
+    assert_eq!(kept, again);
+    assert!(
+        kept.gain_factor.is_finite() && kept.gain_factor > 0.0,
+        "{kept:?}"
+    );
+}
