@@ -333,31 +333,38 @@ impl MirrorMetrics {
         ]
     }
 
+    /// Every segment's state `s_i` (piston, tip, tilt about its centre) of `z`, computed once
+    /// for the passes below.
+    fn segment_states(&self, z: &[f64]) -> Vec<[f64; 3]> {
+        (0..self.n_segments())
+            .map(|i| self.segment_ptt(i, z))
+            .collect()
+    }
+
     /// First pass: `b = <s, {1, x, y}>` and `<s, F>`.
-    fn moments(&self, z: &[f64]) -> Moments {
+    fn moments(&self, s: &[[f64; 3]]) -> Moments {
         let mut b = Vector3::zeros();
         let mut sf = 0.0;
-        for (i, c) in self.centres.iter().enumerate() {
-            let s = self.segment_ptt(i, z);
+        for ((s, c), f) in s.iter().zip(&self.centres).zip(&self.focus_ptt) {
             let ap = self.area * s[0];
             b[0] += ap;
             b[1] += ap * c[0] + self.moment * s[1];
             b[2] += ap * c[1] + self.moment * s[2];
-            let f = &self.focus_ptt[i];
             sf += ap * f[0] + self.moment * (s[1] * f[1] + s[2] * f[2]);
         }
         Moments { b, sf }
     }
 
-    /// The global plane `beta` of `z` and `<s, F>`: the normal equations, then one step of
-    /// iterative refinement on the residual (the plane is usually much larger than the
-    /// residual, whose round-off this brings from about `10 eps` to `eps` of the plane).
-    fn global_plane(&self, z: &[f64]) -> (Vector3<f64>, f64) {
-        let m = self.moments(z);
+    /// The global plane `beta` of the segment states `s` and `<s, F>`: the normal equations,
+    /// then one step of iterative refinement on the residual (the plane is usually much larger
+    /// than the residual, whose round-off this brings from about `10 eps` to `eps` of the
+    /// plane).
+    fn global_plane(&self, s: &[[f64; 3]]) -> (Vector3<f64>, f64) {
+        let m = self.moments(s);
         let mut beta = self.gram_inv * m.b;
         let mut b = Vector3::zeros();
-        for (i, c) in self.centres.iter().enumerate() {
-            let r = self.residual(i, z, &beta);
+        for (si, c) in s.iter().zip(&self.centres) {
+            let r = residual(si, c, &beta);
             let ap = self.area * r[0];
             b[0] += ap;
             b[1] += ap * c[0] + self.moment * r[1];
@@ -367,28 +374,17 @@ impl MirrorMetrics {
         (beta, m.sf)
     }
 
-    /// Residual of segment `i` after removing the global plane `beta`.
-    fn residual(&self, i: usize, z: &[f64], beta: &Vector3<f64>) -> [f64; 3] {
-        let s = self.segment_ptt(i, z);
-        let c = &self.centres[i];
-        [
-            s[0] - (beta[0] + beta[1] * c[0] + beta[2] * c[1]),
-            s[1] - beta[1],
-            s[2] - beta[2],
-        ]
-    }
-
     /// The metrics of the actuator displacements `z` (m, length `na`).
     pub fn evaluate(&self, z: &[f64]) -> Result<SurfaceMetrics, M1Error> {
         check_len(z, self.n_actuators())?;
-        let (beta, sf) = self.global_plane(z);
+        let s = self.segment_states(z);
+        let (beta, sf) = self.global_plane(&s);
         // F is orthogonal to {1, x, y}, so <r, F> = <s, F>.
         let c = sf / self.focus_norm2;
         let (mut rr, mut qq) = (0.0, 0.0);
-        for i in 0..self.n_segments() {
-            let r = self.residual(i, z, &beta);
+        for ((si, ci), f) in s.iter().zip(&self.centres).zip(&self.focus_ptt) {
+            let r = residual(si, ci, &beta);
             rr += self.norm2(&r);
-            let f = &self.focus_ptt[i];
             qq += self.norm2(&[r[0] - c * f[0], r[1] - c * f[1], r[2] - c * f[2]]);
         }
         let area = self.total_area();
@@ -413,12 +409,22 @@ impl MirrorMetrics {
                 found: out.len(),
             });
         }
-        let (beta, _) = self.global_plane(z);
-        for (i, o) in out.iter_mut().enumerate() {
-            *o = self.residual(i, z, &beta);
+        let s = self.segment_states(z);
+        let (beta, _) = self.global_plane(&s);
+        for ((o, si), c) in out.iter_mut().zip(&s).zip(&self.centres) {
+            *o = residual(si, c, &beta);
         }
         Ok([beta[0], beta[1], beta[2]])
     }
+}
+
+/// A segment's state `s` (centre `c`) after removing the global plane `beta`.
+fn residual(s: &[f64; 3], c: &[f64; 2], beta: &Vector3<f64>) -> [f64; 3] {
+    [
+        s[0] - (beta[0] + beta[1] * c[0] + beta[2] * c[1]),
+        s[1] - beta[1],
+        s[2] - beta[2],
+    ]
 }
 
 /// Single-sided amplitude spectrum of equally sampled signals (sample period `dt` s), averaged
