@@ -106,7 +106,7 @@ pub fn sweep(
         fs.par_iter().map(|&f| lp.point_and_plant(f, 1.0)).collect()
     };
     let mut evaluated = eval(grid)?;
-    let pts: Vec<CsiPoint> = evaluated.iter().map(|(p, _)| p.clone()).collect();
+    let pts: Vec<&CsiPoint> = evaluated.iter().map(|(p, _)| p).collect();
     if refine > 0 && pts.len() > 2 {
         let mut idx: Vec<usize> = Vec::new();
         let nz = pts[0].zernike.len();
