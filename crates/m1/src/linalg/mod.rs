@@ -1,11 +1,13 @@
-//! Numerical building blocks: SIMD kernels, Krylov estimates, the block Cholesky factor, the
-//! skyline Cholesky of the FE cell, the NPY/NPZ reader, periodic cubic interpolation, and the
-//! on-disk cache of computed arrays (the structure's modes, the wind's tables).
+//! Numerical building blocks: SIMD kernels, Krylov estimates, single right-hand-side LU
+//! solves, the block Cholesky factor, the skyline Cholesky of the FE cell, the NPY/NPZ reader,
+//! periodic cubic interpolation, and the on-disk cache of computed arrays (the structure's
+//! modes, the wind's tables).
 
 pub mod blockchol;
 pub mod cache;
 pub mod interpolation;
 pub mod kernels;
 pub mod krylov;
+pub mod lu_solve;
 pub mod npy;
 pub mod skyline;

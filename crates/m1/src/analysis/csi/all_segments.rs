@@ -1,49 +1,15 @@
 //! The exact all-segment sensitivity of the actuator loop (module documentation, "All
 //! segments"): the two channel kinds' complements in closed form, the coupled subspace by
-//! Lanczos on $S_W^H S_W$ with the modal solves in the calling thread.
+//! Lanczos on $S_W^H S_W$ with the modal solves in the calling thread
+//! ([`crate::linalg::lu_solve`]).
 
 use faer::c64;
-use faer::linalg::solvers::PartialPivLu;
 
 use super::actuator_loop::ActuatorLoop;
 use super::projected::{Kinds, singular};
 use crate::M1Error;
+use crate::linalg::lu_solve;
 use crate::plant::monolithic::ChannelTransfer;
-
-/// `x <- K^-1 x` (or `K^-H x`) with `K`'s LU factors, in this thread: the solves sit in the
-/// Lanczos loop of one frequency, and the frequencies are what runs in parallel.
-fn seq_solve(
-    lu: &PartialPivLu<c64>,
-    x: &mut [c64],
-    adjoint: bool,
-    stack: &mut faer::dyn_stack::MemBuffer,
-) {
-    use faer::linalg::lu::partial_pivoting::solve;
-    let n = x.len();
-    let rhs = faer::MatMut::from_column_major_slice_mut(x, n, 1);
-    let st = faer::dyn_stack::MemStack::new(stack);
-    if adjoint {
-        solve::solve_transpose_in_place_with_conj(
-            lu.L(),
-            lu.U(),
-            lu.P(),
-            faer::Conj::Yes,
-            rhs,
-            faer::Par::Seq,
-            st,
-        );
-    } else {
-        solve::solve_in_place_with_conj(
-            lu.L(),
-            lu.U(),
-            lu.P(),
-            faer::Conj::No,
-            rhs,
-            faer::Par::Seq,
-            st,
-        );
-    }
-}
 
 /// Lanczos steps at most for the all-segment $\sigma_{max}(S)$.
 const LANCZOS_MAX_STEPS: usize = 120;
@@ -127,13 +93,9 @@ impl ActuatorLoop {
             .collect();
         let big = r.max(w);
         let mut buf = vec![0.0; 5 * big];
-        let mut stack = faer::dyn_stack::MemBuffer::new(
-            faer::linalg::lu::partial_pivoting::solve::solve_in_place_scratch::<usize, c64>(
-                r,
-                1,
-                faer::Par::Seq,
-            ),
-        );
+        // The solves sit in the Lanczos loop of one frequency, in this thread (the frequencies
+        // are what runs in parallel), one right-hand side each.
+        let mut work = Vec::with_capacity(r);
         let (mut a, mut z, mut z2) = ([vec![zero; r], vec![zero; r]], vec![zero; r], vec![zero; r]);
         let op = |x: &[c64], o: &mut [c64]| {
             let (xr, rest) = buf.split_at_mut(big);
@@ -160,7 +122,7 @@ impl ActuatorLoop {
             for (j, zj) in z.iter_mut().enumerate() {
                 *zj = cy[0] * a[0][j] + cy[1] * a[1][j];
             }
-            seq_solve(&lu, &mut z, false, &mut stack);
+            lu_solve::solve_in_place(&lu, &mut z, &mut work);
             for (j, zj) in z.iter().enumerate() {
                 xr[j] = zj.re;
                 xi[j] = zj.im;
@@ -177,7 +139,7 @@ impl ActuatorLoop {
             for (j, z2j) in z2.iter_mut().enumerate() {
                 *z2j = c[0] * a[0][j] + c[1] * a[1][j] - c64::new(t0[j], t1[j]);
             }
-            seq_solve(&lu, &mut z2, true, &mut stack);
+            lu_solve::solve_adjoint_in_place(&lu, &mut z2, &mut work);
             for kd in 0..2 {
                 let (c1, c2) = (d[kd].conj() * cx[kd], cy[kd].conj());
                 for j in 0..r {
