@@ -182,14 +182,15 @@ pub fn top_ritz(alpha: &[f64], beta: &[f64]) -> (f64, Vec<f64>) {
 /// With the tridiagonal $T_j = V_j^H M V_j$, the largest Ritz value $\theta$ and its vector
 /// $y$, the residual $\|M V_j y - \theta V_j y\| = \beta_j |y_j|$ bounds the distance from
 /// $\theta$ to an eigenvalue of $M$; the iteration stops when it is below `tol` $\theta$ (after
-/// at least `min(n, 12)` steps, so that the top of the spectrum has been reached from a generic
-/// start), on an invariant subspace, or after `max_steps`. Ritz values bound the eigenvalue from
+/// at least `min(n, min_steps)` steps: 12 lets the top of the spectrum be reached from a
+/// generic start, fewer suit a start close to the top vector), on an invariant subspace, or
+/// after `max_steps`. Ritz values bound the eigenvalue from
 /// below, and converge to it first when it is separated from the rest.
 ///
 /// Returns the top Ritz pair, the steps taken and whether the test was met.
 pub fn largest_hermitian_eigenpair(
     n: usize,
-    max_steps: usize,
+    (min_steps, max_steps): (usize, usize),
     v0: &[faer::c64],
     tol: f64,
     mut op: impl FnMut(&[faer::c64], &mut [faer::c64]),
@@ -216,7 +217,7 @@ pub fn largest_hermitian_eigenpair(
     let norm = |a: &[c64]| a.iter().map(|v| v.norm_sqr()).sum::<f64>().sqrt();
     let mut theta = 0.0;
     let mut y = Vec::new();
-    let min_steps = n.min(12);
+    let min_steps = n.min(min_steps.max(1));
     for j in 0..m {
         for (i, xi) in x.iter_mut().enumerate() {
             *xi = basis[(i, j)];
@@ -393,7 +394,7 @@ mod tests {
         let v0: Vec<c64> = (0..n)
             .map(|i| c64::new(1.0 + ((i * 37) % 11) as f64, ((i * 13) % 7) as f64))
             .collect();
-        let p = largest_hermitian_eigenpair(n, 120, &v0, 1e-13, op);
+        let p = largest_hermitian_eigenpair(n, (12, 120), &v0, 1e-13, op);
         assert!(p.converged, "{}", p.steps);
         assert!(
             (p.value - 9.5).abs() < 1e-11,
@@ -411,12 +412,12 @@ mod tests {
             .sum();
         assert!(res.sqrt() < 1e-5, "{}", res.sqrt());
         // Started from it, one step suffices.
-        let again = largest_hermitian_eigenpair(n, 120, &p.vector, 1e-9, op);
+        let again = largest_hermitian_eigenpair(n, (12, 120), &p.vector, 1e-9, op);
         assert!(
             again.steps <= 12 && (again.value - 9.5).abs() < 1e-9,
             "{again:?}"
         );
-        let early = largest_hermitian_eigenpair(n, 3, &v0, 1e-13, op);
+        let early = largest_hermitian_eigenpair(n, (12, 3), &v0, 1e-13, op);
         assert!(early.value <= 9.5 + 1e-12, "{}", early.value);
     }
 

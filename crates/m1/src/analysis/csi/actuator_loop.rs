@@ -154,16 +154,18 @@ impl ActuatorLoop {
     /// # Errors
     /// [`M1Error::Unstable`] at a singular point, [`M1Error::InvalidInput`] if an SVD fails.
     pub fn point(&self, f: f64, gain: f64) -> Result<CsiPoint, M1Error> {
-        self.point_and_plant(f, gain).map(|(p, _)| p)
+        self.point_warm(f, gain, None).map(|(p, _, _)| p)
     }
 
     /// [`Self::point`] with the plant projected on the Zernike basis of the largest degree
-    /// (gain-independent; the servo-gain search reuses it).
-    pub(super) fn point_and_plant(
+    /// (gain-independent; the servo-gain search reuses it) and the all-segment top vector,
+    /// that point's Lanczos started from `warm` (a nearby point's top vector) when given.
+    pub(super) fn point_warm(
         &self,
         f: f64,
         gain: f64,
-    ) -> Result<(CsiPoint, Mat<c64>), M1Error> {
+        warm: Option<&[c64]>,
+    ) -> Result<(CsiPoint, Mat<c64>, Option<Vec<c64>>), M1Error> {
         let k = Kinds::new(self.fm.model(), f);
         let lu = modal_lu(&self.fm, &k);
         let s = k.k_s * gain;
@@ -180,13 +182,14 @@ impl ActuatorLoop {
             .iter()
             .map(|&m| sensitivity_max(&ms, s, 3 * m))
             .collect::<Result<Vec<_>, _>>()?;
+        let (all_segments, top) = self.all_from_kinds_warm(&k, gain, warm)?;
         let point = CsiPoint {
             frequency_hz: f,
             zernike,
             segments,
-            all_segments: self.all_from_kinds(&k, gain)?,
+            all_segments,
         };
-        Ok((point, mz))
+        Ok((point, mz, top))
     }
 
     /// The exact all-segment $\sigma_{max}(S)$ at `f` (Hz) with the servo scaled by `gain`

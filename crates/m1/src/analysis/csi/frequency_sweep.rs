@@ -73,7 +73,19 @@ pub struct CsiSweep {
     /// (gain-independent: [`super::highest_gain`] reuses them).
     #[serde(skip)]
     pub(super) zernike_plants: Vec<Mat<c64>>,
+    /// The all-segment top vector at each frequency (the servo-gain search starts its
+    /// Lanczos from them).
+    #[serde(skip)]
+    pub(super) top_vectors: Vec<Option<Vec<c64>>>,
 }
+
+/// Consecutive grid frequencies evaluated in one thread, each point's all-segment Lanczos
+/// started from its predecessor's top vector (the runs in parallel; a fixed split, so the
+/// values do not depend on the number of threads).
+const WARM_RUN: usize = 8;
+
+/// One evaluated point: the values, the Zernike plant, the all-segment top vector.
+type Evaluated = (CsiPoint, Mat<c64>, Option<Vec<c64>>);
 
 /// Indices of the local maxima of `v` (a plateau counts at its last point; the ends count).
 pub(crate) fn local_maxima(v: &[f64]) -> impl Iterator<Item = usize> + '_ {
@@ -102,11 +114,24 @@ pub fn sweep(
     refine: usize,
     label_threshold: f64,
 ) -> Result<CsiSweep, M1Error> {
-    let eval = |fs: &[f64]| -> Result<Vec<(CsiPoint, Mat<c64>)>, M1Error> {
-        fs.par_iter().map(|&f| lp.point_and_plant(f, 1.0)).collect()
-    };
-    let mut evaluated = eval(grid)?;
-    let pts: Vec<&CsiPoint> = evaluated.iter().map(|(p, _)| p).collect();
+    // The grid in runs of neighbouring frequencies, each warm-started along the run.
+    let runs: Vec<&[f64]> = grid.chunks(WARM_RUN).collect();
+    let mut evaluated: Vec<Evaluated> = runs
+        .par_iter()
+        .map(|run| {
+            let mut out: Vec<Evaluated> = Vec::with_capacity(run.len());
+            for &f in *run {
+                let warm = out.last().and_then(|e| e.2.as_deref());
+                let e = lp.point_warm(f, 1.0, warm)?;
+                out.push(e);
+            }
+            Ok(out)
+        })
+        .collect::<Result<Vec<_>, M1Error>>()?
+        .into_iter()
+        .flatten()
+        .collect();
+    let pts: Vec<&CsiPoint> = evaluated.iter().map(|(p, _, _)| p).collect();
     if refine > 0 && pts.len() > 2 {
         let mut idx: Vec<usize> = Vec::new();
         let nz = pts[0].zernike.len();
@@ -141,10 +166,32 @@ pub fn sweep(
         }
         extra.sort_by(f64::total_cmp);
         extra.dedup();
-        evaluated.extend(eval(&extra)?);
+        // Each refinement point starts from the nearest grid point's top vector.
+        let nearest = |f: f64| {
+            (0..grid.len())
+                .min_by(|&a, &b| {
+                    (grid[a] / f)
+                        .ln()
+                        .abs()
+                        .total_cmp(&(grid[b] / f).ln().abs())
+                })
+                .unwrap_or(0)
+        };
+        let more = extra
+            .par_iter()
+            .map(|&f| lp.point_warm(f, 1.0, evaluated[nearest(f)].2.as_deref()))
+            .collect::<Result<Vec<_>, M1Error>>()?;
+        evaluated.extend(more);
         evaluated.sort_by(|a, b| a.0.frequency_hz.total_cmp(&b.0.frequency_hz));
     }
-    let (pts, zernike_plants): (Vec<CsiPoint>, Vec<Mat<c64>>) = evaluated.into_iter().unzip();
+    let mut pts = Vec::with_capacity(evaluated.len());
+    let mut zernike_plants = Vec::with_capacity(evaluated.len());
+    let mut top_vectors = Vec::with_capacity(evaluated.len());
+    for (p, m, v) in evaluated {
+        pts.push(p);
+        zernike_plants.push(m);
+        top_vectors.push(v);
+    }
     let freqs: Vec<f64> = pts.iter().map(|p| p.frequency_hz).collect();
     let max_degree = pts.first().map_or(0, |p| p.zernike.len().saturating_sub(1)) as u32;
     let curve = |basis: &str,
@@ -212,5 +259,6 @@ pub fn sweep(
         all_segments,
         all_segment_peaks: peaks,
         zernike_plants,
+        top_vectors,
     })
 }

@@ -197,6 +197,8 @@ struct GainSearch<'a> {
     /// The Zernike plants of the band, gain-independent, with their channel scalars.
     zplants: Vec<(Kinds, Mat<c64>)>,
     kinds: Vec<Kinds>,
+    /// The sweep's all-segment top vectors on the band (each point's Lanczos starts there).
+    warm: Vec<Option<&'a [c64]>>,
     /// The largest Zernike degree and its number of basis vectors.
     degree: usize,
     nz: usize,
@@ -218,7 +220,7 @@ impl<'a> GainSearch<'a> {
     /// The band of `sweep` up to `below_hz` and its Zernike plants (in parallel).
     fn new(
         lp: &'a ActuatorLoop,
-        sweep: &CsiSweep,
+        sweep: &'a CsiSweep,
         below_hz: f64,
         max_sensitivity: f64,
     ) -> Result<Self, M1Error> {
@@ -256,6 +258,10 @@ impl<'a> GainSearch<'a> {
             })
             .collect::<Result<_, M1Error>>()?;
         let kinds: Vec<Kinds> = zplants.iter().map(|(k, _)| *k).collect();
+        let warm = in_band
+            .iter()
+            .map(|&i| sweep.top_vectors.get(i).and_then(|v| v.as_deref()))
+            .collect();
         let zorder = match sweep.zernike.get(degree) {
             Some(c) if scaled_servo(base, 1.0).validate().is_ok() => worst_first(
                 band.len(),
@@ -270,6 +276,7 @@ impl<'a> GainSearch<'a> {
             nominal_all,
             zplants,
             kinds,
+            warm,
             degree,
             nz,
             zorder,
@@ -288,6 +295,14 @@ impl<'a> GainSearch<'a> {
     fn zval(&self, i: usize, a: f64) -> Result<f64, M1Error> {
         let (k, m) = &self.zplants[i];
         sensitivity_max(m, k.k_s * a, self.nz)
+    }
+
+    /// The all-segment $\sigma_{max}(S)$ at band point `i`, servo scaled by `a`, its Lanczos
+    /// started from the sweep's top vector there.
+    fn all_at(&self, i: usize, a: f64) -> Result<f64, M1Error> {
+        self.lp
+            .all_from_kinds_warm(&self.kinds[i], a, self.warm[i])
+            .map(|(v, _)| v)
     }
 
     /// Whether any band point of `o` (visited in parallel) fails the criterion under `val`.
@@ -320,9 +335,9 @@ impl<'a> GainSearch<'a> {
         let v: Vec<f64> = if a == 1.0 {
             self.nominal_all.clone()
         } else {
-            self.kinds
-                .par_iter()
-                .map(|k| self.lp.all_from_kinds(k, a))
+            (0..self.band.len())
+                .into_par_iter()
+                .map(|i| self.all_at(i, a))
                 .collect::<Result<_, _>>()?
         };
         let i = argmax(&v);
@@ -334,9 +349,7 @@ impl<'a> GainSearch<'a> {
         if !self.valid_at(a) {
             return Ok(None);
         }
-        Ok(Some(!self.fails_any(aorder, &|i| {
-            self.lp.all_from_kinds(&self.kinds[i], a)
-        })?))
+        Ok(Some(!self.fails_any(aorder, &|i| self.all_at(i, a))?))
     }
 
     /// The report for factor `a` with its all-segment (peak, where) `e`.
@@ -435,9 +448,9 @@ impl<'a> GainSearch<'a> {
         }
         let aorder = worst_first(
             self.band.len(),
-            self.kinds
-                .par_iter()
-                .map(|k| self.lp.all_from_kinds(k, az))
+            (0..self.band.len())
+                .into_par_iter()
+                .map(|i| self.all_at(i, az))
                 .collect::<Result<_, _>>()?,
         );
         let (mut good, mut bad) = (None, az);
