@@ -327,7 +327,10 @@ struct RowOperator {
 /// one `x` value broadcast against the four coefficients `[h_a, g_a, h_b, g_b]`, i.e. one
 /// vector multiply and add for four multiply-adds, with no shuffling of `x`. Every pair holds
 /// `width` blocks (the most any pair has; shorter pairs, and the missing row of a last single
-/// row, are padded with zeros in block 0), so the loops have fixed trip counts.
+/// row, are padded with zeros in block 0), so the loops have fixed trip counts. On the sensors'
+/// own patterns every pair holds the same two segments' blocks, so nothing is padded and a
+/// non-finite input reaches only the readings that depend on it (tested); on other patterns
+/// an explicit zero times a non-finite input would carry it to the pair's other row.
 #[derive(Debug, Clone)]
 struct BlockRows {
     /// Blocks per row pair.
@@ -1237,6 +1240,39 @@ mod tests {
                 let (y, gap) = read(&s, &z, &w);
                 assert_close("y", &y, &y_ref, &y_scale);
                 assert_close("gap", &gap, &gap_ref, &gap_scale);
+            }
+        }
+    }
+
+    /// A non-finite displacement reaches only the readings that depend on it (in process,
+    /// without the FMU's input check; Keck and TMT, columns of a few segments): the row pairs
+    /// of the sensors' patterns hold the same blocks, so no explicit zero meets it.
+    #[test]
+    fn a_non_finite_input_reaches_only_its_readings() {
+        for name in ["keck", "tmt"] {
+            let l = Layout::preset(name).unwrap();
+            let g = Geometry::new(&l, GeometryParams::for_layout(&l)).unwrap();
+            let s = EdgeSensors::new(&g, &SensorErrors::default()).unwrap();
+            let (na, ns) = (s.n_actuators(), s.n_sensors());
+            let (gz, _) = s.gap_matrices();
+            let [hz, gz] = [s.height_matrix(), gz].map(dense);
+            let w = vec![0.0; na];
+            for c in [0, 1, 2, na / 2, na - 1] {
+                let mut z = pattern(na, 1e-7, 0.3);
+                z[c] = f64::NAN;
+                let (y, gap) = read(&s, &z, &w);
+                for n in 0..ns {
+                    assert_eq!(
+                        y[n].is_nan(),
+                        hz[n][c] != 0.0,
+                        "{name}: y[{n}], NaN in z[{c}]"
+                    );
+                    assert_eq!(
+                        gap[n].is_nan(),
+                        gz[n][c] != 0.0,
+                        "{name}: gap[{n}], NaN in z[{c}]"
+                    );
+                }
             }
         }
     }
