@@ -17,16 +17,31 @@ use faer::c64;
 use faer::linalg::solvers::PartialPivLu;
 use pulp::Simd;
 
-/// Column `j` of `m` from row `from` down, contiguous (faer's matrices are column-major with a
-/// unit row stride; a view without it is a programming error).
+/// Rows `from..to` of column `j` of `m`, contiguous: the callers check first that `m` has a
+/// unit row stride ([`contiguous`]), as faer's owned matrices do.
 #[inline(always)]
 fn col(m: MatRef<'_, c64>, j: usize, from: usize, to: usize) -> &[c64] {
-    let c = m
-        .col(j)
-        .try_as_col_major()
-        .expect("lu_solve: faer's LU factors are column-major")
-        .as_slice();
-    &c[from..to]
+    match m.col(j).try_as_col_major() {
+        Some(c) => &c.as_slice()[from..to],
+        None => &[],
+    }
+}
+
+/// Whether every column of both factors is contiguous (the passes below read them as slices).
+fn contiguous(lu: &PartialPivLu<c64>) -> bool {
+    lu.L().row_stride() == 1 && lu.U().row_stride() == 1
+}
+
+/// faer's own solve, for factors whose columns are not contiguous (not produced by faer today).
+fn faer_solve(lu: &PartialPivLu<c64>, x: &mut [c64], adjoint: bool) {
+    use faer::linalg::solvers::Solve;
+    let n = x.len();
+    let rhs = faer::MatMut::from_column_major_slice_mut(x, n, 1);
+    if adjoint {
+        lu.solve_adjoint_in_place(rhs);
+    } else {
+        lu.solve_in_place(rhs);
+    }
 }
 
 /// `y += s a`.
@@ -80,6 +95,9 @@ pub fn solve_in_place(lu: &PartialPivLu<c64>, x: &mut [c64], work: &mut Vec<c64>
     let (l, u) = (lu.L(), lu.U());
     let n = l.nrows();
     assert_eq!(x.len(), n, "lu_solve: right-hand side of the wrong length");
+    if !contiguous(lu) {
+        return faer_solve(lu, x, false);
+    }
     // P b: faer's row permutation takes row fwd[i] to row i.
     let (fwd, _) = lu.P().arrays();
     work.clear();
@@ -123,6 +141,9 @@ pub fn solve_adjoint_in_place(lu: &PartialPivLu<c64>, x: &mut [c64], work: &mut 
     let (l, u) = (lu.L(), lu.U());
     let n = l.nrows();
     assert_eq!(x.len(), n, "lu_solve: right-hand side of the wrong length");
+    if !contiguous(lu) {
+        return faer_solve(lu, x, true);
+    }
     struct Op<'a> {
         l: MatRef<'a, c64>,
         u: MatRef<'a, c64>,

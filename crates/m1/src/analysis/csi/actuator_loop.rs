@@ -32,6 +32,10 @@ pub struct ActuatorLoop {
     pub(super) complement: [bool; 2],
 }
 
+/// One evaluated point: the values, the plant projected on the Zernike basis of the largest
+/// degree, the all-segment top vector (`None` without a coupled subspace).
+pub(super) type Evaluated = (CsiPoint, Mat<c64>, Option<Vec<c64>>);
+
 /// One point of every basis's curve.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct CsiPoint {
@@ -165,7 +169,7 @@ impl ActuatorLoop {
         f: f64,
         gain: f64,
         warm: Option<&[c64]>,
-    ) -> Result<(CsiPoint, Mat<c64>, Option<Vec<c64>>), M1Error> {
+    ) -> Result<Evaluated, M1Error> {
         let k = Kinds::new(self.fm.model(), f);
         let lu = modal_lu(&self.fm, &k);
         let s = k.k_s * gain;

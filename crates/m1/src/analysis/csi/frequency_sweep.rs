@@ -6,7 +6,7 @@ use faer::{Mat, c64};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use super::actuator_loop::{ActuatorLoop, CsiPoint};
+use super::actuator_loop::{ActuatorLoop, CsiPoint, Evaluated};
 use crate::M1Error;
 
 /// `n` log-spaced frequencies from `fmin` to `fmax` (Hz).
@@ -83,9 +83,6 @@ pub struct CsiSweep {
 /// started from its predecessor's top vector (the runs in parallel; a fixed split, so the
 /// values do not depend on the number of threads).
 const WARM_RUN: usize = 8;
-
-/// One evaluated point: the values, the Zernike plant, the all-segment top vector.
-type Evaluated = (CsiPoint, Mat<c64>, Option<Vec<c64>>);
 
 /// Indices of the local maxima of `v` (a plateau counts at its last point; the ends count).
 pub(crate) fn local_maxima(v: &[f64]) -> impl Iterator<Item = usize> + '_ {
