@@ -781,6 +781,7 @@ fn csi_on_keck() {
     let all = peak(&sw["all_segments"]);
     assert!(all.is_finite() && all >= 1.0, "{all}");
     assert_eq!(sw["all_segments"]["n_vectors"], 108);
+    assert_eq!(v["lanczos_steps"], 60);
     // The largest degree is closer to the all-segment peak than global piston alone.
     let rel = |c: &serde_json::Value| (peak(c) - all).abs() / all;
     assert!(rel(&zernike[4]) < rel(&zernike[0]), "{zernike:?}");
@@ -890,6 +891,10 @@ fn csi_rejects_bad_input() {
         (
             vec!["csi", "--layout", "keck", "--global-band-step", "0"],
             "--global-band-step",
+        ),
+        (
+            vec!["csi", "--layout", "keck", "--lanczos-steps", "5"],
+            "--lanczos-steps",
         ),
     ] {
         let (ok, _, err) = m1cs(&args);

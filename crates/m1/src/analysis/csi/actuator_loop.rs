@@ -30,6 +30,8 @@ pub struct ActuatorLoop {
     pub(super) coupled_gram: [Vec<f64>; 2],
     /// Whether each kind has channels outside the span of its shapes.
     pub(super) complement: [bool; 2],
+    /// The all-segment Lanczos's step limit ([`super::LANCZOS_STEPS`] by default).
+    pub(super) lanczos_steps: usize,
 }
 
 /// One evaluated point: the values, the plant projected on the Zernike basis of the largest
@@ -130,7 +132,31 @@ impl ActuatorLoop {
             coupled_r: [0, 1].map(|k| row_major(&coupled_r[k])),
             coupled_rank,
             complement,
+            lanczos_steps: super::LANCZOS_STEPS,
         })
+    }
+
+    /// The loop with at most `steps` Lanczos steps per all-segment value (default
+    /// [`super::LANCZOS_STEPS`]): where the top singular values cluster the limit ends the
+    /// iteration, and more steps bring the value, a lower bound, closer to the exact one.
+    ///
+    /// # Errors
+    /// [`M1Error::InvalidParameter`] for fewer than 12 or more than 10,000 steps.
+    pub fn with_lanczos_steps(mut self, steps: usize) -> Result<Self, M1Error> {
+        if !(12..=10_000).contains(&steps) {
+            return Err(M1Error::InvalidParameter {
+                name: "Lanczos steps",
+                value: steps as f64,
+                reason: "must be from 12 to 10000",
+            });
+        }
+        self.lanczos_steps = steps;
+        Ok(self)
+    }
+
+    /// The all-segment Lanczos's step limit.
+    pub fn lanczos_steps(&self) -> usize {
+        self.lanczos_steps
     }
 
     /// The frequency model.

@@ -17,7 +17,8 @@ const COLD_MIN_STEPS: usize = 12;
 /// Lanczos steps at least from a warm start ([`WARM_MIX`] keeps every eigenvector's share of
 /// the start large enough that an unresolved top still shows in the residual).
 const WARM_MIN_STEPS: usize = 8;
-/// Lanczos steps at most for the all-segment $\sigma_{max}(S)$. Where the top singular values
+/// Lanczos steps at most for the all-segment $\sigma_{max}(S)$ by default
+/// ([`ActuatorLoop::with_lanczos_steps`] sets another limit). Where the top singular values
 /// cluster (TMT, 1000 modes: below 2.2 Hz, 20-60 Hz and from 200 Hz; about 3e-4 wide at
 /// 39.4 Hz) the top Ritz value creeps up the cluster and this limit, not the residual test,
 /// ends the iteration. The value is then a lower bound within 3e-5 of the dense reference:
@@ -25,7 +26,7 @@ const WARM_MIN_STEPS: usize = 8;
 /// along the sweep's warm-started run (120 steps gave 1e-6 and 1e-8 at twice the cost).
 /// Separated tops (the peaks, where the criteria are decided) converge to the residual test in
 /// 12-40 steps.
-const LANCZOS_MAX_STEPS: usize = 60;
+pub const LANCZOS_STEPS: usize = 60;
 /// Relative residual of the top Ritz pair of $S^H S$ at which Lanczos stops: the Ritz value
 /// is then within this relative distance of an eigenvalue, and in practice far closer to the
 /// top one (the error is quadratic in the residual for a separated top). Tighter is wasted:
@@ -65,10 +66,10 @@ pub(super) fn start_vector(w: usize, warm: Option<&[c64]>) -> (Vec<c64>, bool) {
     (v0, false)
 }
 
-/// The (least, most) Lanczos steps from a warm or a cold start.
-pub(super) fn lanczos_steps(warm: bool) -> (usize, usize) {
+/// The (least, most) Lanczos steps from a warm or a cold start, with at most `most`.
+pub(super) fn lanczos_steps(warm: bool, most: usize) -> (usize, usize) {
     let least = if warm { WARM_MIN_STEPS } else { COLD_MIN_STEPS };
-    (least, LANCZOS_MAX_STEPS)
+    (least, most)
 }
 
 impl ActuatorLoop {
@@ -235,7 +236,7 @@ impl ActuatorLoop {
         let (v0, warmed) = start_vector(w, warm);
         let pair = crate::linalg::krylov::largest_hermitian_eigenpair(
             w,
-            lanczos_steps(warmed),
+            lanczos_steps(warmed, self.lanczos_steps),
             &v0,
             LANCZOS_TOL,
             op,
