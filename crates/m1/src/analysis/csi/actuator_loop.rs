@@ -263,6 +263,21 @@ impl ActuatorLoop {
         let k = Kinds::new(self.fm.model(), f);
         let lu = modal_lu(&self.fm, &k);
         let mz = self.zernike_projected.plant(&k, lu.as_ref())?;
+        self.label_from_plant(&mz, f, nb, degree, gain)
+    }
+
+    /// [`Self::peak_label`] from the plant `mz` projected on the Zernike basis of the largest
+    /// degree at `f` (Hz), as the sweep keeps it, for the leading `nb` vectors (degree
+    /// `degree`).
+    pub(super) fn label_from_plant(
+        &self,
+        mz: &Mat<c64>,
+        f: f64,
+        nb: usize,
+        degree: u32,
+        gain: f64,
+    ) -> Result<(String, usize), M1Error> {
+        let k = Kinds::new(self.fm.model(), f);
         let s = k.k_s * gain;
         let a = Mat::from_fn(nb, nb, |i, j| {
             let d = if i == j { 1.0 } else { 0.0 };

@@ -191,6 +191,13 @@ pub fn sweep(
     }
     let freqs: Vec<f64> = pts.iter().map(|p| p.frequency_hz).collect();
     let max_degree = pts.first().map_or(0, |p| p.zernike.len().saturating_sub(1)) as u32;
+    // Labels from the kept Zernike plants (the same values peak_label would factorise again).
+    let label = |i: usize, d: u32| -> Result<(String, usize), M1Error> {
+        match (zernike_plants.get(i), lp.zernike.prefix.get(d as usize)) {
+            (Some(m), Some(&nb)) if m.nrows() >= nb => lp.label_from_plant(m, freqs[i], nb, d, 1.0),
+            _ => lp.peak_label(freqs[i], d, 1.0),
+        }
+    };
     let curve = |basis: &str,
                  degree: Option<u32>,
                  segs: Option<usize>,
@@ -201,11 +208,11 @@ pub fn sweep(
         let (label, noll) = match (basis, degree) {
             ("segments", _) => (None, None),
             (_, Some(d)) => {
-                let (l, j) = lp.peak_label(freqs[i], d, 1.0)?;
+                let (l, j) = label(i, d)?;
                 (Some(l), Some(j))
             }
             _ => {
-                let (l, j) = lp.peak_label(freqs[i], max_degree, 1.0)?;
+                let (l, j) = label(i, max_degree)?;
                 (Some(l), Some(j))
             }
         };
@@ -240,7 +247,7 @@ pub fn sweep(
     let n = lp.fm.n_segments();
     let mut peaks = Vec::new();
     for i in local_maxima(&va).filter(|&i| va[i] > label_threshold) {
-        let (label, noll) = lp.peak_label(freqs[i], max_degree, 1.0)?;
+        let (label, noll) = label(i, max_degree)?;
         peaks.push(LabelledPeak {
             frequency_hz: freqs[i],
             sensitivity_max: va[i],
