@@ -92,28 +92,78 @@ fn dot_conj<S: Simd>(simd: S, a: &[c64], w: &[c64]) -> c64 {
 /// # Panics
 /// If `x`'s length is not the factorisation's order (a programming error).
 pub fn solve_in_place(lu: &PartialPivLu<c64>, x: &mut [c64], work: &mut Vec<c64>) {
+    solve(lu, x, work, false);
+}
+
+/// `x <- K^-H x` with `lu` the factorisation of `K` (n x n, `x` of length n); `work` is
+/// resized to n and overwritten.
+///
+/// # Panics
+/// If `x`'s length is not the factorisation's order (a programming error).
+pub fn solve_adjoint_in_place(lu: &PartialPivLu<c64>, x: &mut [c64], work: &mut Vec<c64>) {
+    solve(lu, x, work, true);
+}
+
+/// Both solves: the permutation, then the two triangles' passes in the processor's vectors.
+fn solve(lu: &PartialPivLu<c64>, x: &mut [c64], work: &mut Vec<c64>, adjoint: bool) {
     let (l, u) = (lu.L(), lu.U());
     let n = l.nrows();
     assert_eq!(x.len(), n, "lu_solve: right-hand side of the wrong length");
     if !contiguous(lu) {
-        return faer_solve(lu, x, false);
+        return faer_solve(lu, x, adjoint);
     }
-    // P b: faer's row permutation takes row fwd[i] to row i.
+    // faer's row permutation P takes row fwd[i] to row i: K = P^T L U.
     let (fwd, _) = lu.P().arrays();
-    work.clear();
-    work.extend(fwd.iter().map(|&p| x[p]));
-    x.copy_from_slice(work);
-    struct Op<'a> {
-        l: MatRef<'a, c64>,
-        u: MatRef<'a, c64>,
-        x: &'a mut [c64],
+    if !adjoint {
+        // P b.
+        work.clear();
+        work.extend(fwd.iter().map(|&p| x[p]));
+        x.copy_from_slice(work);
     }
-    impl pulp::WithSimd for Op<'_> {
-        type Output = ();
-        #[inline(always)]
-        fn with_simd<S: Simd>(self, simd: S) {
-            let Op { l, u, x } = self;
-            let n = x.len();
+    pulp::Arch::new().dispatch(Passes {
+        l,
+        u,
+        x: &mut *x,
+        adjoint,
+    });
+    if adjoint {
+        // P^T v: row i goes back to row fwd[i].
+        work.clear();
+        work.resize(n, c64::new(0.0, 0.0));
+        for (i, &p) in fwd.iter().enumerate() {
+            work[p] = x[i];
+        }
+        x.copy_from_slice(work);
+    }
+}
+
+/// The triangular passes of one solve on the permuted right-hand side `x`.
+struct Passes<'a> {
+    l: MatRef<'a, c64>,
+    u: MatRef<'a, c64>,
+    x: &'a mut [c64],
+    adjoint: bool,
+}
+
+impl pulp::WithSimd for Passes<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn with_simd<S: Simd>(self, simd: S) {
+        let Passes { l, u, x, adjoint } = self;
+        let n = x.len();
+        if adjoint {
+            // U^H w = b (lower triangular): row i of U^H is column i of U conjugated.
+            for i in 0..n {
+                let (done, rest) = x.split_at_mut(i);
+                let s = dot_conj(simd, col(u, i, 0, i), done);
+                rest[0] = (rest[0] - s) / col(u, i, i, i + 1)[0].conj();
+            }
+            // L^H v = w (upper triangular, unit diagonal), from the last row up.
+            for i in (0..n).rev() {
+                let (head, done) = x.split_at_mut(i + 1);
+                head[i] -= dot_conj(simd, col(l, i, i + 1, n), done);
+            }
+        } else {
             // L y = P b, unit diagonal: column j removes y_j from the rows below it.
             for j in 0..n {
                 let (head, below) = x.split_at_mut(j + 1);
@@ -129,54 +179,6 @@ pub fn solve_in_place(lu: &PartialPivLu<c64>, x: &mut [c64], work: &mut Vec<c64>
             }
         }
     }
-    pulp::Arch::new().dispatch(Op { l, u, x });
-}
-
-/// `x <- K^-H x` with `lu` the factorisation of `K` (n x n, `x` of length n); `work` is
-/// resized to n and overwritten.
-///
-/// # Panics
-/// If `x`'s length is not the factorisation's order (a programming error).
-pub fn solve_adjoint_in_place(lu: &PartialPivLu<c64>, x: &mut [c64], work: &mut Vec<c64>) {
-    let (l, u) = (lu.L(), lu.U());
-    let n = l.nrows();
-    assert_eq!(x.len(), n, "lu_solve: right-hand side of the wrong length");
-    if !contiguous(lu) {
-        return faer_solve(lu, x, true);
-    }
-    struct Op<'a> {
-        l: MatRef<'a, c64>,
-        u: MatRef<'a, c64>,
-        x: &'a mut [c64],
-    }
-    impl pulp::WithSimd for Op<'_> {
-        type Output = ();
-        #[inline(always)]
-        fn with_simd<S: Simd>(self, simd: S) {
-            let Op { l, u, x } = self;
-            let n = x.len();
-            // U^H w = b (lower triangular): row i of U^H is column i of U conjugated.
-            for i in 0..n {
-                let (done, rest) = x.split_at_mut(i);
-                let s = dot_conj(simd, col(u, i, 0, i), done);
-                rest[0] = (rest[0] - s) / col(u, i, i, i + 1)[0].conj();
-            }
-            // L^H v = w (upper triangular, unit diagonal), from the last row up.
-            for i in (0..n).rev() {
-                let (head, done) = x.split_at_mut(i + 1);
-                head[i] -= dot_conj(simd, col(l, i, i + 1, n), done);
-            }
-        }
-    }
-    pulp::Arch::new().dispatch(Op { l, u, x: &mut *x });
-    // P^T v: row i goes back to row fwd[i].
-    let (fwd, _) = lu.P().arrays();
-    work.clear();
-    work.resize(n, c64::new(0.0, 0.0));
-    for (i, &p) in fwd.iter().enumerate() {
-        work[p] = x[i];
-    }
-    x.copy_from_slice(work);
 }
 
 #[cfg(test)]
