@@ -20,7 +20,8 @@ use clap::{Args, ValueEnum};
 use serde_json::json;
 
 use m1::analysis::csi::{
-    ActuatorLoop, BasisCurve, CsiSweep, GainLimit, LANCZOS_STEPS, highest_gain, log_grid, sweep,
+    ActuatorLoop, BasisCurve, CsiSweep, GainLimit, LANCZOS_STEPS, LANCZOS_STEPS_RANGE,
+    highest_gain, log_grid, sweep,
 };
 use m1::analysis::defaults::{self as study, csi as servo_study, global_csi as global_study};
 use m1::analysis::global_csi::{
@@ -184,10 +185,12 @@ fn check_args(a: &CsiArgs) -> Result<(f64, f64), String> {
     if !(a.damping.is_finite() && a.damping >= 0.0) {
         return Err(format!("--damping {}: must be finite and >= 0", a.damping));
     }
-    if !(12..=10_000).contains(&a.lanczos_steps) {
+    if !LANCZOS_STEPS_RANGE.contains(&a.lanczos_steps) {
         return Err(format!(
-            "--lanczos-steps {}: must be from 12 to 10000",
-            a.lanczos_steps
+            "--lanczos-steps {}: must be from {} to {}",
+            a.lanczos_steps,
+            LANCZOS_STEPS_RANGE.start(),
+            LANCZOS_STEPS_RANGE.end()
         ));
     }
     if a.frequencies < 3 {

@@ -184,8 +184,8 @@ pub fn top_ritz(alpha: &[f64], beta: &[f64]) -> (f64, Vec<f64>) {
 /// $\theta$ to an eigenvalue of $M$; the iteration stops when it is below `tol` $\theta$ (after
 /// at least `min(n, min_steps)` steps: 12 lets the top of the spectrum be reached from a
 /// generic start, fewer suit a start close to the top vector), on an invariant subspace, or
-/// after `max_steps`. Ritz values bound the eigenvalue from
-/// below, and converge to it first when it is separated from the rest.
+/// after `max_steps`. Ritz values bound the eigenvalue from below, and converge to it first when
+/// it is separated from the rest.
 ///
 /// Returns the top Ritz pair, the steps taken and whether the test was met.
 pub fn largest_hermitian_eigenpair(

@@ -141,13 +141,13 @@ impl ActuatorLoop {
     /// iteration, and more steps bring the value, a lower bound, closer to the exact one.
     ///
     /// # Errors
-    /// [`M1Error::InvalidParameter`] for fewer than 12 or more than 10,000 steps.
+    /// [`M1Error::InvalidParameter`] for a limit outside [`super::LANCZOS_STEPS_RANGE`].
     pub fn with_lanczos_steps(mut self, steps: usize) -> Result<Self, M1Error> {
-        if !(12..=10_000).contains(&steps) {
+        if !super::LANCZOS_STEPS_RANGE.contains(&steps) {
             return Err(M1Error::InvalidParameter {
                 name: "Lanczos steps",
                 value: steps as f64,
-                reason: "must be from 12 to 10000",
+                reason: "outside LANCZOS_STEPS_RANGE",
             });
         }
         self.lanczos_steps = steps;

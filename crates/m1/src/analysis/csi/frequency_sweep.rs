@@ -191,12 +191,11 @@ pub fn sweep(
     }
     let freqs: Vec<f64> = pts.iter().map(|p| p.frequency_hz).collect();
     let max_degree = pts.first().map_or(0, |p| p.zernike.len().saturating_sub(1)) as u32;
-    // Labels from the kept Zernike plants (the same values peak_label would factorise again).
-    let label = |i: usize, d: u32| -> Result<(String, usize), M1Error> {
-        match (zernike_plants.get(i), lp.zernike.prefix.get(d as usize)) {
-            (Some(m), Some(&nb)) if m.nrows() >= nb => lp.label_from_plant(m, freqs[i], nb, d, 1.0),
-            _ => lp.peak_label(freqs[i], d, 1.0),
-        }
+    // Labels from the kept Zernike plants (the values peak_label would factorise again); every
+    // degree here is one of the bases' (at most `max_degree`).
+    let label = |i: usize, d: u32| {
+        let nb = lp.zernike.prefix[d as usize];
+        lp.label_from_plant(&zernike_plants[i], freqs[i], nb, d, 1.0)
     };
     let curve = |basis: &str,
                  degree: Option<u32>,

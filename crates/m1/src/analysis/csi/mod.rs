@@ -85,7 +85,7 @@ mod tests;
 mod zernike;
 
 pub use actuator_loop::{ActuatorLoop, CsiPoint};
-pub use all_segments::LANCZOS_STEPS;
+pub use all_segments::{LANCZOS_STEPS, LANCZOS_STEPS_RANGE};
 pub(crate) use frequency_sweep::local_maxima;
 pub use frequency_sweep::{BasisCurve, CsiSweep, LabelledPeak, log_grid, sweep};
 pub use projected::Kinds;

@@ -3,7 +3,7 @@
 //! frequency model.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use super::all_segments::{LANCZOS_STEPS, lanczos_steps, start_vector};
+use super::all_segments::{LANCZOS_STEPS, min_steps, start_vector};
 use super::projected::{Kinds, Projected, modal_lu};
 use super::*;
 use crate::aperture::geometry::{Geometry, GeometryParams};
@@ -273,7 +273,7 @@ fn warm_start_finds_a_top_orthogonal_to_the_previous_one() {
     assert!(warmed);
     let pair = crate::linalg::krylov::largest_hermitian_eigenpair(
         n,
-        lanczos_steps(true, LANCZOS_STEPS),
+        (min_steps(true), LANCZOS_STEPS),
         &v0,
         1e-7,
         op,
