@@ -20,6 +20,17 @@
 
 use pulp::Simd;
 
+/// Rows of [`state_map`] computed together: independent chains of fused multiply-adds in
+/// flight (four hide the latency of one addition behind the others on the project's machine).
+pub const ROW_GROUP: usize = 4;
+
+/// `k` rounded up to a whole number of the widest single-precision vectors (16 lanes): the row
+/// stride that lets the single-precision kernels run without a scalar tail on any processor
+/// (the padding holds zeros).
+pub const fn padded_len(k: usize) -> usize {
+    k.div_ceil(16) * 16
+}
+
 /// `y_l += A x_l` for `L` (1 or 3) right-hand sides; `A` is `m x k` row-major with row stride
 /// `lda`, `x_l` has length `k`, `y_l` length `m`.
 ///
@@ -319,7 +330,9 @@ fn axpy4<S: Simd>(simd: S, rows: [&[f64]; 4], c: [f64; 4], y: &mut [f64]) {
 /// row stride `lda`) and `x_l`: the rows are combined four at a time into the single-precision
 /// `acc_l` (length `k`, scratch), which is added into the double-precision `y_l` every
 /// `FLUSH` rows, so no single-precision sum runs over more than `FLUSH` rows (relative error
-/// about 1e-7 of the sum of the magnitudes of the terms).
+/// about 1e-7 of the sum of the magnitudes of the terms). `y_l` may be shorter than `k`: the
+/// sums past its length are dropped (the zero columns of a matrix padded to whole vectors,
+/// [`padded_len`]).
 ///
 /// # Panics
 /// If a slice is shorter than the dimensions say (a programming error).
@@ -337,7 +350,8 @@ pub fn rows_axpy2_f32<S: Simd>(
 ) {
     const FLUSH: usize = 64;
     let [y0, y1] = y;
-    let (y0, y1) = (&mut y0[..k], &mut y1[..k]);
+    let (k0, k1) = (y0.len().min(k), y1.len().min(k));
+    let (y0, y1) = (&mut y0[..k0], &mut y1[..k1]);
     let [a0, a1] = acc;
     let (a0, a1) = (&mut a0[..k], &mut a1[..k]);
     y0.fill(0.0);
@@ -412,9 +426,11 @@ fn axpy4_f32<S: Simd>(simd: S, rows: [&[f32]; 4], c: [f32; 4], y: &mut [f32]) {
 }
 
 /// `y_l += A x_l` for three right-hand sides with a single-precision `A` (`m x k` row-major,
-/// row stride `lda`) and `x_l`; each row's products are summed in single precision by lane and
-/// the lanes in double precision into the double-precision `y_l` (relative error about 1e-7 of
-/// the row's magnitude).
+/// row stride `lda`) and `x_l`; each row's products are summed in single precision, by lane
+/// and then across the lanes, and added to the double-precision `y_l` (relative error about
+/// 1e-7 of the row's magnitude: each lane sums `k / lanes` products). With `k` a whole number
+/// of vectors ([`padded_len`]) there is no scalar tail, and a row costs `k / lanes` fused
+/// multiply-adds per right-hand side plus one vector reduction.
 ///
 /// # Panics
 /// If a slice is shorter than the dimensions say (a programming error).
@@ -434,10 +450,7 @@ pub fn rows_dot3_f32<S: Simd>(
     let (x1, xt1) = S::as_simd_f32s(&x[1][..k]);
     let (x2, xt2) = S::as_simd_f32s(&x[2][..k]);
     let (x1, x2) = (&x1[..n], &x2[..n]);
-    let lanes = |v: S::f32s| -> f64 {
-        let l: &[f32] = pulp::bytemuck::cast_slice(std::slice::from_ref(&v));
-        l.iter().map(|&v| f64::from(v)).sum()
-    };
+    let lanes = |v: S::f32s| -> f64 { f64::from(simd.reduce_sum_f32s(v)) };
     let tail = |t: &[f32], xt: &[f32]| -> f64 {
         t.iter()
             .zip(xt)
@@ -555,8 +568,14 @@ pub fn real_times_complex(
 ///
 /// Each vector of columns is read once (all its states and inputs) and its new states are
 /// written once, with the sums in registers: a pass of state-by-state axpys reads and writes
-/// every state `NS` times. Each output is summed in the order of `a`'s columns, then `b`'s,
-/// with fused multiply-adds where the instruction set has them (never emulated in software).
+/// every state `NS` times. The rows are computed [`ROW_GROUP`] at a time, so that as many
+/// independent chains of fused multiply-adds are in flight (one row's chain alone waits on the
+/// latency of each addition), and a source (state or input) whose coefficients are zero for
+/// every row of a group is skipped: the segment channels' maps have whole zero columns (the
+/// drive, an absent shunt) and sparse servo rows, about a third of their entries. Each output
+/// is summed in the order of `a`'s columns, then `b`'s, with fused multiply-adds where the
+/// instruction set has them (never emulated in software); a skipped term is an exact zero for
+/// finite states, so the result is the dense sum's.
 ///
 /// # Panics
 /// If a slice is shorter than `NS n` (`x`, `out`) or `n` (`u_l`, `d`): a programming error.
@@ -572,6 +591,7 @@ pub fn state_map<S: Simd, const NS: usize, const NI: usize>(
     out: &mut [f64],
     dot: Option<(&[f64; NS], &mut [f64])>,
 ) {
+    const G: usize = ROW_GROUP;
     if n == 0 {
         return;
     }
@@ -579,36 +599,67 @@ pub fn state_map<S: Simd, const NS: usize, const NI: usize>(
     let us: [&[f64]; NI] = std::array::from_fn(|l| &u[l][..n]);
     let mut rows = out[..NS * n].chunks_exact_mut(n);
     let mut outs: [&mut [f64]; NS] = std::array::from_fn(|_| rows.next().unwrap_or_default());
-    let xh: [&[S::f64s]; NS] = std::array::from_fn(|j| S::as_simd_f64s(xs[j]).0);
-    let uh: [&[S::f64s]; NI] = std::array::from_fn(|l| S::as_simd_f64s(us[l]).0);
     let m = S::as_simd_f64s(xs[0]).0.len();
     let tail = n - S::as_simd_f64s(xs[0]).1.len();
+    let xh: [&[S::f64s]; NS] = std::array::from_fn(|j| &S::as_simd_f64s(xs[j]).0[..m]);
+    let uh: [&[S::f64s]; NI] = std::array::from_fn(|l| &S::as_simd_f64s(us[l]).0[..m]);
+    // Which sources (states, inputs) each group of rows reads: `[g][j]` for g < groups.
+    let groups = NS.div_ceil(G);
+    let mut use_x = [[false; NS]; NS];
+    let mut use_u = [[false; NI]; NS];
+    for i in 0..NS {
+        for j in 0..NS {
+            use_x[i / G][j] |= a[i][j] != 0.0;
+        }
+        for l in 0..NI {
+            use_u[i / G][l] |= b[i][l] != 0.0;
+        }
+    }
     let (w, mut d) = match dot {
         Some((w, d)) => (Some(w), Some(d)),
         None => (None, None),
     };
     {
         let mut it = outs.iter_mut();
-        let mut oh: [&mut [S::f64s]; NS] = std::array::from_fn(|_| match it.next() {
+        let oh: [&mut [S::f64s]; NS] = std::array::from_fn(|_| match it.next() {
             Some(o) => S::as_mut_simd_f64s(o).0,
             None => Default::default(),
         });
         let mut dh = d.as_deref_mut().map(|d| S::as_mut_simd_f64s(&mut d[..n]).0);
+        let zero = simd.splat_f64s(0.0);
         for c in 0..m {
             let xv: [S::f64s; NS] = std::array::from_fn(|j| xh[j][c]);
             let uv: [S::f64s; NI] = std::array::from_fn(|l| uh[l][c]);
-            let mut dacc = simd.splat_f64s(0.0);
-            for (i, o) in oh.iter_mut().enumerate() {
-                let mut acc = simd.mul_f64s(simd.splat_f64s(a[i][0]), xv[0]);
-                for (j, v) in xv.iter().enumerate().skip(1) {
-                    acc = simd.mul_add_e_f64s(simd.splat_f64s(a[i][j]), *v, acc);
+            let mut dacc = zero;
+            for g in 0..groups {
+                let mut acc = [zero; G];
+                let row = |r: usize| (G * g + r).min(NS - 1);
+                for j in 0..NS {
+                    if use_x[g][j] {
+                        let v = xv[j];
+                        for (r, acc) in acc.iter_mut().enumerate() {
+                            let k = if G * g + r < NS { a[row(r)][j] } else { 0.0 };
+                            *acc = simd.mul_add_e_f64s(simd.splat_f64s(k), v, *acc);
+                        }
+                    }
                 }
-                for (l, v) in uv.iter().enumerate() {
-                    acc = simd.mul_add_e_f64s(simd.splat_f64s(b[i][l]), *v, acc);
+                for l in 0..NI {
+                    if use_u[g][l] {
+                        let v = uv[l];
+                        for (r, acc) in acc.iter_mut().enumerate() {
+                            let k = if G * g + r < NS { b[row(r)][l] } else { 0.0 };
+                            *acc = simd.mul_add_e_f64s(simd.splat_f64s(k), v, *acc);
+                        }
+                    }
                 }
-                o[c] = acc;
-                if let Some(w) = w {
-                    dacc = simd.mul_add_e_f64s(simd.splat_f64s(w[i]), acc, dacc);
+                for (r, acc) in acc.into_iter().enumerate() {
+                    let i = G * g + r;
+                    if i < NS {
+                        oh[i][c] = acc;
+                        if let Some(w) = w {
+                            dacc = simd.mul_add_e_f64s(simd.splat_f64s(w[i]), acc, dacc);
+                        }
+                    }
                 }
             }
             if let Some(dh) = dh.as_deref_mut() {
@@ -650,16 +701,49 @@ pub fn axpy(out: &mut [f64], a: f64, x: &[f64]) {
 mod tests {
     use super::*;
 
-    /// `state_map` against the plain sums, for column counts around the vector width.
+    /// `state_map` against the plain sums, for column counts around the vector width, with a
+    /// dense map and with a sparse one (a zero column, a state that no row of the first group of
+    /// rows reads, one that the group's first row does not read but the others do, an input
+    /// only the last, partial, group reads).
     #[test]
     fn state_map_equals_the_plain_sums() {
-        const NS: usize = 5;
-        const NI: usize = 2;
-        let a: [[f64; NS]; NS] = std::array::from_fn(|i| {
+        assert!(
+            NS % ROW_GROUP != 0,
+            "the test needs a partial group of rows"
+        );
+        let dense: [[f64; NS]; NS] = std::array::from_fn(|i| {
             std::array::from_fn(|j| ((i * 7 + j * 3) % 11) as f64 / 5.0 - 1.0)
         });
-        let b: [[f64; NI]; NS] =
+        let sparse: [[f64; NS]; NS] = std::array::from_fn(|i| {
+            std::array::from_fn(|j| {
+                if j == 1 || (j == 3 && i < ROW_GROUP) || (i == 0 && j == 2) {
+                    0.0
+                } else {
+                    dense[i][j]
+                }
+            })
+        });
+        let b_dense: [[f64; NI]; NS] =
             std::array::from_fn(|i| std::array::from_fn(|l| ((i + 2 * l) % 5) as f64 - 2.0));
+        let b_sparse: [[f64; NI]; NS] = std::array::from_fn(|i| {
+            std::array::from_fn(|l| {
+                if l == 0 && i < ROW_GROUP {
+                    0.0
+                } else {
+                    b_dense[i][l]
+                }
+            })
+        });
+        for (a, b) in [(dense, b_dense), (sparse, b_sparse)] {
+            state_map_case(&a, &b);
+        }
+    }
+
+    /// States and inputs of the `state_map` tests.
+    const NS: usize = 5;
+    const NI: usize = 2;
+
+    fn state_map_case(a: &[[f64; NS]; NS], b: &[[f64; NI]; NS]) {
         let w: [f64; NS] = std::array::from_fn(|i| i as f64 - 1.5);
         for n in [0usize, 1, 3, 4, 7, 8, 9, 17, 61] {
             let x: Vec<f64> = (0..NS * n)
@@ -695,8 +779,8 @@ mod tests {
                 }
             }
             pulp::Arch::new().dispatch(Op {
-                a: &a,
-                b: &b,
+                a,
+                b,
                 w: &w,
                 x: &x,
                 u: [&u0, &u1],

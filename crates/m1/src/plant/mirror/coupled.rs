@@ -6,9 +6,10 @@ use nalgebra::{DMatrix, SMatrix, SVector};
 use serde::{Deserialize, Serialize};
 
 use super::maps::{foh_mode, substep_maps};
-use super::projection::{Project, input_columns, row_major};
+use super::projection::{Project, input_columns, padded_rows_f32, row_major};
 use super::tick::Ticks;
 use crate::M1Error;
+use crate::linalg::kernels::padded_len;
 use crate::plant::segment::{
     Channel, Gamma, N_IN, N_STATE, Phi, SegmentArray, SegmentModel, modal_basis, state,
 };
@@ -58,10 +59,15 @@ pub struct CoupledMirror {
     /// `na x r` row-major.
     pub(super) phic: Vec<f64>,
     /// The same in single precision, for the two passes per communication step (inputs onto
-    /// the modes, outputs back): half the memory traffic, relative error about 1e-7.
+    /// the modes, outputs back): half the memory traffic, relative error about 1e-7. Rows are
+    /// `ld32` long, zero-padded to whole vectors so that the passes have no scalar tail.
     pub(super) phic32: Vec<f32>,
+    /// Row stride of `phic32`, and length of each column of `cols32` and of `acc32`:
+    /// [`padded_len`]`(r)`.
+    pub(super) ld32: usize,
     /// Single-precision scratch: the channel inputs by kind (command then wind, `2 n_k`), the
-    /// projection's accumulators (`r` each) and the output columns (`6 r`).
+    /// projection's accumulators (`ld32` each) and the output columns (6 columns of `ld32`,
+    /// zero past `r`).
     pub(super) w32: [Vec<f32>; 2],
     pub(super) acc32: [Vec<f32>; 2],
     pub(super) cols32: Vec<f32>,
@@ -222,10 +228,11 @@ impl CoupledMirror {
             b0,
             b1,
             phic: row_major(&phic),
-            phic32: row_major(&phic).iter().map(|&x| x as f32).collect(),
+            phic32: padded_rows_f32(&phic, padded_len(r)),
+            ld32: padded_len(r),
             w32: [vec![0.0f32; 2 * n], vec![0.0f32; 4 * n]],
-            acc32: [vec![0.0f32; r], vec![0.0f32; r]],
-            cols32: vec![0.0f32; 6 * r],
+            acc32: [vec![0.0f32; padded_len(r)], vec![0.0f32; padded_len(r)]],
+            cols32: vec![0.0f32; 6 * padded_len(r)],
             wg: row_major(&wg),
             wg32: row_major(&wg).iter().map(|&x| x as f32).collect(),
             psi32: vec![0.0f32; 2 * r],
@@ -373,7 +380,7 @@ impl CoupledMirror {
             let [a0, a1] = &mut self.acc32;
             pulp::Arch::new().dispatch(Project {
                 phic: &self.phic32,
-                r,
+                ld: self.ld32,
                 n: self.n_segments,
                 w: [&self.w32[0], &self.w32[1]],
                 acc: [a0, a1],

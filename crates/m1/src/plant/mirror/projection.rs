@@ -17,7 +17,8 @@ pub(super) fn input_columns(w: &mut [f64], r: usize) -> (&mut [f64], &mut [f64])
 /// the kind's command column then its wind column.
 pub(super) struct Project<'a> {
     pub(super) phic: &'a [f32],
-    pub(super) r: usize,
+    /// Row stride of `phic` (its rows zero-padded to whole vectors).
+    pub(super) ld: usize,
     pub(super) n: usize,
     pub(super) w: [&'a [f32]; 2],
     pub(super) acc: [&'a mut [f32]; 2],
@@ -29,7 +30,7 @@ impl pulp::WithSimd for Project<'_> {
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, simd: S) {
-        let (r, n) = (self.r, self.n);
+        let (ld, n) = (self.ld, self.n);
         let [pu, pf, tu, tf] = self.out;
         let [a0, a1] = self.acc;
         for (kind, (lo, count), yu, yf) in [(0usize, (0usize, n), pu, pf), (1, (n, 2 * n), tu, tf)]
@@ -37,10 +38,10 @@ impl pulp::WithSimd for Project<'_> {
             let x = self.w[kind];
             rows_axpy2_f32::<S>(
                 simd,
-                &self.phic[lo * r..],
-                r,
+                &self.phic[lo * ld..],
+                ld,
                 count,
-                r,
+                ld,
                 [&x[..count], &x[count..2 * count]],
                 [yu, yf],
                 [&mut *a0, &mut *a1],
@@ -50,10 +51,12 @@ impl pulp::WithSimd for Project<'_> {
 }
 
 /// Rows `rows` of `Phi_c [cols_k]` (channel rows: piston `0..n`, tilt `n..3n`; `cols` holds
-/// the three `r`-columns of each kind in turn): `out` is the three output columns over `rows`.
+/// the three columns of each kind in turn, each `ld` long and zero past `r`): `out` is the three output columns over `rows`.
 pub(super) struct Reconstruct<'a> {
     pub(super) phic: &'a [f32],
-    pub(super) r: usize,
+    /// Row stride of `phic` (its rows zero-padded to whole vectors), and length of each
+    /// column of `cols`.
+    pub(super) ld: usize,
     pub(super) n: usize,
     pub(super) rows: std::ops::Range<usize>,
     pub(super) cols: &'a [f32],
@@ -65,7 +68,7 @@ impl pulp::WithSimd for Reconstruct<'_> {
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, simd: S) {
-        let (r, n) = (self.r, self.n);
+        let (ld, n) = (self.ld, self.n);
         let [o0, o1, o2] = self.out;
         for (kind, kinds) in [(0usize, 0..n), (1, n..3 * n)] {
             let lo = self.rows.start.max(kinds.start);
@@ -73,19 +76,19 @@ impl pulp::WithSimd for Reconstruct<'_> {
             if lo >= hi {
                 continue;
             }
-            let cols = &self.cols[3 * r * kind..3 * r * (kind + 1)];
-            let (c0, rest) = cols.split_at(r);
-            let (c1, c2) = rest.split_at(r);
+            let cols = &self.cols[3 * ld * kind..3 * ld * (kind + 1)];
+            let (c0, rest) = cols.split_at(ld);
+            let (c1, c2) = rest.split_at(ld);
             let at = lo - self.rows.start..hi - self.rows.start;
             for o in [&mut *o0, &mut *o1, &mut *o2] {
                 o[at.clone()].fill(0.0);
             }
             rows_dot3_f32::<S>(
                 simd,
-                &self.phic[lo * r..],
-                r,
+                &self.phic[lo * ld..],
+                ld,
                 hi - lo,
-                r,
+                ld,
                 [c0, c1, c2],
                 [&mut o0[at.clone()], &mut o1[at.clone()], &mut o2[at]],
             );
@@ -96,4 +99,15 @@ impl pulp::WithSimd for Reconstruct<'_> {
 /// The entries of `m` row by row.
 pub(super) fn row_major(m: &DMatrix<f64>) -> Vec<f64> {
     m.transpose().as_slice().to_vec()
+}
+
+/// The entries of `m` row by row in single precision, each row zero-padded to `ld` entries.
+pub(super) fn padded_rows_f32(m: &DMatrix<f64>, ld: usize) -> Vec<f32> {
+    let mut out = vec![0.0f32; m.nrows() * ld];
+    for (i, row) in out.chunks_exact_mut(ld).enumerate() {
+        for (j, v) in row.iter_mut().take(m.ncols()).enumerate() {
+            *v = m[(i, j)] as f32;
+        }
+    }
+    out
 }

@@ -194,12 +194,18 @@ impl CoupledMirror {
             // Phi_c [cols_k] over all channel rows.
             let (o0, rest) = outs.split_at_mut(na);
             let (o1, o2) = rest.split_at_mut(na);
-            for (d, c) in self.cols32.iter_mut().zip(&self.cols) {
-                *d = *c as f32;
+            for (d, c) in self
+                .cols32
+                .chunks_exact_mut(self.ld32)
+                .zip(self.cols.chunks_exact(r))
+            {
+                for (d, c) in d.iter_mut().zip(c) {
+                    *d = *c as f32;
+                }
             }
             pulp::Arch::new().dispatch(Reconstruct {
                 phic: &self.phic32,
-                r,
+                ld: self.ld32,
                 n,
                 rows: 0..na,
                 cols: &self.cols32,
