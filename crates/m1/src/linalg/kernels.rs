@@ -84,9 +84,10 @@ pub fn rows_dot<S: Simd, const L: usize>(
 }
 
 /// `y += A x` for a single-precision `A` (`m x k` row-major, row stride `lda`) and `x`, each
-/// row's products summed in single precision by lane and the lanes in double precision into
-/// the double-precision `y`: half the memory traffic of [`rows_dot`], for products whose
-/// result is a small correction (relative error about 1e-7 of the row's magnitude).
+/// row's products summed in single precision, by lane and then across the lanes (one vector
+/// reduction), and added to the double-precision `y`: half the memory traffic of
+/// [`rows_dot`], for products whose result is a small correction (relative error about 1e-7
+/// of the row's magnitude).
 ///
 /// # Panics
 /// If a slice is shorter than the dimensions say (a programming error).
@@ -103,10 +104,7 @@ pub fn rows_dot_f32<S: Simd>(
     let x = &x[..k];
     let (xh, xt) = S::as_simd_f32s(x);
     let n = xh.len();
-    let lanes = |v: S::f32s| -> f64 {
-        let l: &[f32] = pulp::bytemuck::cast_slice(std::slice::from_ref(&v));
-        l.iter().map(|&v| f64::from(v)).sum()
-    };
+    let lanes = |v: S::f32s| -> f64 { f64::from(simd.reduce_sum_f32s(v)) };
     let tail = |row: &[f32]| -> f64 {
         let (_, rt) = S::as_simd_f32s(row);
         rt.iter()

@@ -3,11 +3,12 @@
 //! basis), advanced a communication step at a time, read in actuator order.
 
 use nalgebra::{DMatrix, SMatrix, SVector};
+use pulp::WithSimd;
 use serde::{Deserialize, Serialize};
 
 use super::maps::{foh_mode, substep_maps};
 use super::projection::{Project, input_columns, padded_rows_f32, row_major};
-use super::tick::Ticks;
+use super::tick::Step;
 use crate::M1Error;
 use crate::linalg::kernels::padded_len;
 use crate::plant::segment::{
@@ -362,40 +363,43 @@ impl CoupledMirror {
         // The free part over the whole step at once (its inputs, projected on the channels,
         // are then read back for the modes).
         self.free.advance(h, u_cmd, &self.zeros, f_wind)?;
-        // The held inputs on the modes.
-        {
-            let r = self.r;
-            let [p, t] = &mut self.w_proj;
-            let (pu, pf) = input_columns(p, r);
-            let (tu, tf) = input_columns(t, r);
-            // Command and wind columns of each kind, in single precision.
-            for (kind, w) in self.free.channel_inputs().into_iter().enumerate() {
-                let cnt = self.w32[kind].len() / 2;
-                let dst = &mut self.w32[kind];
-                for c in 0..cnt {
-                    dst[c] = w[c] as f32;
-                    dst[cnt + c] = w[2 * cnt + c] as f32;
-                }
-            }
-            let [a0, a1] = &mut self.acc32;
-            pulp::Arch::new().dispatch(Project {
-                phic: &self.phic32,
-                ld: self.ld32,
-                n: self.n_segments,
-                w: [&self.w32[0], &self.w32[1]],
-                acc: [a0, a1],
-                out: [pu, pf, tu, tf],
-            });
-        }
-        // The ticks, vectorised for this processor (everything in them is inlined into a
-        // function compiled for its instruction set).
-        pulp::Arch::new().dispatch(Ticks {
+        // The held inputs onto the modes, the ticks and the outputs back, in one function
+        // compiled for this processor's vector instructions (everything in it is inlined).
+        pulp::Arch::new().dispatch(Step {
             mirror: self,
             ticks,
             pier_z,
         });
-        self.write_outputs();
         Ok(())
+    }
+
+    /// The held inputs on the modes: `Phi_k^T w_k` for the command and wind columns of each
+    /// kind, from the single-precision shapes.
+    #[inline(always)]
+    pub(super) fn project_inputs<S: pulp::Simd>(&mut self, simd: S) {
+        let r = self.r;
+        let [p, t] = &mut self.w_proj;
+        let (pu, pf) = input_columns(p, r);
+        let (tu, tf) = input_columns(t, r);
+        // Command and wind columns of each kind, in single precision.
+        for (kind, w) in self.free.channel_inputs().into_iter().enumerate() {
+            let cnt = self.w32[kind].len() / 2;
+            let dst = &mut self.w32[kind];
+            for c in 0..cnt {
+                dst[c] = w[c] as f32;
+                dst[cnt + c] = w[2 * cnt + c] as f32;
+            }
+        }
+        let [a0, a1] = &mut self.acc32;
+        Project {
+            phic: &self.phic32,
+            ld: self.ld32,
+            n: self.n_segments,
+            w: [&self.w32[0], &self.w32[1]],
+            acc: [a0, a1],
+            out: [pu, pf, tu, tf],
+        }
+        .with_simd(simd);
     }
 
     /// Mirror displacement `z` at each actuator (length 3N).

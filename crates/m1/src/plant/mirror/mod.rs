@@ -54,15 +54,20 @@
 //! chunk is in registers), and the whole coupled part of a step runs inside one
 //! [`pulp::Arch::dispatch`], so that it is compiled for the processor's vector instructions.
 //! The general matrix products used before (which pack their operand first) took 1.44 times as
-//! long per step at r = 300 (BENCHMARKS.md). The shapes are streamed in single precision
-//! (inputs onto the modes, outputs back: relative error about 1e-7 of the largest term), and so
+//! long per step at r = 300 (BENCHMARKS.md). The channels' 12-state maps, on the modes and in
+//! actuator space alike, go through [`crate::linalg::kernels::state_map`], which computes four
+//! rows at a time and skips the states a group of rows does not read (the maps' zero columns:
+//! the drive, an absent shunt; about a third of the entries). The shapes are streamed in
+//! single precision, their rows zero-padded to whole vectors so that the passes have no scalar
+//! tail (inputs onto the modes, outputs back: relative error about 1e-7 of the largest term), and so
 //! are the Gram matrices that give the modal force of the drive's jump (a correction of the
 //! size of the drive's change over one servo period). The coupled solve's `r x 2r` matrix
 //! `[W G_p, W G_t]` is streamed in single precision too from
 //! [`SINGLE_COUPLING_MIN_MODES`] modes (each vector lane sums about `2r / 8` products
-//! in single precision, the lanes are summed in double precision): against double precision
-//! ([`CoupledMirror::set_coupling_single`]) the mirror's response moves by about 1e-9 of its
-//! largest value, and a TMT step with 300 modes streams 10.7 MB instead of 14.3 MB.
+//! in single precision, then the lanes are summed, and the row's sum is added in double
+//! precision): against double precision ([`CoupledMirror::set_coupling_single`]) the mirror's
+//! response moves by about 2e-9 of its largest value (TMT, 300 modes), and a TMT step with
+//! 300 modes streams 10.7 MB instead of 14.3 MB.
 //!
 //! **No static correction.** The structure is its `n_modes` lowest modes. The static correction
 //! of the truncated modes (an instantaneous, dense compliance) cannot lag a tick: against the

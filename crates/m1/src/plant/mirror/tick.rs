@@ -1,9 +1,11 @@
 //! One coupled tick, entirely on the modes (module documentation, "Scheme" and "Carried on
 //! the modes"): the channels' free and cell-driven parts per kind, the coupled solve for the
-//! modal force, the modes; the ticks of a step as one SIMD dispatch ([`Ticks`]); and the
+//! modal force, the modes; a step's coupled part as one SIMD dispatch ([`Step`]); and the
 //! outputs back in actuator space.
 
 use super::coupled::CoupledMirror;
+use pulp::WithSimd;
+
 use super::projection::Reconstruct;
 use crate::linalg::kernels::{axpy, rows_dot, rows_dot_f32, state_map};
 use crate::plant::segment::{N_STATE, state};
@@ -172,7 +174,8 @@ impl CoupledMirror {
 
     /// Channel states, forces and displacements back in actuator space: one product with the
     /// mode shapes per kind, `Phi_k [xi_k mirror, q, xi_k c_k^T]`.
-    pub(super) fn write_outputs(&mut self) {
+    #[inline(always)]
+    pub(super) fn write_outputs<S: pulp::Simd>(&mut self, simd: S) {
         let (r, n, na) = (self.r, self.n_segments, self.na);
         const S: usize = N_STATE;
         let mp = state::MIRROR_POS;
@@ -203,14 +206,15 @@ impl CoupledMirror {
                     *d = *c as f32;
                 }
             }
-            pulp::Arch::new().dispatch(Reconstruct {
+            Reconstruct {
                 phic: &self.phic32,
                 ld: self.ld32,
                 n,
                 rows: 0..na,
                 cols: &self.cols32,
                 out: [o0, o1, o2],
-            });
+            }
+            .with_simd(simd);
         }
         // The free part's cell force per channel (rows as the channels), a run of axpys over
         // its state-major states (summed in the order of the states, as before).
@@ -254,22 +258,26 @@ impl CoupledMirror {
     }
 }
 
-/// The ticks of a communication step, as a SIMD operation for [`pulp::Arch::dispatch`].
-pub(super) struct Ticks<'a> {
+/// The coupled part of a communication step (the held inputs onto the modes, the ticks, the
+/// outputs back), as one SIMD operation for [`pulp::Arch::dispatch`].
+pub(super) struct Step<'a> {
     pub(super) mirror: &'a mut CoupledMirror,
     pub(super) ticks: u64,
     pub(super) pier_z: f64,
 }
 
-impl pulp::WithSimd for Ticks<'_> {
+impl pulp::WithSimd for Step<'_> {
     type Output = ();
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, simd: S) {
+        let m = self.mirror;
+        m.project_inputs(simd);
         for _ in 0..self.ticks {
-            for s in 0..self.mirror.substeps {
-                self.mirror.tick(simd, self.pier_z, s == 0);
+            for s in 0..m.substeps {
+                m.tick(simd, self.pier_z, s == 0);
             }
         }
+        m.write_outputs(simd);
     }
 }
