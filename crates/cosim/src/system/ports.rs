@@ -2,6 +2,9 @@
 //! Real, Integer (and enumeration), Boolean, String), and per component and kind a [`Port`]
 //! that gathers its connected inputs out of the buffer and publishes its outputs into it, with
 //! one bulk FMI call per kind and step and no allocation (Strings excepted: they are copied).
+//! Real inputs connected as a few arrays are set straight from the buffer instead, one call
+//! per array, when the component steps on the master's thread ([`Port::direct`]): the copy
+//! into the port is the larger cost there (a TMT mirror's 2953 inputs).
 
 use super::wiring::Kind;
 use crate::error::Result;
@@ -48,6 +51,12 @@ impl Values {
         }
     }
 }
+
+/// Most runs of consecutive input slots for which a port's Real inputs are set straight from
+/// the shared buffer, a set call per run ([`Port::direct`]): a mirror's command, wind and pier
+/// inputs are three runs, a scalar-wired component's inputs may be hundreds (there one copy
+/// and one call is cheaper).
+pub(super) const DIRECT_MAX_RUNS: usize = 8;
 
 /// The values of one kind that a component exchanges: its connected inputs and where each
 /// comes from in the shared buffer, and its outputs (connected or recorded) and where they go.
@@ -96,6 +105,14 @@ impl<T: Clone + Default> Port<T> {
         }
     }
 
+    /// Whether its inputs are set straight from the shared buffer, one set call per run of
+    /// consecutive slots, instead of gathered into `in_buf` and set in one call: when they form
+    /// at most [`DIRECT_MAX_RUNS`] runs (array connections), so that the copy saved is larger
+    /// than the calls added.
+    pub(super) fn direct(&self) -> bool {
+        !self.in_runs.is_empty() && self.in_runs.len() <= DIRECT_MAX_RUNS
+    }
+
     /// Copies its outputs into the shared buffer `shared`.
     pub(super) fn publish(&self, shared: &mut [T]) {
         let dst = &mut shared[self.out_slot..self.out_slot + self.out_buf.len()];
@@ -134,6 +151,31 @@ impl Ports {
         if !self.real.in_vrs.is_empty() {
             inst.set_real(&self.real.in_vrs, &self.real.in_buf)?;
         }
+        self.set_other_inputs(inst)
+    }
+
+    /// Sets its inputs on `inst` from `shared` (every kind's connected inputs): the Real ones
+    /// straight from the shared buffer, one call per run of consecutive slots, when the port
+    /// allows it ([`Port::direct`]); otherwise (and for the other kinds) gathered first and set
+    /// with one call per kind. The FMU receives the same values either way, Real first.
+    pub(super) fn set_inputs_from(&mut self, shared: &Values, inst: &mut Instance) -> Result<()> {
+        let real = &mut self.real;
+        if real.direct() {
+            for &(src, dst, n) in &real.in_runs {
+                inst.set_real(&real.in_vrs[dst..dst + n], &shared.real[src..src + n])?;
+            }
+        } else if !real.in_vrs.is_empty() {
+            real.gather(&shared.real);
+            inst.set_real(&real.in_vrs, &real.in_buf)?;
+        }
+        self.integer.gather(&shared.integer);
+        self.boolean.gather(&shared.boolean);
+        self.string.gather(&shared.string);
+        self.set_other_inputs(inst)
+    }
+
+    /// Sets the gathered Integer, Boolean and String inputs: one call per kind that has any.
+    fn set_other_inputs(&self, inst: &mut Instance) -> Result<()> {
         if !self.integer.in_vrs.is_empty() {
             inst.set_integer(&self.integer.in_vrs, &self.integer.in_buf)?;
         }

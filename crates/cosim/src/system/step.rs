@@ -39,8 +39,9 @@ impl Running {
     /// its outputs into its ports: one set call per kind, one fmi2DoStep, one get call per kind,
     /// no allocation (for Real, Integer and Boolean values).
     pub(super) fn advance(&mut self, shared: &Values, t: f64, h: f64, left: usize) -> Result<()> {
-        self.gather(shared);
-        self.step_gathered(t, h, left)
+        self.step_with(t, h, left, |ports, inst| {
+            ports.set_inputs_from(shared, inst)
+        })
     }
 
     /// Copies its inputs out of `shared`.
@@ -54,8 +55,19 @@ impl Running {
     /// The FMU's error; [`CosimError::Ended`] when it discarded the step and asks to end the
     /// simulation (fmi2GetBooleanStatus(fmi2Terminated)).
     pub(super) fn step_gathered(&mut self, t: f64, h: f64, left: usize) -> Result<()> {
+        self.step_with(t, h, left, |ports, inst| ports.set_inputs(inst))
+    }
+
+    /// One step with the inputs set by `set_inputs` (timed with the FMU's calls).
+    fn step_with(
+        &mut self,
+        t: f64,
+        h: f64,
+        left: usize,
+        set_inputs: impl FnOnce(&mut Ports, &mut Instance) -> Result<()>,
+    ) -> Result<()> {
         let t0 = Instant::now();
-        self.ports.set_inputs(&mut self.instance)?;
+        set_inputs(&mut self.ports, &mut self.instance)?;
         if let Err(e) = self.instance.do_step(t, h * self.every.min(left) as f64) {
             return Err(self.ended_or(e, t));
         }
@@ -214,7 +226,6 @@ impl Simulation {
                 self.names[i]
             )));
         };
-        r.gather(&self.outputs);
         // The next turn (the next due component of this step, or the first of the next step)
         // must not read it, or it would be waited for at once.
         let next = || {
@@ -230,8 +241,10 @@ impl Simulation {
         if defer
             && let Some(la) = self.lookahead.as_mut()
             && la.jobs.is_some()
-            && let Some(comp) = self.comps[i].take()
+            && let Some(mut comp) = self.comps[i].take()
         {
+            // The thread steps it while the master moves on: its inputs are copied now.
+            comp.gather(&self.outputs);
             match la.hand_over(i, comp, t, h, left) {
                 Ok(()) => {
                     self.in_flight_since = Some(k);
@@ -245,7 +258,7 @@ impl Simulation {
             }
         }
         if let Some(r) = self.comps[i].as_deref_mut() {
-            r.step_gathered(t, h, left)?;
+            r.advance(&self.outputs, t, h, left)?;
             self.fmu_critical += r.last;
         }
         self.publish_due(self.visible);
