@@ -11,7 +11,7 @@
 //!
 //! | component | step | floor |
 //! |---|---|---|
-//! | mirror (`mirror_voicecoil`, each `--modes`) | 1 ms | the matrices one step streams ([`m1::plant::mirror::CoupledMirror::streamed_per_step`]), as separate single-precision buffers summed with SIMD the same number of times |
+//! | mirror (`mirror_voicecoil`, each `--modes`) | 1 ms | memory: the matrices one step streams ([`m1::plant::mirror::CoupledMirror::streamed_per_step`]), as separate single-precision buffers summed with SIMD the same number of times; arithmetic: the multiply-adds of a step ([`m1::plant::mirror::CoupledMirror::multiply_adds_per_step`]) as independent fused multiply-adds in registers at the peak rate |
 //! | edge sensors | 1 ms | a CSR product with the same non-zeros, `y = H z`, `gap = g0 + G z` (fused when `H` and `G` share a pattern); and the memory floor: the non-zeros and `z` read once |
 //! | optics | 1 ms | metrics: one dot-product pass over `z`; PSSN: the FFTs of one evaluation (`m1::optics::pssn`), per step |
 //! | wind | 10 ms (100 Hz) | streaming the table entries one sample interpolates and the forces it writes |
@@ -299,6 +299,55 @@ impl pulp::WithSimd for Sum<'_> {
     }
 }
 
+/// `n` rounds of fused multiply-adds on `CHAINS` independent vectors of double precision held
+/// in registers: the machine's peak rate of multiply-adds, with nothing read from memory.
+struct Fmas(usize);
+
+/// Independent chains of [`Fmas`]: enough to cover the latency of a fused multiply-add at two
+/// per cycle.
+const CHAINS: usize = 10;
+
+impl pulp::WithSimd for Fmas {
+    type Output = f64;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) -> f64 {
+        let a = simd.splat_f64s(black_box(0.999_999));
+        let b = simd.splat_f64s(black_box(1e-9));
+        let mut acc: [S::f64s; CHAINS] =
+            std::array::from_fn(|i| simd.splat_f64s(black_box(i as f64)));
+        for _ in 0..self.0 {
+            for v in acc.iter_mut() {
+                *v = simd.mul_add_f64s(*v, a, b);
+            }
+        }
+        let mut total = simd.splat_f64s(0.0);
+        for v in acc {
+            total = simd.add_f64s(total, v);
+        }
+        simd.reduce_sum_f64s(total)
+    }
+}
+
+/// Lanes of a double-precision vector on this processor.
+struct F64Lanes;
+
+impl pulp::WithSimd for F64Lanes {
+    type Output = usize;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) -> usize {
+        std::mem::size_of::<S::f64s>() / std::mem::size_of::<f64>()
+    }
+}
+
+/// Runs `fmas` double-precision fused multiply-adds (rounded up to whole rounds of vectors) at
+/// the peak rate: the arithmetic floor of that much work.
+fn multiply_adds(arch: pulp::Arch, fmas: u64) -> f64 {
+    let per_round = (CHAINS * arch.dispatch(F64Lanes)) as u64;
+    arch.dispatch(Fmas(fmas.div_ceil(per_round) as usize))
+}
+
 fn stream(arch: pulp::Arch, x: &[f32]) -> f32 {
     arch.dispatch(Sum(x))
 }
@@ -474,6 +523,9 @@ fn mirror(layout: &str, modes: i32, steps: Option<usize>, arch: pulp::Arch, rows
     let streamed = solver
         .streamed_per_step(STEP)
         .expect("the mirror's streamed matrices");
+    let arithmetic = solver
+        .multiply_adds_per_step(STEP)
+        .expect("the mirror's multiply-adds");
     eprintln!("mirror, {modes} modes ({retained} retained): set up in {setup:.2} s");
     let (u, f, p, z) = (
         vrs(&fmu, "u_cmd"),
@@ -517,6 +569,16 @@ fn mirror(layout: &str, modes: i32, steps: Option<usize>, arch: pulp::Arch, rows
             black_box(s);
         }
     });
+    // Single-precision multiply-adds count half: a vector holds twice as many.
+    let fmas: u64 = arithmetic
+        .iter()
+        .map(|&(_, n, single)| if single { n.div_ceil(2) } else { n })
+        .sum();
+    let compute = measure(steps, 1, |n| {
+        for _ in 0..n {
+            black_box(multiply_adds(arch, black_box(fmas)));
+        }
+    });
     let (floor_gbs, component_gbs) = (bytes / floor.median / 1e9, bytes / time.median / 1e9);
     rows.push(Row {
         component: "mirror",
@@ -539,6 +601,26 @@ fn mirror(layout: &str, modes: i32, steps: Option<usize>, arch: pulp::Arch, rows
             "streamed": streamed
                 .iter()
                 .map(|&(name, b, r)| json!({"matrix": name, "bytes": b, "reads_per_step": r}))
+                .collect::<Vec<_>>(),
+        }),
+    });
+    rows.push(Row {
+        component: "mirror",
+        case: format!("voice coil, {modes} modes ({retained} retained), 1 ms step"),
+        time: Some(time),
+        floor: compute,
+        basis: format!(
+            "arithmetic: {:.2} M double-precision multiply-adds per step (single precision at half) at the peak rate ({:.1} G/s)",
+            fmas as f64 / 1e6,
+            fmas as f64 / compute.median / 1e9,
+        ),
+        details: json!({
+            "modes": modes,
+            "multiply_adds_per_step": fmas,
+            "peak_multiply_adds_per_s": fmas as f64 / compute.median,
+            "parts": arithmetic
+                .iter()
+                .map(|&(name, n, single)| json!({"part": name, "multiply_adds": n, "single_precision": single}))
                 .collect::<Vec<_>>(),
         }),
     });

@@ -12,7 +12,7 @@ use super::tick::Step;
 use crate::M1Error;
 use crate::linalg::kernels::padded_len;
 use crate::plant::segment::{
-    Channel, Gamma, N_IN, N_STATE, Phi, SegmentArray, SegmentModel, modal_basis, state,
+    Channel, Gamma, N_IN, N_STATE, Phi, SegmentArray, SegmentModel, modal_basis, propagate, state,
 };
 use crate::plant::structure::{Flexibility, ModalModel, ModalSolver};
 
@@ -346,6 +346,74 @@ impl CoupledMirror {
                 std::mem::size_of_val(self.gg.as_slice()),
                 samples,
             ),
+        ])
+    }
+
+    /// The multiply-adds a communication step of `h` seconds cannot avoid in this scheme, by
+    /// part: `(name, multiply-adds, single precision)`. Zero coefficients of the channel maps
+    /// are not counted (the kernels skip most of them), nor are the O(r) per-mode updates and
+    /// the O(na) conversions and copies. Their sum at the machine's peak rate of fused
+    /// multiply-adds is the step's arithmetic floor (a benchmark's; at TMT size with 60
+    /// modes the arithmetic, not the memory traffic, bounds a step).
+    ///
+    /// # Errors
+    /// [`M1Error::InvalidParameter`] if `h` is not a whole number of servo periods.
+    pub fn multiply_adds_per_step(
+        &self,
+        h: f64,
+    ) -> Result<Vec<(&'static str, u64, bool)>, M1Error> {
+        let samples = self.ticks_in(h)?;
+        let ticks = samples * u64::from(self.substeps);
+        let nnz = |m: &[f64]| m.iter().filter(|v| **v != 0.0).count() as u64;
+        let (r, n) = (self.r as u64, self.n_segments as u64);
+        let channels = [n, 2 * n];
+        let mut free = 0;
+        let mut on_modes = 0;
+        for (kind, ch) in [Channel::Piston, Channel::Tilt].into_iter().enumerate() {
+            let (p, s) = self.model.closed_loop(ch);
+            let (p, s) = propagate(&p, &s, samples);
+            free += channels[kind] * (nnz(p.as_slice()) + nnz(s.as_slice()) + N_STATE as u64);
+            // Per coupled tick and mode: the free part's map with its command and wind inputs
+            // and the force row, the cell-driven part's with its ramp input and force row, the
+            // ramp (the first tick of a servo period samples, the others hold the drive).
+            for set in (0..self.substeps).map(|s| usize::from(s > 0)) {
+                let map = nnz(self.tick[set][kind].as_slice());
+                let g = &self.tick_in[set][kind];
+                let inputs = (0..N_STATE)
+                    .map(|i| {
+                        u64::from(g[(i, 0)] != 0.0)
+                            + u64::from(g[(i, 2)] != 0.0)
+                            + u64::from(g[(i, 1)] != self.ramp[kind][i])
+                    })
+                    .sum::<u64>();
+                let ramp = nnz(self.ramp[kind].as_slice());
+                on_modes += samples * r * (2 * map + inputs + 2 * N_STATE as u64 + ramp);
+            }
+        }
+        let na = self.na as u64;
+        Ok(vec![
+            (
+                "free part: channel maps in actuator space, per step",
+                free,
+                false,
+            ),
+            (
+                "channel maps on the modes, per coupled tick",
+                on_modes,
+                false,
+            ),
+            (
+                "coupled solve [W G_p, W G_t] (r x 2r), per coupled tick",
+                ticks * 2 * r * r,
+                self.coupling_single,
+            ),
+            (
+                "drive jump [G_p, G_t] (r x 2r), per servo sample",
+                samples * 2 * r * r,
+                true,
+            ),
+            ("inputs onto the modes (two columns)", 2 * na * r, true),
+            ("outputs back (three columns)", 3 * na * r, true),
         ])
     }
 

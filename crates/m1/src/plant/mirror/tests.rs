@@ -265,3 +265,40 @@ fn coupling_precision_single_matches_double() {
         assert!(worst_f <= 1e-6 * max_f, "force: {worst_f:e} of {max_f:e}");
     }
 }
+
+/// The multiply-adds a step counts (the benchmarks' arithmetic floor): the per-tick parts
+/// double with the step's servo periods while the two passes over the shapes do not; the
+/// channel maps on the modes count fewer than the dense `12 x 12` maps would (the voice coil's
+/// maps have zero columns: what `state_map` skips), but more than half of them; a step that
+/// is not a whole number of servo periods is refused.
+#[test]
+fn multiply_adds_follow_the_step_and_the_maps() {
+    let (m, _) = keck(SegmentModel::voice_coil(), 30);
+    let ts = m.tick_period();
+    let one = m.multiply_adds_per_step(5.0 * ts).expect("5 ticks");
+    let two = m.multiply_adds_per_step(10.0 * ts).expect("10 ticks");
+    assert_eq!(one.len(), two.len());
+    let (r, na) = (m.structure().n_modes() as u64, m.n_actuators() as u64);
+    for (a, b) in one.iter().zip(&two) {
+        assert_eq!(a.0, b.0);
+        if a.0.contains("per coupled tick") || a.0.contains("per servo sample") {
+            assert_eq!(2 * a.1, b.1, "{}", a.0);
+        } else if a.0.starts_with("inputs") || a.0.starts_with("outputs") {
+            assert_eq!(a.1, b.1, "{}", a.0);
+        }
+    }
+    let part = |name: &str| {
+        one.iter()
+            .find(|p| p.0.starts_with(name))
+            .map(|p| p.1)
+            .expect(name)
+    };
+    assert_eq!(part("inputs onto the modes"), 2 * na * r);
+    assert_eq!(part("outputs back"), 3 * na * r);
+    assert_eq!(part("coupled solve"), 5 * 2 * r * r);
+    // Per tick, mode and kind: two maps, their inputs, two force rows, the ramp.
+    let dense = 5 * 2 * r * (2 * 144 + 3 + 24 + 12);
+    let maps = part("channel maps on the modes");
+    assert!(maps < dense && 2 * maps > dense, "{maps} of {dense}");
+    assert!(m.multiply_adds_per_step(2.5 * ts).is_err());
+}
