@@ -81,7 +81,10 @@ fn fast_path_matches_direct_computation() {
 fn segment_states_match_their_sampled_surface() {
     let layout = Layout::keck();
     let pssn = Pssn::new(&layout, PssnParams::default()).unwrap();
-    assert!(pssn.runs.iter().any(|r| r.len == RUN_MAX), "no run was split");
+    assert!(
+        pssn.runs.iter().any(|r| r.len == RUN_MAX),
+        "no run was split"
+    );
     let total: usize = pssn.runs.iter().map(|r| r.len).sum();
     assert_eq!(total, pssn.pupil.len());
     let n_seg = layout.n_segments();
@@ -103,6 +106,9 @@ fn segment_states_match_their_sampled_surface() {
             (by_runs - by_samples).abs() <= 1e-12 * by_samples.abs().max(1e-3),
             "scale {scale}: runs {by_runs} samples {by_samples}"
         );
-        assert!(by_runs < 1.0 - 1e-6, "scale {scale}: {by_runs} shows no error");
+        assert!(
+            by_runs < 1.0 - 1e-6,
+            "scale {scale}: {by_runs} shows no error"
+        );
     }
 }
