@@ -47,8 +47,8 @@
 //! perfect-telescope denominator once. An evaluation then fills the field on the in-aperture
 //! samples (for a segment state, run by run along the grid rows: a segment's piston and tilts
 //! make the phase an arithmetic progression along a row, so the field is one complex
-//! exponential times powers of another, two `sin_cos` per run of up to 32 samples instead of
-//! one per sample; equal to the per-sample field to about 1e-14) and does, on the `M x M` padded grid (`M = pad_factor x samples`): FFTs of the `N`
+//! exponential times powers of another, a `sin_cos` per run of up to 32 samples and one per
+//! segment instead of one per sample; equal to the per-sample field to about 1e-14) and does, on the `M x M` padded grid (`M = pad_factor x samples`): FFTs of the `N`
 //! non-zero rows, a transpose, FFTs of the `M` columns, `|.|^2`, inverse FFTs of the PSF rows
 //! two at a time (packing two real rows in one complex FFT and keeping the half spectrum), a
 //! transpose, inverse FFTs of only the rows of lags where the weight is non-negligible
@@ -151,6 +151,8 @@ struct Workspace {
     /// `rows x M`: the half OTF over the lags with non-negligible weight.
     otf: Vec<Complex64>,
     scratch: Vec<Complex64>,
+    /// Per segment: the field's factor from one sample to the next along a row.
+    steps: Vec<Complex64>,
 }
 
 /// PSSN evaluator for one layout and one set of [`PssnParams`] (see the
@@ -288,6 +290,7 @@ impl Pssn {
                 spectrum: Vec::new(),
                 otf: Vec::new(),
                 scratch: Vec::new(),
+                steps: Vec::new(),
             }),
         };
         let mut ws = pssn.new_workspace();
@@ -346,22 +349,29 @@ impl Pssn {
         let k = self.phase_per_metre;
         let h = self.grid.spacing;
         Ok(self.with_workspace(|ws| {
-            self.weighted_otf_power(ws, |field| {
-                // Along a run the phase grows by k tx h per sample: the field is its first
-                // sample's exponential times powers of that step's (two sin_cos per run
-                // instead of one per sample).
+            // Along a run the phase grows by k tx h per sample: the field is its first
+            // sample's exponential times powers of the segment's step (a sin_cos per run and
+            // one per segment, instead of one per sample).
+            let mut steps = std::mem::take(&mut ws.steps);
+            steps.clear();
+            steps.extend(ptt.iter().map(|&[_, tx, _]| {
+                let (s, c) = (k * tx * h).sin_cos();
+                Complex64::new(c, s)
+            }));
+            let power = self.weighted_otf_power(ws, |field| {
                 for r in &self.runs {
                     let [p, tx, ty] = ptt[r.segment];
                     let (s0, c0) = (k * (p + tx * r.dx + ty * r.dy)).sin_cos();
-                    let (s1, c1) = (k * tx * h).sin_cos();
-                    let step = Complex64::new(c1, s1);
+                    let step = steps[r.segment];
                     let mut e = Complex64::new(c0, s0);
                     for f in &mut field[r.field..r.field + r.len] {
                         *f = e;
                         e *= step;
                     }
                 }
-            })
+            });
+            ws.steps = steps;
+            power
         }) / self.denominator)
     }
 
@@ -399,6 +409,7 @@ impl Pssn {
             spectrum: vec![zero; m * m],
             otf: vec![zero; self.rows * m],
             scratch: vec![zero; scratch],
+            steps: vec![zero; self.grid.n_segments()],
         }
     }
 
@@ -424,11 +435,14 @@ impl Pssn {
             .process_with_scratch(&mut ws.field, &mut ws.scratch);
 
         // Transpose into the M x M spectrum (rows N..M of the field are zero), FFT along y.
-        const BLOCK: usize = 32;
-        for c0 in (0..m).step_by(BLOCK) {
-            for r0 in (0..n).step_by(BLOCK) {
-                for c in c0..(c0 + BLOCK).min(m) {
-                    let r1 = (r0 + BLOCK).min(n);
+        // Blocks of ROWS field rows: their stride (M complex values, a power of two) puts them
+        // in one set of the L1 cache, so a block must not outnumber its ways.
+        const ROWS: usize = 8;
+        const COLS: usize = 64;
+        for r0 in (0..n).step_by(ROWS) {
+            let r1 = (r0 + ROWS).min(n);
+            for c0 in (0..m).step_by(COLS) {
+                for c in c0..(c0 + COLS).min(m) {
                     let row = &mut ws.spectrum[c * m + r0..c * m + r1];
                     for (r, value) in (r0..r1).zip(row.iter_mut()) {
                         *value = ws.field[r * m + c];
