@@ -251,9 +251,10 @@ instant t0 is sampled at initialisation from the initial input. No output depend
 <p>The archive holds the packaged layout as <code>resources/layout.json</code> (segment centres \
 in the aperture plane, m; circumradius).</p>\
 <h2>PSSN accuracy and cost</h2><p>The cost grows as (2 <code>pssn_samples</code>)<sup>2</sup> \
-log. Measured (release build, one core of a shared machine) per evaluation: TMT 0.4 ms at 128 \
-samples, 3.3 ms at the default 256 (grid spacing 0.117 m, FFT 512), 18 ms at 512; Keck 0.7, 3.2 \
-and 23 ms. So the default costs about 35 ms of CPU per simulated second at the default 10 Hz. \
+log. Measured (release build, one core of a shared machine) per evaluation: TMT 0.27 ms at 128 \
+samples, 1.3 ms at the default 256 (grid spacing 0.117 m, FFT 512), 8.1 ms at 512; Keck 0.25, \
+1.2 and 8.0 ms. So the default costs about 13 ms of CPU per simulated second at the default \
+10 Hz. \
 The deficit 1 &minus; PSSN converges with the grid spacing: at 500 nm and 256 samples it is \
 about 7 % above the 512-sample value (TMT, random segment errors: 3.35e-2 against 3.14e-2); \
 use 512 samples where a few per cent matter (dx &le; r0/4), or a longer wavelength, where the \

@@ -36,8 +36,9 @@ pub(super) struct Running {
 impl Running {
     /// Sets its inputs from `shared` (all components' published outputs), steps from `t` over
     /// its own multiple of `h` (cut to the `left` base steps before the stop time), and reads
-    /// its outputs into its ports: one set call per kind, one fmi2DoStep, one get call per kind,
-    /// no allocation (for Real, Integer and Boolean values).
+    /// its outputs into its ports: one set call per kind (per array for Real inputs connected
+    /// as a few arrays, [`Ports::set_inputs_from`]), one fmi2DoStep, one get call per kind, no
+    /// allocation (for Real, Integer and Boolean values).
     pub(super) fn advance(&mut self, shared: &Values, t: f64, h: f64, left: usize) -> Result<()> {
         self.step_with(t, h, left, |ports, inst| {
             ports.set_inputs_from(shared, inst)

@@ -570,7 +570,8 @@ pub fn real_times_complex(
 /// independent chains of fused multiply-adds are in flight (one row's chain alone waits on the
 /// latency of each addition), and a source (state or input) whose coefficients are zero for
 /// every row of a group is skipped: the segment channels' maps have whole zero columns (the
-/// drive, an absent shunt) and sparse servo rows, about a third of their entries. Each output
+/// drive, an absent shunt) and sparse servo rows (the voice coil's: 66 of 144 entries
+/// non-zero). Each output
 /// is summed in the order of `a`'s columns, then `b`'s, with fused multiply-adds where the
 /// instruction set has them (never emulated in software); a skipped term is an exact zero for
 /// finite states, so the result is the dense sum's.
