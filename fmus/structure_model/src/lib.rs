@@ -229,7 +229,7 @@ impl CellVars {
                     ),
                 });
             };
-            built_in_modes(layout, &params)
+            built_in_modes(layout, &params, self.modes_and_damping(v).0)
         } else {
             let path = resolve(resource_dir, &file);
             ModalModel::from_npz(&path, na).map_err(|e| FmuError::BadValue {
@@ -289,17 +289,26 @@ fn resolve(resource_dir: Option<&Path>, file: &str) -> PathBuf {
 /// How many built-in cells' modal models a process keeps ([`built_in_modes`]).
 const MODE_CACHE: usize = 2;
 
-/// The modes of the built-in cell of `layout` with `params`: a dense eigensolve (0.8 s for
-/// TMT's 1477 degrees of freedom), so the last [`MODE_CACHE`] results are kept while the
-/// library stays loaded and reused by later instances with the same layout and bit-identical
-/// parameters (e.g. a sweep that instantiates one extracted FMU run after run, as fmpy's
+/// The `n_modes` lowest modes of the built-in cell of `layout` with `params`
+/// ([`CellModel::lowest_modes`]: about 50 ms for TMT's default 60, a dense eigensolve of every
+/// mode, 0.45 s for TMT's 1477 degrees of freedom, from about 100), so the last [`MODE_CACHE`]
+/// results are kept while the library stays loaded and reused by later instances with the
+/// same layout, number of modes and bit-identical parameters (e.g. a sweep that instantiates one extracted FMU run after run, as fmpy's
 /// `simulate_fmu` with a reused unzip directory does). Shared by the structure and the mirror
 /// FMUs.
-fn built_in_modes(layout: &str, params: &CellParams) -> Result<ModalModel, FmuError> {
-    type Key = (String, [u64; 7]);
+fn built_in_modes(
+    layout: &str,
+    params: &CellParams,
+    n_modes: usize,
+) -> Result<ModalModel, FmuError> {
+    type Key = (String, [u64; 7], usize);
     static CACHE: std::sync::Mutex<Vec<(Key, ModalModel)>> = std::sync::Mutex::new(Vec::new());
     let p = params;
-    let key: Key = (layout.to_string(), p.named().map(|(_, v)| v.to_bits()));
+    let key: Key = (
+        layout.to_string(),
+        p.named().map(|(_, v)| v.to_bits()),
+        n_modes,
+    );
     // A poisoned lock only means another instance panicked while holding it: the cached
     // entries are complete values, still valid.
     let cached = {
@@ -316,7 +325,7 @@ fn built_in_modes(layout: &str, params: &CellParams) -> Result<ModalModel, FmuEr
     }
     let preset = Layout::preset(layout).map_err(|e| FmuError::Model(e.to_string()))?;
     let cell = CellModel::new(&preset, params).map_err(wiring::model_error)?;
-    let modes = cell.modes().map_err(wiring::model_error)?;
+    let modes = cell.lowest_modes(n_modes).map_err(wiring::model_error)?;
     let mut cache = CACHE
         .lock()
         .unwrap_or_else(std::sync::PoisonError::into_inner);
@@ -419,28 +428,37 @@ mod tests {
     use super::*;
     use fmu::Instance;
 
-    /// The cached modes are the eigensolve's, per layout and parameters: the same parameters
-    /// give the same model as a fresh solve, other parameters or another layout a new one.
+    /// The cached modes are the eigensolve's, per layout, number of modes and parameters: the
+    /// same parameters give the same model as a fresh solve, other parameters or another layout
+    /// a new one.
     #[test]
     fn built_in_modes_are_cached_per_layout_and_parameters() {
         let p = CellParams::default();
         let fresh = CellModel::new(&Layout::keck(), &p)
-            .and_then(|c| c.modes())
+            .and_then(|c| c.lowest_modes(30))
             .expect("modes");
-        let a = built_in_modes("keck", &p).expect("first");
-        let b = built_in_modes("keck", &p).expect("cached");
+        let a = built_in_modes("keck", &p, 30).expect("first");
+        let b = built_in_modes("keck", &p, 30).expect("cached");
         assert_eq!(a, fresh);
         assert_eq!(b, fresh);
         let stiffer = CellParams {
             cell_frequency: 2.0 * p.cell_frequency,
             ..p
         };
-        let c = built_in_modes("keck", &stiffer).expect("other parameters");
+        let c = built_in_modes("keck", &stiffer, 30).expect("other parameters");
         assert!(c.frequencies != fresh.frequencies);
-        let tmt = built_in_modes("tmt", &p).expect("other layout");
+        // TMT's 60 lowest modes alone (block Lanczos), the dense solve's to round-off.
+        let tmt = built_in_modes("tmt", &p, 60).expect("other layout");
         assert_ne!(tmt.na, fresh.na);
+        assert_eq!(tmt.n_modes(), 60);
+        let all = CellModel::new(&Layout::tmt(), &p)
+            .and_then(|c| c.modes_in(&m1::linalg::cache::Store::off()))
+            .expect("every mode");
+        for (j, (a, b)) in tmt.frequencies.iter().zip(&all.frequencies).enumerate() {
+            assert!((a - b).abs() < 1e-7 * b, "mode {j}: {a} Hz against {b} Hz");
+        }
         // Still right after the cache turned over.
-        assert_eq!(built_in_modes("keck", &p).expect("again"), fresh);
+        assert_eq!(built_in_modes("keck", &p, 30).expect("again"), fresh);
     }
 
     #[test]

@@ -1,5 +1,5 @@
 //! Numerical building blocks: SIMD kernels, Krylov estimates, single right-hand-side LU
-//! solves, the block Cholesky factor, the skyline Cholesky of the FE cell, the NPY/NPZ reader,
+//! solves, the block Cholesky factor, block Lanczos for the lowest modes, the skyline Cholesky of the FE cell, the NPY/NPZ reader,
 //! periodic cubic interpolation, and the on-disk cache of computed arrays (the structure's
 //! modes, the wind's tables).
 
@@ -8,6 +8,7 @@ pub mod cache;
 pub mod interpolation;
 pub mod kernels;
 pub mod krylov;
+pub mod lanczos;
 pub mod lu_solve;
 pub mod npy;
 pub mod skyline;

@@ -57,6 +57,9 @@
 //! `M^-1/2 K M^-1/2`, `3 N + 1` degrees of freedom: 1477 for TMT) lie below and between these
 //! targets; the defaults (10, 30 and 15 Hz) give a first mode of 9.1 Hz for Keck and 6.3 Hz for
 //! TMT, and a number of modes per octave that grows with frequency, as in real telescopes.
+//! When only the lowest few are retained ([`CellModel::lowest_modes`], the FMUs' `n_modes`),
+//! they are found without the others by block Lanczos on the envelope factor of `K`
+//! ([`crate::linalg::lanczos`]): TMT's 60 lowest in about 50 ms instead of 0.45 s.
 //!
 //! # Modal model ([`ModalModel`]) and its simulation ([`ModalSolver`])
 //!
@@ -256,6 +259,18 @@ impl StructureSource {
             "structure \"{name}\": not a preset ({}) nor the path of a .npz modal model",
             StructurePreset::names()
         )))
+    }
+
+    /// The `r` lowest modes of the structure for `layout` (a file's modes are all read, the
+    /// solver keeps the lowest): [`CellModel::lowest_modes`] for the built-in cell.
+    ///
+    /// # Errors
+    /// As [`Self::modes`].
+    pub fn lowest_modes(&self, layout: &Layout, r: usize) -> Result<ModalModel, M1Error> {
+        match self {
+            Self::BuiltIn(p) => CellModel::new(layout, p)?.lowest_modes(r),
+            Self::File(path) => ModalModel::from_npz(path, layout.n_actuators()),
+        }
     }
 
     /// Every mode of the structure for `layout` (`na = 3 N` attachments).

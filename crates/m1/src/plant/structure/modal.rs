@@ -32,6 +32,16 @@ impl StaticFe {
         })
     }
 
+    /// The static response of `m` on its stiffness factor `chol` (of `m.stiffness`).
+    pub fn from_factor(m: &CellModel, chol: Skyline) -> Self {
+        Self {
+            chol,
+            attachments: m.attachments.clone(),
+            pier_dof: m.pier_dof,
+            k_pier: m.k_pier,
+        }
+    }
+
     /// `z = T K^-1 (T^T f + k_p e_m p)`, `work` of length `ndof`.
     pub fn apply(&self, f: &[f64], p: f64, work: &mut [f64], z: &mut [f64]) {
         work.fill(0.0);
