@@ -1,6 +1,6 @@
 //! The tabulated wind loads of every segment in frozen flow.
 
-use super::spectrum::inverse_fft_2d;
+use super::spectrum::real_inverse_fft_rows;
 use super::*;
 use crate::linalg::cache::{Fingerprint, Store};
 use crate::linalg::interpolation::periodic_stencil;
@@ -344,8 +344,9 @@ fn synthesise(
     let n = sp.samples;
     let nseg = centres.len();
     // Filtered spectra: c H, c H_xi, c H_eta; and the expected variance of G_0.
-    let spectrum = ScreenSpectrum::new(sp)?;
+    sp.check()?;
     let psd = sp.discrete_psd();
+    let spectrum = ScreenSpectrum::drawn(sp, &psd);
     let k: Vec<f64> = (0..n).map(|i| psd.wavenumber(i)).collect();
     let grid = PolygonGrid::new(hexagon, &k, &k);
     let mut b0 = spectrum.coefficients;
@@ -375,20 +376,32 @@ fn synthesise(
         .collect();
     let variance: f64 = per_row.iter().sum();
 
+    // The rows of the grid the segments' stencils read, each transformed once.
+    let stencils: Vec<([usize; 4], [f64; 4])> = centres
+        .iter()
+        .map(|c| periodic_stencil(c[1] / dx, n))
+        .collect();
+    let mut rows: Vec<usize> = stencils.iter().flat_map(|(r, _)| *r).collect();
+    rows.sort_unstable();
+    rows.dedup();
     let mut tables = vec![0.0; 3 * nseg * n];
-    for (q, buf) in [b0, b1, b2].into_iter().enumerate() {
-        let mut buf = buf;
-        inverse_fft_2d(&mut buf, n);
-        for (i, c) in centres.iter().enumerate() {
-            let (rows, w) = periodic_stencil(c[1] / dx, n);
+    let mut fill = |q: usize, buf: &[Complex64], part: fn(&Complex64) -> f64| {
+        for (i, (rs, w)) in stencils.iter().enumerate() {
             let out = &mut tables[(3 * i + q) * n..(3 * i + q + 1) * n];
-            for (r, wr) in rows.iter().zip(w) {
+            for (r, wr) in rs.iter().zip(w) {
                 let row = &buf[r * n..(r + 1) * n];
                 for (o, v) in out.iter_mut().zip(row) {
-                    *o += wr * SQRT_2 * v.re;
+                    *o += wr * SQRT_2 * part(v);
                 }
             }
         }
-    }
+    };
+    let g01 = real_inverse_fft_rows(&b0, Some(&b1), n, &rows);
+    drop((b0, b1));
+    fill(0, &g01, |v| v.re);
+    fill(1, &g01, |v| v.im);
+    drop(g01);
+    let g2 = real_inverse_fft_rows(&b2, None, n, &rows);
+    fill(2, &g2, |v| v.re);
     Ok((variance, tables))
 }

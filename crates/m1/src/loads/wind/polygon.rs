@@ -26,9 +26,16 @@ fn sinc_series(u: f64) -> (f64, f64) {
 /// phases of [`polygon_transform`] are separable: `exp(i q.r) = exp(i q_x x) exp(i q_y y)` for
 /// the edges' midpoints and half-lengths, so one table per edge and axis (`O(n)` sines and
 /// cosines) replaces the two `sin_cos` per edge and bin of the direct formula; each bin then
-/// costs a few complex products per edge. Agrees with [`polygon_transform`] to rounding.
+/// costs a few complex products per edge. A centrally symmetric polygon (the regular hexagon
+/// about its centre: vertex `j + n/2` is vertex `j` negated) has real `H` and imaginary moment
+/// transforms, its opposite edges' terms pair into the sines or cosines of one phase, and only
+/// half the edges are visited, in real arithmetic. Agrees with [`polygon_transform`] to
+/// rounding.
 pub struct PolygonGrid {
     edges: Vec<Edge>,
+    /// Centrally symmetric about the origin (to 1e-12 of its size): only the first half of
+    /// `edges` is visited.
+    pub(super) symmetric: bool,
     kx: Vec<f64>,
     ky: Vec<f64>,
     moments: [Complex64; 3],
@@ -72,8 +79,18 @@ impl PolygonGrid {
             })
             .collect();
         let (a, mo) = polygon_moments(vertices);
+        let scale = vertices
+            .iter()
+            .map(|v| v[0].abs().max(v[1].abs()))
+            .fold(0.0, f64::max);
+        let symmetric = n.is_multiple_of(2)
+            && (0..n / 2).all(|j| {
+                let (p, q) = (vertices[j], vertices[j + n / 2]);
+                (p[0] + q[0]).abs() <= 1e-12 * scale && (p[1] + q[1]).abs() <= 1e-12 * scale
+            });
         Self {
             edges,
+            symmetric,
             kx: kx.to_vec(),
             ky: ky.to_vec(),
             moments: [a.into(), mo[0].into(), mo[1].into()],
@@ -86,6 +103,9 @@ impl PolygonGrid {
         let q2 = q[0] * q[0] + q[1] * q[1];
         if q2 == 0.0 {
             return self.moments;
+        }
+        if self.symmetric {
+            return self.at_symmetric(ix, iy, q, q2);
         }
         let mut s = Complex64::ZERO;
         let mut ds = [Complex64::ZERO; 2];
@@ -108,6 +128,36 @@ impl PolygonGrid {
         let h = Complex64::new(0.0, -1.0) * s / q2;
         let moment = |c: usize| -ds[c] / q2 + s * (2.0 * q[c] / (q2 * q2));
         [h, moment(0), moment(1)]
+    }
+
+    /// [`Self::at`] for a centrally symmetric polygon. Edge `j + n/2` has `-e`, `-m`, `-N`:
+    /// with `ph = exp(i q.m)`, the pair contributes `2 i qn sinc Im(ph)` to the sum `s` and
+    /// `2 i (A_c Im(ph) + B_c Re(ph))` to its derivatives (`A_c = N_c sinc + qn sinc' e_c / 2`,
+    /// `B_c = qn sinc m_c`), so `s = i S`, `ds_c = i D_c` with `S`, `D_c` real.
+    fn at_symmetric(&self, ix: usize, iy: usize, q: [f64; 2], q2: f64) -> [Complex64; 3] {
+        let (mut s, mut d0, mut d1) = (0.0, 0.0, 0.0);
+        for ed in &self.edges[..self.edges.len() / 2] {
+            let qn = q[0] * ed.nn[0] + q[1] * ed.nn[1];
+            let u = (q[0] * ed.e[0] + q[1] * ed.e[1]) / 2.0;
+            let (sc, dsc) = if u.abs() < 1e-3 {
+                sinc_series(u)
+            } else {
+                let (a, b) = (ed.half_x[ix], ed.half_y[iy]);
+                let (re, im) = (a.re * b.re - a.im * b.im, a.re * b.im + a.im * b.re);
+                let inv = 1.0 / u;
+                (im * inv, (re - im * inv) * inv)
+            };
+            let (a, b) = (ed.mid_x[ix], ed.mid_y[iy]);
+            let (re, im) = (a.re * b.re - a.im * b.im, a.re * b.im + a.im * b.re);
+            let qs = qn * sc;
+            s += qs * im;
+            let half = qn * dsc / 2.0;
+            d0 += (ed.nn[0] * sc + half * ed.e[0]) * im + qs * ed.m[0] * re;
+            d1 += (ed.nn[1] * sc + half * ed.e[1]) * im + qs * ed.m[1] * re;
+        }
+        let (s, d) = (2.0 * s, [2.0 * d0, 2.0 * d1]);
+        let moment = |c: usize| Complex64::new(0.0, -d[c] / q2 + s * (2.0 * q[c] / (q2 * q2)));
+        [Complex64::new(s / q2, 0.0), moment(0), moment(1)]
     }
 }
 

@@ -71,8 +71,13 @@ impl ScreenSpectrum {
     /// `StdRng::seed_from_u64(seed)`).
     pub fn new(params: &ScreenParams) -> Result<ScreenSpectrum, M1Error> {
         params.check()?;
+        Ok(Self::drawn(params, &params.discrete_psd()))
+    }
+
+    /// [`Self::new`] on the screen's discrete spectrum `psd` ([`ScreenParams::discrete_psd`]
+    /// of checked `params`), for a caller that needs it too.
+    pub(super) fn drawn(params: &ScreenParams, psd: &DiscretePsd) -> ScreenSpectrum {
         let n = params.samples;
-        let psd = params.discrete_psd();
         let mut rng = StdRng::seed_from_u64(params.seed);
         let mut coefficients = vec![Complex64::ZERO; n * n];
         for iy in 0..n {
@@ -83,10 +88,10 @@ impl ScreenSpectrum {
                 coefficients[iy * n + ix] = Complex64::new(a * g1, a * g2);
             }
         }
-        Ok(ScreenSpectrum {
+        ScreenSpectrum {
             params: params.clone(),
             coefficients,
-        })
+        }
     }
 
     /// The parameters.
@@ -134,6 +139,55 @@ pub(super) fn inverse_fft_2d(buf: &mut [Complex64], n: usize) {
     transpose(buf, n);
     fft.process_with_scratch(buf, &mut scratch);
     transpose(buf, n);
+}
+
+/// The real parts of the unnormalised inverse 2-D FFTs of two row-major `n x n` spectra `a`
+/// and `b`, at the grid rows `rows` only: `(Re IFFT a)[r]` in the real parts and
+/// `(Re IFFT b)[r]` in the imaginary parts of row `r` of the returned grid (other rows hold
+/// intermediate values). One complex transform serves both: `Re IFFT a = IFFT a_h` with the
+/// Hermitian part `a_h(k) = (a(k) + conj a(-k)) / 2`, so `IFFT (a_h + i b_h)` carries both.
+/// The transform along `y` runs over every column, the one along `x` over the asked rows
+/// only (a quarter of the grid for TMT's mirror on the default 128 m screen). `b = None`
+/// leaves the imaginary parts meaningless.
+pub(super) fn real_inverse_fft_rows(
+    a: &[Complex64],
+    b: Option<&[Complex64]>,
+    n: usize,
+    rows: &[usize],
+) -> Vec<Complex64> {
+    let neg = |i: usize| (n - i) % n;
+    let mut buf = vec![Complex64::ZERO; n * n];
+    buf.par_chunks_mut(n).enumerate().for_each(|(iy, row)| {
+        let my = neg(iy) * n;
+        for (ix, z) in row.iter_mut().enumerate() {
+            let j = my + neg(ix);
+            let ah = (a[iy * n + ix] + a[j].conj()) * 0.5;
+            *z = match b {
+                Some(b) => {
+                    let bh = (b[iy * n + ix] + b[j].conj()) * 0.5;
+                    ah + Complex64::new(-bh.im, bh.re)
+                }
+                None => ah,
+            };
+        }
+    });
+    let fft: std::sync::Arc<dyn Fft<f64>> = FftPlanner::new().plan_fft_inverse(n);
+    let len = fft.get_inplace_scratch_len();
+    let along = |buf: &mut [Complex64]| {
+        buf.par_chunks_mut(n).for_each_init(
+            || vec![Complex64::ZERO; len],
+            |scratch, row| fft.process_with_scratch(row, scratch),
+        );
+    };
+    // Along y (columns, as rows of the transpose), then along x on the asked rows.
+    transpose(&mut buf, n);
+    along(&mut buf);
+    transpose(&mut buf, n);
+    let mut scratch = vec![Complex64::ZERO; len];
+    for &r in rows {
+        fft.process_with_scratch(&mut buf[r * n..(r + 1) * n], &mut scratch);
+    }
+    buf
 }
 
 /// In-place transpose of a square row-major matrix, by blocks.

@@ -67,8 +67,12 @@ fn polygon_grid_matches_the_direct_transform() {
     let n = 1024;
     let dk = 1.0 / 128.0;
     let k: Vec<f64> = (0..n).map(|i| spectrum::signed(i, n) as f64 * dk).collect();
-    for p in [&poly, &shifted] {
+    for (p, symmetric) in [(&poly, true), (&shifted, false)] {
         let grid = PolygonGrid::new(p, &k, &k);
+        assert_eq!(
+            grid.symmetric, symmetric,
+            "the centred hexagon takes the symmetric path"
+        );
         let scale = polygon_transform(p, [0.0, 0.0])
             .iter()
             .map(|c| c.norm())
@@ -103,4 +107,46 @@ fn moment_transforms_are_regular_near_zero() {
         hx.re.abs() < 1e-8 * hx.im && hy.norm() < 1e-8 * hx.im,
         "{hx} {hy}"
     );
+}
+
+/// Two spectra through one packed transform, at some rows only, are the real parts of their
+/// full inverse 2-D FFTs at those rows, on a grid small enough to see every index pairing
+/// (`n` even, with the Nyquist row and column, and odd).
+#[test]
+fn packed_transforms_at_some_rows_are_the_full_transforms_real_parts() {
+    for n in [16, 15] {
+        let draw = |seed: f64| -> Vec<Complex64> {
+            (0..n * n)
+                .map(|i| {
+                    let x = i as f64 + seed;
+                    Complex64::new((1.3 * x).sin(), (0.7 * x + 0.2).cos())
+                })
+                .collect()
+        };
+        let (a, b) = (draw(0.0), draw(5.5));
+        let rows = [0, 3, 7, n - 1];
+        let packed = spectrum::real_inverse_fft_rows(&a, Some(&b), n, &rows);
+        let single = spectrum::real_inverse_fft_rows(&a, None, n, &rows);
+        let (mut fa, mut fb) = (a.clone(), b.clone());
+        spectrum::inverse_fft_2d(&mut fa, n);
+        spectrum::inverse_fft_2d(&mut fb, n);
+        let scale = fa.iter().map(|c| c.norm()).fold(0.0, f64::max);
+        for &r in &rows {
+            for x in 0..n {
+                let i = r * n + x;
+                assert!(
+                    (packed[i].re - fa[i].re).abs() < 1e-13 * scale,
+                    "n {n} ({r}, {x})"
+                );
+                assert!(
+                    (packed[i].im - fb[i].re).abs() < 1e-13 * scale,
+                    "n {n} ({r}, {x})"
+                );
+                assert!(
+                    (single[i].re - fa[i].re).abs() < 1e-13 * scale,
+                    "n {n} ({r}, {x})"
+                );
+            }
+        }
+    }
 }
