@@ -422,6 +422,8 @@ fn coupling_needs_the_servo_period() {
     assert!(std::fs::metadata(&png).unwrap().len() > 1000);
     let (ok, _, err) = m1cs(&["coupling", "--steps", "0.0003"]);
     assert!(!ok && err.contains("communicationStepSize"), "{err}");
+    let (ok, _, err) = m1cs(&["coupling", "--modes", "0"]);
+    assert!(!ok && err.contains("--modes"), "{err}");
     std::fs::remove_dir_all(&dir).ok();
 }
 

@@ -76,7 +76,7 @@ type Runs = Vec<(&'static str, SplitRun)>;
 
 /// Runs every variant in every order at every step against the coupled solver.
 fn split_runs(a: &CouplingArgs, layout: &Layout) -> Result<Runs, String> {
-    let cell = super::structure_modes(&a.structure, layout)?;
+    let cell = super::structure_modes(&a.structure, layout, a.modes)?;
     let ex = Excitation {
         frequency: a.tone,
         duration: a.duration,
@@ -230,6 +230,9 @@ fn print_coupling(a: &CouplingArgs, layout: &Layout, runs: &Runs) {
 /// Runs `m1cs coupling`.
 pub fn coupling(a: &CouplingArgs) -> Result<(), String> {
     let layout = super::load_layout(&a.layout)?;
+    if a.modes == 0 {
+        return Err("--modes: at least one structure mode".into());
+    }
     if a.steps.is_empty() {
         return Err("--steps: give at least one communication step (s)".into());
     }
@@ -469,7 +472,7 @@ fn vibration_study(a: &VibrationArgs, layout: &Layout) -> Result<VibrationStudy,
         metrics,
         pssn,
     };
-    let cell = super::structure_modes(&a.structure, layout)?;
+    let cell = super::structure_modes(&a.structure, layout, a.modes)?;
     let n = layout.n_segments();
     let motor = freqs.iter().position(|f| (f - MOTOR_TONE_HZ).abs() < 1e-9);
     let mut curves = Vec::new();

@@ -30,14 +30,16 @@ pub fn load_layout(name: &str) -> Result<Layout, String> {
     Layout::load(name).map_err(|e| format!("--layout {name}: {e}"))
 }
 
-/// Every mode of the structure `name` (a preset or a `.npz` path) under `layout`.
+/// The `modes` lowest modes of the structure `name` (a preset or a `.npz` path) under `layout`
+/// ([`m1::plant::structure::StructureSource::lowest_modes`]: a file's are all read).
 pub fn structure_modes(
     name: &str,
     layout: &Layout,
+    modes: usize,
 ) -> Result<m1::plant::structure::ModalModel, String> {
     let source = m1::plant::structure::StructureSource::parse(name)
         .map_err(|e| format!("--structure: {e}"))?;
     source
-        .modes(layout)
+        .lowest_modes(layout, modes)
         .map_err(|e| format!("--structure {name} under {}: {e}", layout.name))
 }

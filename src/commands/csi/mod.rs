@@ -397,7 +397,7 @@ pub fn csi(a: &CsiArgs) -> Result<(), String> {
     let layout = super::load_layout(&a.layout)?;
     let n = layout.n_segments();
     let started = std::time::Instant::now();
-    let cell = super::structure_modes(&a.structure, &layout)?;
+    let cell = super::structure_modes(&a.structure, &layout, a.modes)?;
     let fm = FrequencyModel::new(n, a.actuator.model(), cell.clone(), a.modes, a.damping)
         .map_err(|e| format!("--modes {}: {e}", a.modes))?;
     let geometry = Geometry::new(&layout, GeometryParams::for_layout(&layout))
