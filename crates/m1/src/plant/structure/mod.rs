@@ -115,7 +115,7 @@ mod cell;
 mod modal;
 mod solver;
 
-pub use cell::{Attachment, CellModel};
+pub use cell::{Attachment, CellModel, PARTIAL_FRACTION};
 pub use modal::{Flexibility, ModalModel, StaticFe};
 pub use solver::{ModalSolver, zoh_mode};
 
