@@ -62,7 +62,7 @@ fn bench(c: &mut Criterion) {
         g.bench_function(format!("tmt/quasi_static/wind_every_{every}"), |b| {
             b.iter(|| {
                 k += 1;
-                if k % every == 0 {
+                if k.is_multiple_of(every) {
                     f[(k as usize) % na] += 0.1;
                 }
                 m.advance(1e-3, &u, &f, 0.0)

@@ -41,7 +41,7 @@ use std::time::{Duration, Instant};
 use criterion::{Criterion, SamplingMode};
 use faer::sparse::SparseColMat;
 use faer::{Mat, Par};
-use m1::analysis::quasistatic::{Case, Perturbation, RobustnessParams, robustness};
+use m1::analysis::quasistatic::{Case, RobustnessParams, robustness};
 use m1::aperture::geometry::{Geometry, GeometryParams};
 use m1::aperture::layout::Layout;
 use m1::control::nominal::Nominal;

@@ -250,7 +250,7 @@ impl OpticalFeedback {
         let mut f = focus.to_vec();
         project_out(ptt.as_ref(), &mut f);
         let n = f.iter().map(|x| x * x).sum::<f64>().sqrt();
-        if !(n > 0.0) {
+        if n.is_nan() || n <= 0.0 {
             return Err(M1Error::InvalidInput(
                 "focus-mode lies in the global piston/tip/tilt".into(),
             ));

@@ -439,8 +439,14 @@ impl Loop {
             setup
                 .split
                 .mul_into(&self.gain, &self.leff, &self.z, &mut self.y)?;
-            for n in 0..self.err.len() {
-                self.err[n] = self.y[n] + c.phased[k][n] - y_ref[n];
+            for (((e, y), p), r) in self
+                .err
+                .iter_mut()
+                .zip(&self.y)
+                .zip(&c.phased[k])
+                .zip(y_ref)
+            {
+                *e = y + p - r;
             }
             setup
                 .nominal

@@ -101,7 +101,7 @@ impl ScheduleParams {
                 "must be > 0 and at most a night",
             );
         }
-        if !(self.latitude_deg.abs() < 90.0) {
+        if self.latitude_deg.is_nan() || self.latitude_deg.abs() >= 90.0 {
             return bad("latitude_deg", self.latitude_deg, "must be in (-90, 90)");
         }
         if !(self.min_declination_deg <= self.max_declination_deg

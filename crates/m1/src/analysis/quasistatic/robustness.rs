@@ -419,7 +419,7 @@ fn ptt_element_errors(
                 }
             }
             for k in 0..3 {
-                let v: f64 = (0..3).map(|c| ap[c] * pinv[c][k]).sum();
+                let v: f64 = ap.iter().zip(pinv).map(|(a, row)| a * row[k]).sum();
                 triplets.push(faer::sparse::Triplet::new(chunk[0].0, 3 * i + k, v));
             }
         }

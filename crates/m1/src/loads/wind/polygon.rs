@@ -120,8 +120,8 @@ impl PolygonGrid {
             };
             let ph = ed.mid_x[ix] * ed.mid_y[iy];
             s += ph * (qn * sc);
-            for c in 0..2 {
-                ds[c] += ph
+            for (c, d) in ds.iter_mut().enumerate() {
+                *d += ph
                     * Complex64::new(ed.nn[c] * sc + qn * dsc * ed.e[c] / 2.0, qn * sc * ed.m[c]);
             }
         }
