@@ -374,19 +374,35 @@ impl MirrorMetrics {
         (beta, m.sf)
     }
 
-    /// The metrics of the actuator displacements `z` (m, length `na`).
+    /// The metrics of the actuator displacements `z` (m, length `na`). After the segment
+    /// states and their moments, which give the plane `beta0` of the normal equations, one pass
+    /// over the residuals about it gives both the refinement `delta = G^-1 b1` (the step of
+    /// iterative refinement [`Self::residual_ptt`] takes too) and their squared norms, which
+    /// the refinement changes by `-2 delta.b1 + delta^T G delta = -delta.b1`
+    /// (`<r, plane(delta)> = delta.b1`, and the focus mode is orthogonal to every plane).
     pub fn evaluate(&self, z: &[f64]) -> Result<SurfaceMetrics, M1Error> {
         check_len(z, self.n_actuators())?;
         let s = self.segment_states(z);
-        let (beta, sf) = self.global_plane(&s);
+        let m = self.moments(&s);
+        let beta0 = self.gram_inv * m.b;
         // F is orthogonal to {1, x, y}, so <r, F> = <s, F>.
-        let c = sf / self.focus_norm2;
-        let (mut rr, mut qq) = (0.0, 0.0);
+        let c = m.sf / self.focus_norm2;
+        let (area, moment) = (self.area, self.moment);
+        let (mut r0, mut rx, mut ry, mut rr, mut qq) = (0.0, 0.0, 0.0, 0.0, 0.0);
         for ((si, ci), f) in s.iter().zip(&self.centres).zip(&self.focus_ptt) {
-            let r = residual(si, ci, &beta);
+            let r = residual(si, ci, &beta0);
+            let ap = area * r[0];
+            r0 += ap;
+            rx += ap * ci[0] + moment * r[1];
+            ry += ap * ci[1] + moment * r[2];
             rr += self.norm2(&r);
             qq += self.norm2(&[r[0] - c * f[0], r[1] - c * f[1], r[2] - c * f[2]]);
         }
+        let b1 = Vector3::new(r0, rx, ry);
+        let delta = self.gram_inv * b1;
+        let beta = beta0 + delta;
+        let refined = delta.dot(&b1);
+        let (rr, qq) = ((rr - refined).max(0.0), (qq - refined).max(0.0));
         let area = self.total_area();
         Ok(SurfaceMetrics {
             rms: (rr / area).sqrt(),
