@@ -6,7 +6,6 @@ use m1::aperture::layout::Layout;
 use m1::optics::metrics::{
     MirrorMetrics, actuators_to_ptt, hexagon_area, hexagon_second_moment, ptt_to_actuators,
 };
-use m1::optics::pssn::{Pssn, PssnParams};
 use m1::sensing::interaction::global_ptt;
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
@@ -391,56 +390,4 @@ fn wrong_sizes_are_errors() {
         m.residual_ptt(&vec![0.0; m.n_actuators()], &mut out)
             .is_err()
     );
-}
-
-/// Evaluation cost of the metrics and of PSSN (release build; prints a table).
-#[test]
-#[ignore = "timing, run in release with --ignored --nocapture"]
-fn evaluation_cost() {
-    for name in ["keck", "tmt"] {
-        let layout = Layout::preset(name).unwrap();
-        let g = geometry(&layout);
-        let t0 = std::time::Instant::now();
-        let m = MirrorMetrics::new(&g).unwrap();
-        let setup = t0.elapsed();
-        let z = random_z(g.n_actuators(), 3, 20e-9);
-        let reps = 2000;
-        let t1 = std::time::Instant::now();
-        let mut acc = 0.0;
-        for _ in 0..reps {
-            acc += m.evaluate(&z).unwrap().rms;
-        }
-        println!(
-            "{name}: metrics setup {setup:?}, {:?} per evaluation ({acc:.3e})",
-            t1.elapsed() / reps
-        );
-        let mut ptt = vec![[0.0; 3]; m.n_segments()];
-        m.residual_ptt(&z, &mut ptt).unwrap();
-        for samples in [128, 256, 384, 512] {
-            let t0 = std::time::Instant::now();
-            let pssn = Pssn::new(
-                &layout,
-                PssnParams {
-                    samples,
-                    ..PssnParams::default()
-                },
-            )
-            .unwrap();
-            let setup = t0.elapsed();
-            let reps = 10;
-            let t1 = std::time::Instant::now();
-            let mut v = 0.0;
-            for _ in 0..reps {
-                v = pssn.pssn_ptt(&ptt).unwrap();
-            }
-            println!(
-                "{name}: PSSN samples {samples} (dx {:.3} m, fft {}): setup {setup:?}, {:?} per \
-                 evaluation, 1 - PSSN = {:.4e}",
-                pssn.grid().spacing(),
-                pssn.fft_size(),
-                t1.elapsed() / reps,
-                1.0 - v
-            );
-        }
-    }
 }

@@ -251,7 +251,8 @@ instant t0 is sampled at initialisation from the initial input. No output depend
 <p>The archive holds the packaged layout as <code>resources/layout.json</code> (segment centres \
 in the aperture plane, m; circumradius).</p>\
 <h2>PSSN accuracy and cost</h2><p>The cost grows as (2 <code>pssn_samples</code>)<sup>2</sup> \
-log. Measured (release build, one core of a shared machine) per evaluation: TMT 0.27 ms at 128 \
+log. Measured (release build, one core of a shared machine, <code>cargo bench -p m1 --bench \
+optics</code>) per evaluation: TMT 0.27 ms at 128 \
 samples, 1.3 ms at the default 256 (grid spacing 0.117 m, FFT 512), 8.1 ms at 512; Keck 0.25, \
 1.2 and 8.0 ms. So the default costs about 13 ms of CPU per simulated second at the default \
 10 Hz. \
