@@ -726,37 +726,6 @@ fn pssn_rejects_bad_input() {
     assert!(bad(PssnParams { samples: 1, ..ok }));
 }
 
-/// Time per evaluation for TMT at the default grid (release build).
-#[test]
-#[ignore = "timing, run in release with --ignored --nocapture"]
-fn tmt_pssn_timing() {
-    let layout = Layout::tmt();
-    let t0 = std::time::Instant::now();
-    let pssn = Pssn::new(&layout, PssnParams::default()).unwrap();
-    let setup = t0.elapsed();
-    let ptt = random_ptt(layout.n_segments(), 1, 10e-9, 20e-9);
-    let mut value = pssn.pssn_ptt(&ptt).unwrap();
-    let reps = 50;
-    let t1 = std::time::Instant::now();
-    for k in 0..reps {
-        value += pssn
-            .pssn_ptt(&scaled(&ptt, 1.0 + 1e-3 * f64::from(k)))
-            .unwrap();
-    }
-    let per = t1.elapsed() / reps;
-    let t2 = std::time::Instant::now();
-    let basis = ZernikeBasis::up_to_degree(&layout, 20).unwrap();
-    let zt = t2.elapsed();
-    println!(
-        "TMT PSSN: grid {} (fft {}), setup {setup:?}, {per:?} per evaluation (checksum {value:.6}); \
-         Zernike basis to degree 20 ({} modes, condition {:.2}): {zt:?}",
-        pssn.grid().samples(),
-        pssn.fft_size(),
-        basis.n_modes(),
-        basis.condition_number()
-    );
-}
-
 /// Convergence of the PSSN deficit with the pupil sampling (release build; prints a table).
 #[test]
 #[ignore = "slow, run in release with --ignored --nocapture"]
