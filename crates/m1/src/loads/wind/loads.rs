@@ -144,7 +144,7 @@ impl WindLoads {
                 (a[0].data[0], tables)
             }
             None => {
-                let (variance, tables) = synthesise(sp, &hexagon, &centres, dx)?;
+                let (variance, tables) = synthesise(sp, &hexagon, &centres, dx);
                 store.store(
                     &key,
                     &[
@@ -334,17 +334,17 @@ pub(super) fn unit2(v: [f64; 2]) -> [f64; 2] {
 /// The screen's filtered spectra turned into every segment's tables (`3 nseg n` values: the
 /// integrals of the unit screen over the hexagon at each sample along the flow) and the
 /// expected variance of `G_0`: the random draws of the spectrum, the hexagon's transform at
-/// every wavenumber, and three inverse 2-D FFTs.
+/// every wavenumber, and two inverse 2-D FFTs (the first two fields packed in one), finished
+/// only at the grid rows the segments read. `sp` has passed [`ScreenParams::check`].
 fn synthesise(
     sp: &ScreenParams,
     hexagon: &[[f64; 2]],
     centres: &[[f64; 2]],
     dx: f64,
-) -> Result<(f64, Vec<f64>), M1Error> {
+) -> (f64, Vec<f64>) {
     let n = sp.samples;
     let nseg = centres.len();
     // Filtered spectra: c H, c H_xi, c H_eta; and the expected variance of G_0.
-    sp.check()?;
     let psd = sp.discrete_psd();
     let spectrum = ScreenSpectrum::drawn(sp, &psd);
     let k: Vec<f64> = (0..n).map(|i| psd.wavenumber(i)).collect();
@@ -403,5 +403,5 @@ fn synthesise(
     drop(g01);
     let g2 = real_inverse_fft_rows(&b2, None, n, &rows);
     fill(2, &g2, |v| v.re);
-    Ok((variance, tables))
+    (variance, tables)
 }

@@ -147,41 +147,36 @@ pub(super) fn inverse_fft_2d(buf: &mut [Complex64], n: usize) {
 /// intermediate values). One complex transform serves both: `Re IFFT a = IFFT a_h` with the
 /// Hermitian part `a_h(k) = (a(k) + conj a(-k)) / 2`, so `IFFT (a_h + i b_h)` carries both.
 /// The transform along `y` runs over every column, the one along `x` over the asked rows
-/// only (a quarter of the grid for TMT's mirror on the default 128 m screen). `b = None`
-/// leaves the imaginary parts meaningless.
+/// only (a quarter of the grid for TMT's mirror on the default 128 m screen). With `b = None`
+/// `a` is transformed as it is (its real parts are the ones asked; the imaginary parts are
+/// meaningless).
 pub(super) fn real_inverse_fft_rows(
     a: &[Complex64],
     b: Option<&[Complex64]>,
     n: usize,
     rows: &[usize],
 ) -> Vec<Complex64> {
-    let neg = |i: usize| (n - i) % n;
-    let mut buf = vec![Complex64::ZERO; n * n];
-    buf.par_chunks_mut(n).enumerate().for_each(|(iy, row)| {
-        let my = neg(iy) * n;
-        for (ix, z) in row.iter_mut().enumerate() {
-            let j = my + neg(ix);
-            let ah = (a[iy * n + ix] + a[j].conj()) * 0.5;
-            *z = match b {
-                Some(b) => {
-                    let bh = (b[iy * n + ix] + b[j].conj()) * 0.5;
-                    ah + Complex64::new(-bh.im, bh.re)
-                }
-                None => ah,
-            };
-        }
-    });
+    let mut buf = a.to_vec();
+    if let Some(b) = b {
+        let neg = |i: usize| (n - i) % n;
+        buf.par_chunks_mut(n).enumerate().for_each(|(iy, row)| {
+            let my = neg(iy) * n;
+            for (ix, z) in row.iter_mut().enumerate() {
+                let j = my + neg(ix);
+                let ah = (a[iy * n + ix] + a[j].conj()) * 0.5;
+                let bh = (b[iy * n + ix] + b[j].conj()) * 0.5;
+                *z = ah + Complex64::new(-bh.im, bh.re);
+            }
+        });
+    }
     let fft: std::sync::Arc<dyn Fft<f64>> = FftPlanner::new().plan_fft_inverse(n);
     let len = fft.get_inplace_scratch_len();
-    let along = |buf: &mut [Complex64]| {
-        buf.par_chunks_mut(n).for_each_init(
-            || vec![Complex64::ZERO; len],
-            |scratch, row| fft.process_with_scratch(row, scratch),
-        );
-    };
     // Along y (columns, as rows of the transpose), then along x on the asked rows.
     transpose(&mut buf, n);
-    along(&mut buf);
+    buf.par_chunks_mut(n).for_each_init(
+        || vec![Complex64::ZERO; len],
+        |scratch, row| fft.process_with_scratch(row, scratch),
+    );
     transpose(&mut buf, n);
     let mut scratch = vec![Complex64::ZERO; len];
     for &r in rows {
