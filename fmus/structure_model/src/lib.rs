@@ -164,7 +164,7 @@ from target frequencies: the rigid cell and mount on the pier (<code>mount_frequ
 the rigid cell on its supports (<code>support_frequency</code>) and the first elastic mode of \
 the grillage pinned at its supports (<code>cell_frequency</code>). The coupled modes (3N+1 \
 degrees of freedom; at initialisation the <code>n_modes</code> lowest alone by block Lanczos up \
-to a fifteenth of them, 60 ms for TMT's 60, else one dense eigensolve, 0.4 s for TMT; both \
+to a tenth of them, 60 ms for TMT's 60, else one dense eigensolve, 0.4 s for TMT; both \
 kept in the on-disk cache) are damped with \
 <code>damping_ratio</code>; the static correction is the FE model's exact static solve.</p>\
 <h2>Imported model (<code>modal_file</code>)</h2><p>A NumPy <code>.npz</code> file of \
@@ -292,8 +292,8 @@ fn resolve(resource_dir: Option<&Path>, file: &str) -> PathBuf {
 const MODE_CACHE: usize = 2;
 
 /// The `n_modes` lowest modes of the built-in cell of `layout` with `params`
-/// ([`CellModel::lowest_modes`]: about 50 ms for TMT's default 60, a dense eigensolve of every
-/// mode, 0.45 s for TMT's 1477 degrees of freedom, from about 100), so the last [`MODE_CACHE`]
+/// ([`CellModel::lowest_modes`]: about 60 ms for TMT's default 60, a dense eigensolve of every
+/// mode, 0.4 s for TMT's 1477 degrees of freedom, from 148 modes up), so the last [`MODE_CACHE`]
 /// results are kept while the library stays loaded and reused by later instances with the
 /// same layout, number of modes and bit-identical parameters (e.g. a sweep that instantiates one extracted FMU run after run, as fmpy's
 /// `simulate_fmu` with a reused unzip directory does). Shared by the structure and the mirror

@@ -27,6 +27,10 @@
 use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par, Side};
 
+use rand::rngs::StdRng;
+use rand::{RngExt, SeedableRng};
+
+use super::kernels::axpy;
 use super::skyline::Skyline;
 use crate::M1Error;
 
@@ -50,17 +54,12 @@ fn block_size(r: usize) -> usize {
     (r / 8).clamp(4, 16).next_multiple_of(4)
 }
 
-/// A deterministic pseudo-random sequence in `[-1, 1)` (SplitMix64).
-struct Noise(u64);
+/// A seeded pseudo-random generator of directions, uniform in `[-1, 1)` per entry.
+struct Noise(StdRng);
 
 impl Noise {
     fn next(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^= z >> 31;
-        (z >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+        self.0.random_range(-1.0..1.0)
     }
 }
 
@@ -110,7 +109,7 @@ pub fn lowest_eigenpairs(
     let mut q = vec![0.0; n * m_max];
     let mut aq = vec![0.0; n * m_max];
     let mut rows = vec![0.0; n * p];
-    let mut noise = Noise(0x5EED_CE11);
+    let mut noise = Noise(StdRng::seed_from_u64(0x5EED_CE11));
     for v in &mut q[..n * p] {
         *v = noise.next();
     }
@@ -193,7 +192,7 @@ fn orthonormalise(q: &mut [f64], n: usize, from: usize, nb: usize, noise: &mut N
                 for i in 0..j {
                     let v = &done[i * n..(i + 1) * n];
                     let d = dot(v, w);
-                    w.iter_mut().zip(v).for_each(|(a, b)| *a -= d * b);
+                    axpy(w, -d, v);
                 }
             }
             let norm = dot(w, w).sqrt();

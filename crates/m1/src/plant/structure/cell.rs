@@ -16,7 +16,7 @@ use crate::linalg::skyline::Skyline;
 
 /// [`CellModel::lowest_modes`] solves for the lowest `r` modes alone when `r` is at most
 /// `ndof / PARTIAL_FRACTION`; above, the dense eigensolve of every mode costs about as much.
-pub const PARTIAL_FRACTION: usize = 15;
+pub const PARTIAL_FRACTION: usize = 10;
 
 /// One actuator attachment: `z = x[dof] + c[1] x[dof + 1] + c[2] x[dof + 2]` (`c[0] = 1`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -320,11 +320,11 @@ impl CellModel {
 
     /// The `r` lowest modes of the model (all of them if `r >= ndof`), with the exact static
     /// correction attached, as [`Self::modes`] but without the dense eigensolve of every mode
-    /// when `r` is at most a fifteenth of the degrees of freedom ([`PARTIAL_FRACTION`]; the
-    /// two cost the same from about a twelfth): block Lanczos on the envelope factor of `K`
-    /// ([`crate::linalg::lanczos`]; about 50 ms for TMT's 60 lowest of 1477 modes, against
-    /// 0.45 s for all of them). The modes are cached as [`Self::modes`]'s are, keyed
-    /// by `r` too.
+    /// when `r` is at most a tenth of the degrees of freedom ([`PARTIAL_FRACTION`]; the two
+    /// cost about the same from an eighth): block Lanczos on the envelope factor of `K`
+    /// ([`crate::linalg::lanczos`]; about 60 ms for TMT's 60 lowest of 1477 modes, against
+    /// 0.4 s for all of them, `cargo bench -p m1 --bench setup`). The modes are cached as
+    /// [`Self::modes`]'s are, keyed by `r` too.
     ///
     /// The retained modes are the same as [`Self::modes`]'s lowest `r` up to the solvers'
     /// round-off, except that within a repeated frequency (the hexagonal cells' degenerate

@@ -59,7 +59,8 @@
 //! TMT, and a number of modes per octave that grows with frequency, as in real telescopes.
 //! When only the lowest few are retained ([`CellModel::lowest_modes`], the FMUs' `n_modes`),
 //! they are found without the others by block Lanczos on the envelope factor of `K`
-//! ([`crate::linalg::lanczos`]): TMT's 60 lowest in about 50 ms instead of 0.45 s.
+//! ([`crate::linalg::lanczos`]): TMT's 60 lowest in about 60 ms instead of 0.4 s
+//! (`cargo bench -p m1 --bench setup`).
 //!
 //! # Modal model ([`ModalModel`]) and its simulation ([`ModalSolver`])
 //!
