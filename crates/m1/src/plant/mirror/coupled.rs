@@ -16,10 +16,10 @@ use crate::plant::segment::{
 };
 use crate::plant::structure::{Flexibility, ModalModel, ModalSolver};
 
-/// Retained modes from which [`CoupledMirror`] streams its coupled solve's matrix in single
-/// precision by default ([`CoupledMirror::set_coupling_single`]): there the `r x 2r` matrix in
-/// double precision (720 kB at 150 modes) no longer fits a core's L2 cache of the project's
-/// machine (512 kB).
+/// Retained modes from which [`CoupledMirror`] streams its coupled solve's matrices in single
+/// precision by default ([`CoupledMirror::set_coupling_single`]): there the `r x 2r` Gram
+/// matrices in double precision (360 kB at 150 modes) and the `r x r` correction (180 kB) no
+/// longer fit a core's L2 cache of the project's machine (512 kB).
 pub const SINGLE_COUPLING_MIN_MODES: usize = 150;
 
 /// Every segment on its actuators, coupled without delay to a modal model of the cell.
@@ -72,17 +72,32 @@ pub struct CoupledMirror {
     pub(super) w32: [Vec<f32>; 2],
     pub(super) acc32: [Vec<f32>; 2],
     pub(super) cols32: Vec<f32>,
-    /// `[W G_p, W G_t]` with `W = (I - M B1)^-1`: r x 2r row-major.
-    pub(super) wg: Vec<f64>,
-    /// The same in single precision, and `psi` in single precision: read instead of `wg` when
-    /// [`Self::coupling_single`] (half the traffic of the largest per-tick product).
-    pub(super) wg32: Vec<f32>,
+    /// `[G_p, G_t]` (the Gram matrices of the shapes' piston and tilt rows): r x 2r row-major.
+    /// One pass per coupled tick gives both the modal force of the cell-driven states and, at
+    /// a servo sample, of their drive's jump.
+    pub(super) gg: Vec<f64>,
+    /// `W - I = W M B1` with `W = (I - M B1)^-1`: r x r row-major, the implicit solve's
+    /// correction (small: the actuators' stiffness over a tick's response of the modes).
+    pub(super) wm: Vec<f64>,
+    /// The same two in single precision, read instead when [`Self::coupling_single`] (half the
+    /// traffic of the per-tick products), with `psi` and the drive's jump rounded to match;
+    /// the correction's rows zero-padded to `ld32` (whole vectors, as its input `win32`).
+    pub(super) gg32: Vec<f32>,
+    pub(super) wm32: Vec<f32>,
     pub(super) psi32: Vec<f32>,
-    /// Whether the coupled solve's r x 2r product streams the single-precision copy.
+    pub(super) drive32: Vec<f32>,
+    /// Whether the coupled solve's products stream the single-precision copies.
     pub(super) coupling_single: bool,
-    /// `[G_p, G_t]`, r x 2r row-major, in single precision: the modal force of the drive's
-    /// jump at a servo sample (a small correction: the drive's change over one servo period).
-    pub(super) gg: Vec<f32>,
+    /// Per mode, the modal force's jump at a sample reaches the tick's start force through
+    /// `alpha = (b0 - b1) d` (`d` the drive's feedthrough), and the solve through
+    /// `beta = alpha / b1` (`W M alpha = (W - I) beta`).
+    pub(super) alpha: Vec<f64>,
+    pub(super) beta: Vec<f64>,
+    /// The products' results: `G psi`, `G drive_step`, and the correction's input.
+    pub(super) gpsi: Vec<f64>,
+    pub(super) gjump: Vec<f64>,
+    pub(super) win: Vec<f64>,
+    pub(super) win32: Vec<f32>,
     /// Feedthrough of the drive into the cell force.
     pub(super) drive_d: f64,
     /// The pier displacement held over the last tick.
@@ -106,9 +121,9 @@ pub struct CoupledMirror {
     /// Right-hand side of the coupled solve: `h` (r), then `[psi_p; psi_t]` (2r).
     pub(super) rhs: Vec<f64>,
     pub(super) psi: Vec<f64>,
-    /// The cell-driven part's drive change at the sample, by kind (2r), and the modal force's
-    /// jump (r).
-    pub(super) drive_step: Vec<f32>,
+    /// The cell-driven part's drive change at the sample, by kind (2r), and the free part's
+    /// modal force jump (r).
+    pub(super) drive_step: Vec<f64>,
     pub(super) jump: Vec<f64>,
     pub(super) u_new: Vec<f64>,
     pub(super) out: Vec<f64>,
@@ -202,12 +217,29 @@ impl CoupledMirror {
             hint: "the coupled tick is singular: check the structure model and the actuator \
                    stiffness",
         })?;
-        let mut wg = DMatrix::<f64>::zeros(r, 2 * r);
-        wg.columns_mut(0, r).copy_from(&(&w_inv * &gram[0]));
-        wg.columns_mut(r, r).copy_from(&(&w_inv * &gram[1]));
+        // W - I = W M B1, formed as that product (not as a difference with the identity) so
+        // that the small correction keeps its relative precision.
+        let mut mb1 = m;
+        for (j, b) in b1.iter().enumerate() {
+            mb1.column_mut(j).scale_mut(b[0]);
+        }
+        let wm = &w_inv * &mb1;
+        let drive_d = cp[state::DRIVE];
+        let alpha: Vec<f64> = (0..r).map(|j| (b0[j][0] - b1[j][0]) * drive_d).collect();
+        let beta: Vec<f64> = (0..r).map(|j| alpha[j] / b1[j][0]).collect();
+        if let Some(j) = (0..r).find(|&j| !beta[j].is_finite()) {
+            return Err(M1Error::InvalidParameter {
+                name: "structure frequencies",
+                value: omega[j],
+                reason: "a retained mode does not respond within one coupled tick (its \
+                         first-order-hold gain is zero)",
+            });
+        }
         let mut gg = DMatrix::<f64>::zeros(r, 2 * r);
         gg.columns_mut(0, r).copy_from(&gram[0]);
         gg.columns_mut(r, r).copy_from(&gram[1]);
+        let gg = row_major(&gg);
+        let wm = row_major(&wm);
         Ok(Self {
             n_segments,
             ts,
@@ -234,12 +266,29 @@ impl CoupledMirror {
             w32: [vec![0.0f32; 2 * n], vec![0.0f32; 4 * n]],
             acc32: [vec![0.0f32; padded_len(r)], vec![0.0f32; padded_len(r)]],
             cols32: vec![0.0f32; 6 * padded_len(r)],
-            wg: row_major(&wg),
-            wg32: row_major(&wg).iter().map(|&x| x as f32).collect(),
+            gg32: gg.iter().map(|&x| x as f32).collect(),
+            wm32: {
+                let ld = padded_len(r);
+                let mut m32 = vec![0.0f32; r * ld];
+                for (dst, src) in m32.chunks_exact_mut(ld).zip(wm.chunks_exact(r)) {
+                    for (d, s) in dst.iter_mut().zip(src) {
+                        *d = *s as f32;
+                    }
+                }
+                m32
+            },
+            gg,
+            wm,
             psi32: vec![0.0f32; 2 * r],
+            drive32: vec![0.0f32; 2 * r],
             coupling_single: r >= SINGLE_COUPLING_MIN_MODES,
-            gg: row_major(&gg).iter().map(|&x| x as f32).collect(),
-            drive_d: cp[state::DRIVE],
+            alpha,
+            beta,
+            gpsi: vec![0.0; r],
+            gjump: vec![0.0; r],
+            win: vec![0.0; r],
+            win32: vec![0.0f32; padded_len(r)],
+            drive_d,
             pier: 0.0,
             proj: [vec![0.0; r * N_STATE], vec![0.0; r * N_STATE]],
             xi: [vec![0.0; r * N_STATE], vec![0.0; r * N_STATE]],
@@ -253,7 +302,7 @@ impl CoupledMirror {
             scratch: [vec![0.0; r * N_STATE], vec![0.0; r * N_STATE]],
             rhs: vec![0.0; r],
             psi: vec![0.0; 2 * r],
-            drive_step: vec![0.0f32; 2 * r],
+            drive_step: vec![0.0; 2 * r],
             jump: vec![0.0; r],
             u_new: vec![0.0; r],
             out: vec![0.0; 3 * na],
@@ -262,13 +311,14 @@ impl CoupledMirror {
         })
     }
 
-    /// Streams the coupled solve's `r x 2r` matrix in single precision (`true`, the default
-    /// from [`SINGLE_COUPLING_MIN_MODES`] retained modes) or double precision (`false`, the
-    /// default below, where the matrix fits a core's cache and halving it gains nothing).
-    /// Single precision halves the largest per-tick memory traffic (a TMT step with 300 modes:
-    /// 14.3 MB streamed in double precision, 10.7 MB in single); against double precision it
-    /// moves the mirror's response by about 1e-9 of its largest value (the tests
-    /// `coupling_precision_*` bound it by 1e-6 for both actuators).
+    /// Streams the coupled solve's matrices (the Gram matrices `[G_p, G_t]`, `r x 2r`, and the
+    /// correction `W - I`, `r x r`) in single precision (`true`, the default from
+    /// [`SINGLE_COUPLING_MIN_MODES`] retained modes) or double precision (`false`, the default
+    /// below, where the matrices fit a core's cache and halving them gains nothing). Single
+    /// precision halves their per-tick memory traffic (a TMT step with 300 modes: 14.4 MB
+    /// streamed in double precision, 9.0 MB in single); against double precision it moves the
+    /// mirror's response by about 2e-9 of its largest value (the tests `coupling_precision_*`
+    /// bound it by 1e-6 for both actuators).
     pub fn set_coupling_single(&mut self, single: bool) {
         self.coupling_single = single;
     }
@@ -325,7 +375,6 @@ impl CoupledMirror {
     /// modes, about 10 MB per 1 ms step).
     pub fn streamed_per_step(&self, h: f64) -> Result<Vec<(&'static str, usize, u64)>, M1Error> {
         let ticks = self.ticks_in(h)? * u64::from(self.substeps);
-        let samples = self.ticks_in(h)?;
         Ok(vec![
             (
                 "mode shapes (single precision): inputs onto the modes, outputs back",
@@ -333,18 +382,22 @@ impl CoupledMirror {
                 2,
             ),
             (
-                "coupling [W G_p, W G_t], one per coupled tick",
+                "Gram matrices [G_p, G_t], one pass per coupled tick",
                 if self.coupling_single {
-                    std::mem::size_of_val(self.wg32.as_slice())
+                    std::mem::size_of_val(self.gg32.as_slice())
                 } else {
-                    std::mem::size_of_val(self.wg.as_slice())
+                    std::mem::size_of_val(self.gg.as_slice())
                 },
                 ticks,
             ),
             (
-                "Gram matrices [G_p, G_t], one per servo sample",
-                std::mem::size_of_val(self.gg.as_slice()),
-                samples,
+                "the implicit solve's correction W - I, one per coupled tick",
+                if self.coupling_single {
+                    std::mem::size_of_val(self.wm32.as_slice())
+                } else {
+                    std::mem::size_of_val(self.wm.as_slice())
+                },
+                ticks,
             ),
         ])
     }
@@ -403,14 +456,15 @@ impl CoupledMirror {
                 false,
             ),
             (
-                "coupled solve [W G_p, W G_t] (r x 2r), per coupled tick",
-                ticks * 2 * r * r,
+                "coupled solve [G_p, G_t] (r x 2r), per coupled tick (two right-hand sides at a \
+                 servo sample)",
+                (ticks + samples) * 2 * r * r,
                 self.coupling_single,
             ),
             (
-                "drive jump [G_p, G_t] (r x 2r), per servo sample",
-                samples * 2 * r * r,
-                true,
+                "coupled solve's correction W - I (r x r), per coupled tick",
+                ticks * r * r,
+                self.coupling_single,
             ),
             ("inputs onto the modes (two columns)", 2 * na * r, true),
             ("outputs back (three columns)", 3 * na * r, true),

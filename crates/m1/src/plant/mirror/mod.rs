@@ -41,13 +41,14 @@
 //! state driven by the cell motion is $\Phi_k \xi_k$, with $\xi_k$ ($r \times 10$ per channel kind)
 //! stepped by the same per-tick maps on the modal coordinates. The part driven by the command and
 //! the wind is stepped per communication step in actuator space, and its projection on the modes
-//! per tick. A tick then costs $O(r^2)$ (two $r \times r$ products and $O(r)$ axpys of the
-//! 10-state maps) and never touches the $na \times r$ shapes, which are used twice per
+//! per tick. A tick then costs $O(r^2)$ (one pass over the Gram matrices $[G_p, G_t]$ with two
+//! right-hand sides, one over the solve's small correction $W - I$, and $O(r)$ axpys of the
+//! 12-state maps) and never touches the $na \times r$ shapes, which are used twice per
 //! communication step (projecting the held inputs, reconstructing the outputs). The two
 //! formulations agree to 2e-13 (checked when this one replaced the per-actuator one).
 //!
-//! **Memory-bound products.** At TMT size with 300 modes the shapes are 3.5 MB and the two
-//! coupling matrices 1.4 MB in double precision: a step streams about 14 MB (10.7 MB as
+//! **Memory-bound products.** At TMT size with 300 modes the shapes are 3.5 MB and the
+//! coupling's matrices 2.2 MB in double precision: a step streams about 14 MB (9.0 MB as
 //! stored, below), and arithmetic is cheap beside it. The
 //! shapes and the coupling matrices are stored row-major and multiplied by the streaming
 //! kernels of [`crate::linalg::kernels`] (each matrix read once, every right-hand side applied while a
@@ -61,14 +62,24 @@
 //! shapes are streamed in
 //! single precision, their rows zero-padded to whole vectors so that the passes have no scalar
 //! tail (inputs onto the modes, outputs back: relative error about 1e-7 of the largest term), and so
-//! are the Gram matrices that give the modal force of the drive's jump (a correction of the
-//! size of the drive's change over one servo period). The coupled solve's `r x 2r` matrix
-//! `[W G_p, W G_t]` is streamed in single precision too from
-//! [`SINGLE_COUPLING_MIN_MODES`] modes (each vector lane sums about `2r / 8` products
-//! in single precision, then the lanes are summed, and the row's sum is added in double
-//! precision): against double precision ([`CoupledMirror::set_coupling_single`]) the mirror's
-//! response moves by about 2e-9 of its largest value (TMT, 300 modes), and a TMT step with
-//! 300 modes streams 10.7 MB instead of 14.3 MB.
+//! are, from [`SINGLE_COUPLING_MIN_MODES`] modes, the coupled solve's matrices.
+//!
+//! **The coupled solve per tick.** With $W = (I - M B_1)^{-1}$ the solve reads
+//! $u_{n+1} = h' + W G \psi$, where $G = [G_p, G_t]$ are the Gram matrices of the shapes'
+//! piston and tilt rows and $\psi$ the channels' cell-driven forces on the modes (their part
+//! known before the drive's jump $g = G\,\Delta\delta$ is $\psi_0$). Since $W M B_1 = W - I$,
+//! $u_{n+1} = h' + y + (W - I)(y + \beta \odot g)$ with $y = G \psi_0$ and
+//! $\beta = (b_0 - b_1) d_u / b_1$ per mode: one pass over $G$ ($r \times 2r$) gives $y$ and $g$
+//! together, one over $W - I$ ($r \times r$, about 4e-7 in norm for the voice coil and 8e-5
+//! for the piezo on TMT) the rest, exactly (to rounding) the same solve as $W G$ applied to
+//! $\psi$ after the jump. It replaced two $r \times 2r$ passes ($[W G_p, W G_t]$, then $G$
+//! for the jump): a quarter less traffic per tick, 1.5 times faster at 1000 modes
+//! (BENCHMARKS.md). In
+//! single precision (each vector lane sums about `2r / 8` products, then the lanes are
+//! summed, and the row's sum is added in double precision; the default from
+//! [`SINGLE_COUPLING_MIN_MODES`] modes) against double precision
+//! ([`CoupledMirror::set_coupling_single`]) the mirror's response moves by about 2e-9 of its
+//! largest value (TMT, 300 modes).
 //!
 //! **No static correction.** The structure is its `n_modes` lowest modes. The static correction
 //! of the truncated modes (an instantaneous, dense compliance) cannot lag a tick: against the
