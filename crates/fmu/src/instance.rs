@@ -64,6 +64,7 @@ pub struct Snapshot<M: Model> {
     start_time: f64,
     stop_time: Option<f64>,
     outputs_stale: bool,
+    on_demand_stale: bool,
     values: Values,
     running: Option<M::Running>,
 }
@@ -89,6 +90,9 @@ pub struct Instance<M: Model> {
     start_time: f64,
     stop_time: Option<f64>,
     outputs_stale: bool,
+    /// The running model's on-demand outputs ([`crate::Running::on_demand`]) were not written
+    /// since its last step.
+    on_demand_stale: bool,
 }
 
 fn resource_dir(location: &str) -> Option<std::path::PathBuf> {
@@ -180,6 +184,7 @@ impl<M: Model> Instance<M> {
                     start_time: 0.0,
                     stop_time: None,
                     outputs_stale: true,
+                    on_demand_stale: false,
                 });
             }
             expected.push(format!("{variant}: {g}"));
@@ -331,6 +336,7 @@ impl<M: Model> Instance<M> {
         // set since (the master's propagation reads them): the same inputs give the same model.
         if self.outputs_stale || self.running.is_none() {
             self.running = Some(self.model.initialize(&mut self.values, self.start_time)?);
+            self.on_demand_stale = false;
         }
         self.outputs_stale = false;
         self.time = self.start_time;
@@ -355,6 +361,7 @@ impl<M: Model> Instance<M> {
         self.start_time = 0.0;
         self.stop_time = None;
         self.outputs_stale = true;
+        self.on_demand_stale = false;
         Ok(())
     }
 
@@ -365,6 +372,7 @@ impl<M: Model> Instance<M> {
                     // Kept for fmi2ExitInitializationMode while nothing is set (a set makes
                     // the outputs stale, and the model is built again).
                     self.running = Some(self.model.initialize(&mut self.values, self.start_time)?);
+                    self.on_demand_stale = false;
                 }
                 StepComplete => {
                     if let Some(r) = self.running.as_mut() {
@@ -374,6 +382,39 @@ impl<M: Model> Instance<M> {
                 _ => {}
             }
             self.outputs_stale = false;
+        }
+        Ok(())
+    }
+
+    /// Writes the running model's on-demand outputs if a step left them stale and `wanted`
+    /// holds for one of their ranges (the Real value references a read asks for). They are
+    /// checked as a step's outputs are: a non-finite value fails the read.
+    fn refresh_on_demand(
+        &mut self,
+        wanted: impl Fn(&std::ops::Range<u32>) -> bool,
+    ) -> Result<(), FmuError> {
+        if !self.on_demand_stale {
+            return Ok(());
+        }
+        let Some(r) = self.running.as_mut() else {
+            return Ok(());
+        };
+        let groups = r.on_demand();
+        if !groups.iter().any(wanted) {
+            return Ok(());
+        }
+        let groups = groups.to_vec();
+        r.write_on_demand(&mut self.values)?;
+        self.on_demand_stale = false;
+        let lo = self.type_range(VarType::Real).start;
+        for g in groups {
+            let slots = (g.start - lo) as usize..(g.end - lo) as usize;
+            if self.values.reals[slots].iter().any(|x| !x.is_finite()) {
+                return Err(FmuError::Model(format!(
+                    "fmi2GetReal: the model produced a non-finite output in the step to t = {}",
+                    self.time
+                )));
+            }
         }
         Ok(())
     }
@@ -414,10 +455,12 @@ impl<M: Model> Instance<M> {
             && self.type_range(VarType::Real).contains(&last)
             && vrs.windows(2).all(|w| w[1] == w[0] + 1)
         {
+            self.refresh_on_demand(|g| g.start <= last && first < g.end)?;
             let s = (first - self.type_range(VarType::Real).start) as usize;
             out.copy_from_slice(&self.values.reals[s..s + out.len()]);
             return Ok(());
         }
+        self.refresh_on_demand(|g| vrs.iter().any(|vr| g.contains(vr)))?;
         for (vr, o) in vrs.iter().zip(out.iter_mut()) {
             *o = self.values.reals[self.slot(VarType::Real, *vr, "Real")?];
         }
@@ -660,6 +703,10 @@ impl<M: Model> Instance<M> {
         }
         self.time = t + h;
         self.outputs_stale = false;
+        self.on_demand_stale = self
+            .running
+            .as_ref()
+            .is_some_and(|r| !r.on_demand().is_empty());
         Ok(())
     }
 
@@ -674,6 +721,7 @@ impl<M: Model> Instance<M> {
             start_time: self.start_time,
             stop_time: self.stop_time,
             outputs_stale: self.outputs_stale,
+            on_demand_stale: self.on_demand_stale,
             values: self.values.clone(),
             running: self.running.clone(),
         })
@@ -693,6 +741,7 @@ impl<M: Model> Instance<M> {
         self.start_time = s.start_time;
         self.stop_time = s.stop_time;
         self.outputs_stale = s.outputs_stale;
+        self.on_demand_stale = s.on_demand_stale;
         self.values = s.values.clone();
         self.running = s.running.clone();
         Ok(())

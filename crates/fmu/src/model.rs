@@ -85,4 +85,21 @@ pub trait Running: Clone + Send + Serialize + DeserializeOwned + 'static {
     /// # Errors
     /// A step the model cannot take (its size, its inputs), naming the reason.
     fn do_step(&mut self, t: f64, h: f64, values: &mut Values) -> Result<(), FmuError>;
+
+    /// Real outputs that [`Running::do_step`] leaves to be computed when they are read, as
+    /// ranges of value references (none by default): outputs that cost real work and that a
+    /// master often does not read at all. After a step the runtime calls
+    /// [`Running::write_on_demand`] before the first read of any of them (`fmi2GetReal`), so
+    /// an importer sees the FMI meaning unchanged: every output is that of the current state.
+    fn on_demand(&self) -> &[std::ops::Range<u32>] {
+        &[]
+    }
+
+    /// Writes the [`Running::on_demand`] outputs for the current state.
+    ///
+    /// # Errors
+    /// The model cannot evaluate them.
+    fn write_on_demand(&mut self, _values: &mut Values) -> Result<(), FmuError> {
+        Ok(())
+    }
 }

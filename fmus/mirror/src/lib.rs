@@ -16,6 +16,11 @@
 //! with na = 3 x the number of segments of the packaged layout (actuator k of segment i at
 //! index 3 i + k, 1-based in FMI names: `z[3 i + k + 1]`).
 //!
+//! `z_cell` and `f_cell` are computed when they are read ([`fmu::Running::on_demand`]): a
+//! master that only reads `z` (the standard system) saves a pass over the mode shapes per
+//! step (TMT, 300 modes: about a tenth of the mirror's step); one that reads them gets the
+//! values of the current state, as always.
+//!
 //! Why a combined FMU: exchanged between a segments FMU and a structure FMU, the stiff actuator
 //! coupling lags one communication step on each side and diverges unless the step is far below
 //! a millisecond (and, for the piezo, at any step tried). See [`m1::plant::mirror`].
@@ -68,7 +73,8 @@ destabilises the loop (measured on Keck with every mode: Gauss-Seidel exchange d
 0.5 ms for the voice coil, and for the piezo at every step tried down to 0.1 ms).</p>\
 <p><b>Communication step.</b> Any positive multiple of the servo period (default 0.2 ms at \
 5 kHz); results do not depend on it. No output depends directly on the inputs. The FMU starts \
-at rest, undeformed.</p>\
+at rest, undeformed. <code>z_cell</code> and <code>f_cell</code> are computed when read (a \
+master that reads only <code>z</code> saves their pass over the mode shapes).</p>\
 <p><b>Quasi-static, for wind</b> (<code>quasi_static</code> = true; seed paper, section 4.1): \
 the structure without inertia (its exact static response to the actuator forces and the pier) \
 and each segment chain reduced to its low-frequency behaviour: the static equilibrium of the \
@@ -162,6 +168,8 @@ pub struct MirrorRunning {
     vars: Vars,
     solver: Solver,
     z: Vec<f64>,
+    /// `z_cell` and `f_cell`: computed when read (a master of the standard system never does).
+    on_demand: [std::ops::Range<u32>; 2],
 }
 
 /// The `mirror_voicecoil` FMU.
@@ -174,20 +182,23 @@ pub type Piezo = Mirror<PiezoVariant>;
 pub const DEFAULT_MODES: i32 = 60;
 
 impl MirrorRunning {
+    /// The mirror's displacement, the output every system reads.
     fn write_outputs(&mut self, v: &mut Values) {
-        let (z_cell, f_cell) = match &self.solver {
-            Solver::Coupled(m) => {
-                m.mirror(&mut self.z);
-                (m.cell_displacement(), m.cell_force())
-            }
-            Solver::QuasiStatic(m) => {
-                m.mirror(&mut self.z);
-                (m.cell_displacement(), m.cell_force())
-            }
+        match &self.solver {
+            Solver::Coupled(m) => m.mirror(&mut self.z),
+            Solver::QuasiStatic(m) => m.mirror(&mut self.z),
+        }
+        v.real_mut(self.vars.z).copy_from_slice(&self.z);
+    }
+
+    /// The cell's displacement and force (the coupled solver computes them on this call).
+    fn write_cell_outputs(&mut self, v: &mut Values) {
+        let (z_cell, f_cell) = match &mut self.solver {
+            Solver::Coupled(m) => m.cell_outputs(),
+            Solver::QuasiStatic(m) => (m.cell_displacement(), m.cell_force()),
         };
         v.real_mut(self.vars.z_cell).copy_from_slice(z_cell);
         v.real_mut(self.vars.f_cell).copy_from_slice(f_cell);
-        v.real_mut(self.vars.z).copy_from_slice(&self.z);
     }
 
     /// The coupled solver, unless `quasi_static` is set (for in-process use and tests).
@@ -262,12 +273,15 @@ impl<V: MirrorVariant> Model for Mirror<V> {
             Solver::Coupled(Box::new(m))
         };
         self.vars.segments.write_calculated(v, &model);
+        let range = |r: RealVar| r.slot as u32..(r.slot + r.len) as u32;
         let mut running = MirrorRunning {
             vars: self.vars,
             solver,
             z: vec![0.0; self.vars.z.len],
+            on_demand: [range(self.vars.z_cell), range(self.vars.f_cell)],
         };
         running.write_outputs(v);
+        running.write_cell_outputs(v);
         Ok(running)
     }
 }
@@ -292,6 +306,15 @@ impl Running for MirrorRunning {
         }
         .map_err(wiring::model_error)?;
         self.write_outputs(v);
+        Ok(())
+    }
+
+    fn on_demand(&self) -> &[std::ops::Range<u32>] {
+        &self.on_demand
+    }
+
+    fn write_on_demand(&mut self, v: &mut Values) -> Result<(), FmuError> {
+        self.write_cell_outputs(v);
         Ok(())
     }
 }
@@ -363,6 +386,75 @@ mod tests {
         assert!(original.iter().any(|&x| x != 0.0));
     }
 
+    /// The cell's outputs, computed when read: read after every step, only at the end, one
+    /// at a time, or after a saved state taken between reads was restored, they are the same
+    /// values bit for bit, and they are the coupled solver's own.
+    #[test]
+    fn cell_outputs_read_on_demand_are_those_of_the_current_state() {
+        let (table, _) = VoiceCoil::new("keck").expect("table");
+        let guid = fmu::xml::guid(&VoiceCoil::INFO, &table);
+        let new = || {
+            let mut fmu =
+                Instance::<VoiceCoil>::new("test", &guid, None, None, false).expect("new");
+            fmu.setup_experiment(0.0, None).expect("setup");
+            fmu.enter_initialization_mode().expect("initialisation");
+            fmu.exit_initialization_mode().expect("initialise");
+            let f = fmu.table().by_name("f_wind").expect("f_wind").vr;
+            fmu.set_real(&[f, f + 5], &[10.0, -4.0])
+                .expect("set f_wind");
+            fmu
+        };
+        let refs = |name: &str| -> Vec<u32> {
+            let v = table.by_name(name).expect(name);
+            (v.vr..v.vr + v.len as u32).collect()
+        };
+        let (zc, fc, z) = (refs("z_cell"), refs("f_cell"), refs("z"));
+        let get = |fmu: &mut Instance<VoiceCoil>, vrs: &[u32]| {
+            let mut out = vec![f64::NAN; vrs.len()];
+            fmu.get_real(vrs, &mut out).expect("get");
+            out
+        };
+        let step = |fmu: &mut Instance<VoiceCoil>| {
+            let t = fmu.time();
+            fmu.do_step(t, 1e-3).expect("step");
+        };
+        let (mut every, mut end) = (new(), new());
+        let mut saved = None;
+        for k in 0..6 {
+            step(&mut every);
+            step(&mut end);
+            let (a, b) = (get(&mut every, &zc), get(&mut every, &fc));
+            assert!(a.iter().any(|&x| x != 0.0) && b.iter().any(|&x| x != 0.0));
+            // Reading z alone leaves them to be computed later.
+            assert_eq!(get(&mut end, &z), get(&mut every, &z));
+            if k == 2 {
+                saved = Some((end.get_state().expect("state"), a.clone(), b.clone()));
+            }
+        }
+        // Scattered references (not one run): f_cell's first, then z_cell's last.
+        let mixed = [fc[0], zc[zc.len() - 1]];
+        let m = get(&mut end, &mixed);
+        assert_eq!(
+            m,
+            [get(&mut every, &fc)[0], get(&mut every, &zc)[zc.len() - 1]]
+        );
+        assert_eq!(get(&mut end, &zc), get(&mut every, &zc));
+        assert_eq!(get(&mut end, &fc), get(&mut every, &fc));
+        let solver = every
+            .running()
+            .expect("running")
+            .solver()
+            .expect("coupled")
+            .clone();
+        let mut solver = solver;
+        assert_eq!(solver.cell_force(), get(&mut every, &fc).as_slice());
+        // A state saved with its cell outputs not yet computed gives the values of its time.
+        let (state, a, b) = saved.expect("saved");
+        end.set_state(&state).expect("restore");
+        assert_eq!(get(&mut end, &fc), b);
+        assert_eq!(get(&mut end, &zc), a);
+    }
+
     #[test]
     fn keck_steps_and_refuses_a_step_off_the_servo_grid() {
         let (t, m) = VoiceCoil::new("keck").expect("keck");
@@ -401,6 +493,8 @@ mod tests {
             .model()
             .clone();
         let want = 1.0 / model.static_stiffness(m1::plant::segment::Channel::Piston);
+        // The cell's outputs are written when read (the runtime calls this before a read).
+        r.write_on_demand(&mut v).expect("cell outputs");
         let (z, zc) = (v.real(m.vars.z), v.real(m.vars.z_cell));
         for j in 0..z.len() {
             let rel = z[j] - zc[j];

@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use super::maps::{foh_mode, substep_maps};
 use super::projection::{Project, input_columns, padded_rows_f32, row_major};
-use super::tick::Step;
+use super::tick::{CellOutputs, Step};
 use crate::M1Error;
 use crate::linalg::kernels::padded_len;
 use crate::plant::segment::{
@@ -112,7 +112,10 @@ pub struct CoupledMirror {
     pub(super) v: Vec<f64>,
     /// Modal force at the start of the tick.
     pub(super) u: Vec<f64>,
-    /// Outputs at the current time, actuator order.
+    /// Outputs at the current time, actuator order. The cell's two are computed when read
+    /// (`cell_stale`: a step since they were): a master that does not read them saves a
+    /// two-column pass over the shapes per step.
+    pub(super) cell_stale: bool,
     pub(super) f_cell: Vec<f64>,
     pub(super) z_cell: Vec<f64>,
     pub(super) z_mirror: Vec<f64>,
@@ -296,6 +299,7 @@ impl CoupledMirror {
             q: vec![0.0; r],
             v: vec![0.0; r],
             u: vec![0.0; r],
+            cell_stale: false,
             f_cell: vec![0.0; na],
             z_cell: vec![0.0; na],
             z_mirror: vec![0.0; na],
@@ -377,7 +381,8 @@ impl CoupledMirror {
         let ticks = self.ticks_in(h)? * u64::from(self.substeps);
         Ok(vec![
             (
-                "mode shapes (single precision): inputs onto the modes, outputs back",
+                "mode shapes (single precision): inputs onto the modes, the mirror's \
+                 displacement back",
                 std::mem::size_of_val(self.phic32.as_slice()),
                 2,
             ),
@@ -467,7 +472,12 @@ impl CoupledMirror {
                 self.coupling_single,
             ),
             ("inputs onto the modes (two columns)", 2 * na * r, true),
-            ("outputs back (three columns)", 3 * na * r, true),
+            (
+                "outputs back: the mirror's displacement (one column; the cell's two are \
+                 computed when read)",
+                na * r,
+                true,
+            ),
         ])
     }
 
@@ -529,20 +539,37 @@ impl CoupledMirror {
         z.copy_from_slice(&self.z_mirror);
     }
 
-    /// Cell displacement at each attachment (length 3N).
-    pub fn cell_displacement(&self) -> &[f64] {
+    /// Cell displacement at each attachment (length 3N). Computed on the first read after a
+    /// step, with [`Self::cell_force`] (one pass over the mode shapes for both).
+    pub fn cell_displacement(&mut self) -> &[f64] {
+        self.update_cell_outputs();
         &self.z_cell
     }
 
-    /// Force of each actuator on the cell (length 3N).
-    pub fn cell_force(&self) -> &[f64] {
+    /// Force of each actuator on the cell (length 3N). Computed on the first read after a
+    /// step, with [`Self::cell_displacement`].
+    pub fn cell_force(&mut self) -> &[f64] {
+        self.update_cell_outputs();
         &self.f_cell
+    }
+
+    /// The cell's displacement and force, both computed if a step left them stale.
+    pub fn cell_outputs(&mut self) -> (&[f64], &[f64]) {
+        self.update_cell_outputs();
+        (&self.z_cell, &self.f_cell)
+    }
+
+    fn update_cell_outputs(&mut self) {
+        if self.cell_stale {
+            pulp::Arch::new().dispatch(CellOutputs { mirror: self });
+        }
     }
 
     /// Back to rest.
     pub fn reset(&mut self) {
         self.free.reset();
         self.pier = 0.0;
+        self.cell_stale = false;
         for a in self.proj.iter_mut().chain(self.xi.iter_mut()) {
             a.fill(0.0);
         }

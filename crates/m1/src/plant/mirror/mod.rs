@@ -44,7 +44,9 @@
 //! per tick. A tick then costs $O(r^2)$ (one pass over the Gram matrices $[G_p, G_t]$ with two
 //! right-hand sides, one over the solve's small correction $W - I$, and $O(r)$ axpys of the
 //! 12-state maps) and never touches the $na \times r$ shapes, which are used twice per
-//! communication step (projecting the held inputs, reconstructing the outputs). The two
+//! communication step (projecting the held inputs, reconstructing the mirror's displacement).
+//! The cell's displacement and force take a second, two-column pass, made only when they are
+//! read ([`CoupledMirror::cell_outputs`]; the mirror FMU declares them on demand). The two
 //! formulations agree to 2e-13 (checked when this one replaced the per-actuator one).
 //!
 //! **Memory-bound products.** At TMT size with 300 modes the shapes are 3.5 MB and the

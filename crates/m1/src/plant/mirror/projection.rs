@@ -4,7 +4,7 @@
 
 use nalgebra::DMatrix;
 
-use crate::linalg::kernels::{rows_axpy2_f32, rows_dot3_f32};
+use crate::linalg::kernels::{rows_axpy2_f32, rows_dot_f32, rows_dot2_f32};
 
 /// The two input columns the ticks use (command, wind) of an `r x N_IN` column-major block.
 pub(super) fn input_columns(w: &mut [f64], r: usize) -> (&mut [f64], &mut [f64]) {
@@ -50,9 +50,10 @@ impl pulp::WithSimd for Project<'_> {
     }
 }
 
-/// Rows `rows` of `Phi_c [cols_k]` (channel rows: piston `0..n`, tilt `n..3n`; `cols` holds
-/// the three columns of each kind in turn, each `ld` long and zero past `r`): `out` is the three output columns over `rows`.
-pub(super) struct Reconstruct<'a> {
+/// Rows `rows` of `Phi_c [cols_k]` for `C` (1 or 2) columns per kind (channel rows: piston
+/// `0..n`, tilt `n..3n`; `cols` holds the `C` columns of each kind in turn, each `ld` long and
+/// zero past `r`): `out` is the `C` output columns over `rows`.
+pub(super) struct Reconstruct<'a, const C: usize> {
     pub(super) phic: &'a [f32],
     /// Row stride of `phic` (its rows zero-padded to whole vectors), and length of each
     /// column of `cols`.
@@ -60,38 +61,41 @@ pub(super) struct Reconstruct<'a> {
     pub(super) n: usize,
     pub(super) rows: std::ops::Range<usize>,
     pub(super) cols: &'a [f32],
-    pub(super) out: [&'a mut [f64]; 3],
+    pub(super) out: [&'a mut [f64]; C],
 }
 
-impl pulp::WithSimd for Reconstruct<'_> {
+impl<const C: usize> pulp::WithSimd for Reconstruct<'_, C> {
     type Output = ();
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, simd: S) {
         let (ld, n) = (self.ld, self.n);
-        let [o0, o1, o2] = self.out;
+        let mut out = self.out;
         for (kind, kinds) in [(0usize, 0..n), (1, n..3 * n)] {
             let lo = self.rows.start.max(kinds.start);
             let hi = self.rows.end.min(kinds.end);
             if lo >= hi {
                 continue;
             }
-            let cols = &self.cols[3 * ld * kind..3 * ld * (kind + 1)];
-            let (c0, rest) = cols.split_at(ld);
-            let (c1, c2) = rest.split_at(ld);
+            let cols = &self.cols[C * ld * kind..C * ld * (kind + 1)];
             let at = lo - self.rows.start..hi - self.rows.start;
-            for o in [&mut *o0, &mut *o1, &mut *o2] {
+            for o in out.iter_mut() {
                 o[at.clone()].fill(0.0);
             }
-            rows_dot3_f32::<S>(
-                simd,
-                &self.phic[lo * ld..],
-                ld,
-                hi - lo,
-                ld,
-                [c0, c1, c2],
-                [&mut o0[at.clone()], &mut o1[at.clone()], &mut o2[at]],
-            );
+            let a = &self.phic[lo * ld..];
+            match &mut out[..] {
+                [o0] => rows_dot_f32::<S>(simd, a, ld, hi - lo, ld, cols, &mut o0[at]),
+                [o0, o1] => rows_dot2_f32::<S>(
+                    simd,
+                    a,
+                    ld,
+                    hi - lo,
+                    ld,
+                    [&cols[..ld], &cols[ld..]],
+                    [&mut o0[at.clone()], &mut o1[at]],
+                ),
+                _ => unreachable!("Reconstruct: 1 or 2 columns per kind"),
+            }
         }
     }
 }

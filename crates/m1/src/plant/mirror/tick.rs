@@ -209,52 +209,88 @@ impl CoupledMirror {
         }
     }
 
-    /// Channel states, forces and displacements back in actuator space: one product with the
-    /// mode shapes per kind, `Phi_k [xi_k mirror, q, xi_k c_k^T]`.
+    /// The mirror's displacement back in actuator space, `Phi_k xi_k mirror` plus the free
+    /// part, per kind: one single-column pass over the mode shapes. The cell's displacement and
+    /// force are left to [`Self::update_cell_outputs`] (computed when read).
     #[inline(always)]
     pub(super) fn write_outputs<S: pulp::Simd>(&mut self, simd: S) {
-        let (r, n, na) = (self.r, self.n_segments, self.na);
-        const S: usize = N_STATE;
+        let (r, n, na, ld) = (self.r, self.n_segments, self.na, self.ld32);
         let mp = state::MIRROR_POS;
+        for k in 0..2 {
+            let src = &self.xi[k][mp * r..(mp + 1) * r];
+            for (d, c) in self.cols32[ld * k..ld * k + r].iter_mut().zip(src) {
+                *d = *c as f32;
+            }
+        }
         let mut outs = std::mem::take(&mut self.out);
+        Reconstruct::<1> {
+            phic: &self.phic32,
+            ld,
+            n,
+            rows: 0..na,
+            cols: &self.cols32[..2 * ld],
+            out: [&mut outs[..na]],
+        }
+        .with_simd(simd);
+        // Channel values (rows: piston channels, then tilt) to actuators, segment by segment.
+        let v = self.basis;
+        let [xp, xt] = self.free.state();
+        for seg in 0..n {
+            let zm = [
+                xp[mp * n + seg] + outs[seg],
+                xt[mp * 2 * n + 2 * seg] + outs[n + 2 * seg],
+                xt[mp * 2 * n + 2 * seg + 1] + outs[n + 2 * seg + 1],
+            ];
+            for a in 0..3 {
+                self.z_mirror[3 * seg + a] =
+                    v[(a, 0)] * zm[0] + v[(a, 1)] * zm[1] + v[(a, 2)] * zm[2];
+            }
+        }
+        self.out = outs;
+        self.cell_stale = true;
+    }
+
+    /// The cell's displacement and force back in actuator space, when a step left them stale:
+    /// `Phi_k [q, xi_k c_k^T]` per kind (one two-column pass over the mode shapes), with the
+    /// free part's force and the feedthrough of the cell's displacement.
+    #[inline(always)]
+    pub(super) fn write_cell_outputs<S: pulp::Simd>(&mut self, simd: S) {
+        let (r, n, na, ld) = (self.r, self.n_segments, self.na, self.ld32);
+        const S: usize = N_STATE;
         for k in 0..2 {
             let c = &self.cell_c[k];
-            let cols = &mut self.cols[3 * r * k..3 * r * (k + 1)];
-            cols[..r].copy_from_slice(&self.xi[k][mp * r..(mp + 1) * r]);
-            cols[r..2 * r].copy_from_slice(&self.q);
-            let force = &mut cols[2 * r..];
+            let force = &mut self.cols[..r];
             force.fill(0.0);
             for s in 0..S {
                 if c[s] != 0.0 {
                     axpy(force, c[s], &self.xi[k][s * r..(s + 1) * r]);
                 }
             }
-        }
-        {
-            // Phi_c [cols_k] over all channel rows.
-            let (o0, rest) = outs.split_at_mut(na);
-            let (o1, o2) = rest.split_at_mut(na);
-            for (d, c) in self
-                .cols32
-                .chunks_exact_mut(self.ld32)
-                .zip(self.cols.chunks_exact(r))
-            {
-                for (d, c) in d.iter_mut().zip(c) {
-                    *d = *c as f32;
-                }
+            let dst = &mut self.cols32[2 * ld * k..2 * ld * (k + 1)];
+            let (dq, df) = dst.split_at_mut(ld);
+            for (d, x) in dq.iter_mut().zip(&self.q) {
+                *d = *x as f32;
             }
-            Reconstruct {
+            for (d, x) in df.iter_mut().zip(&self.cols[..r]) {
+                *d = *x as f32;
+            }
+        }
+        let mut outs = std::mem::take(&mut self.out);
+        {
+            let (_, rest) = outs.split_at_mut(na);
+            let (o1, o2) = rest.split_at_mut(na);
+            Reconstruct::<2> {
                 phic: &self.phic32,
-                ld: self.ld32,
+                ld,
                 n,
                 rows: 0..na,
-                cols: &self.cols32,
-                out: [o0, o1, o2],
+                cols: &self.cols32[..4 * ld],
+                out: [o1, o2],
             }
             .with_simd(simd);
         }
         // The free part's cell force per channel (rows as the channels), a run of axpys over
-        // its state-major states (summed in the order of the states, as before).
+        // its state-major states (summed in the order of the states).
         let mut free_f = std::mem::take(&mut self.free_force);
         for (k, (off, cnt)) in [(0, n), (n, 2 * n)].into_iter().enumerate() {
             let x = self.free.state()[k];
@@ -268,30 +304,35 @@ impl CoupledMirror {
         let v = self.basis;
         for seg in 0..n {
             let rows = [seg, n + 2 * seg, n + 2 * seg + 1];
-            let idx = [
-                (0usize, seg, n),
-                (1, 2 * seg, 2 * n),
-                (1, 2 * seg + 1, 2 * n),
-            ];
-            let mut zm = [0.0; 3];
             let mut zc = [0.0; 3];
             let mut fc = [0.0; 3];
             for m in 0..3 {
-                let (k, c, cnt) = idx[m];
-                let x = self.free.state()[k];
-                zm[m] = x[mp * cnt + c] + outs[rows[m]];
                 zc[m] = outs[na + rows[m]];
                 fc[m] = free_f[rows[m]] + outs[2 * na + rows[m]] + self.cell_d * zc[m];
             }
             for a in 0..3 {
                 let at = |t: &[f64; 3]| v[(a, 0)] * t[0] + v[(a, 1)] * t[1] + v[(a, 2)] * t[2];
-                self.z_mirror[3 * seg + a] = at(&zm);
                 self.z_cell[3 * seg + a] = at(&zc);
                 self.f_cell[3 * seg + a] = at(&fc);
             }
         }
         self.out = outs;
         self.free_force = free_f;
+        self.cell_stale = false;
+    }
+}
+
+/// The cell's outputs of [`CoupledMirror::write_cell_outputs`] as one SIMD operation.
+pub(super) struct CellOutputs<'a> {
+    pub(super) mirror: &'a mut CoupledMirror,
+}
+
+impl pulp::WithSimd for CellOutputs<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
+        self.mirror.write_cell_outputs(simd);
     }
 }
 
