@@ -20,6 +20,8 @@ pub(super) struct Project<'a> {
     /// Row stride of `phic` (its rows zero-padded to whole vectors).
     pub(super) ld: usize,
     pub(super) n: usize,
+    /// The kinds to project (the others keep their outputs).
+    pub(super) kinds: [bool; 2],
     pub(super) w: [&'a [f32]; 2],
     pub(super) acc: [&'a mut [f32]; 2],
     pub(super) out: [&'a mut [f64]; 4],
@@ -35,6 +37,9 @@ impl pulp::WithSimd for Project<'_> {
         let [a0, a1] = self.acc;
         for (kind, (lo, count), yu, yf) in [(0usize, (0usize, n), pu, pf), (1, (n, 2 * n), tu, tf)]
         {
+            if !self.kinds[kind] {
+                continue;
+            }
             let x = self.w[kind];
             rows_axpy2_f32::<S>(
                 simd,

@@ -304,3 +304,47 @@ fn multiply_adds_follow_the_step_and_the_maps() {
     assert!(maps < dense && 2 * maps > dense, "{maps} of {dense}");
     assert!(m.multiply_adds_per_step(2.5 * ts).is_err());
 }
+
+/// The held inputs' projection on the modes is kept while the inputs do not change and
+/// recomputed when one value of either input does: after every step it is the projection of
+/// the inputs of that step (to the single-precision shapes' 1e-6).
+#[test]
+fn held_inputs_keep_their_projection() {
+    let (mut m, _) = keck(SegmentModel::voice_coil(), 40);
+    let (na, n, r) = (m.n_actuators(), m.n_segments(), m.r);
+    let u: Vec<f64> = (0..na).map(|i| 1e-8 * ((i % 5) as f64 - 2.0)).collect();
+    let mut f = wind(na);
+    let check = |m: &CoupledMirror| {
+        let w = m.free.channel_inputs();
+        for (kind, (lo, cnt)) in [(0usize, n), (n, 2 * n)].into_iter().enumerate() {
+            for (col, out) in [(0usize, 0usize), (2, 2)] {
+                let direct: Vec<f64> = (0..r)
+                    .map(|j| {
+                        (0..cnt)
+                            .map(|c| m.phic[(lo + c) * r + j] * w[kind][col * cnt + c])
+                            .sum()
+                    })
+                    .collect();
+                let scale = direct.iter().fold(1e-300, |a: f64, b| a.max(b.abs()));
+                for (j, d) in direct.iter().enumerate() {
+                    let held = m.w_proj[kind][out * r + j];
+                    assert!(
+                        (d - held).abs() <= 1e-6 * scale,
+                        "kind {kind} column {col} mode {j}: {d} vs {held}"
+                    );
+                }
+            }
+        }
+    };
+    for k in 0..8 {
+        if k == 3 {
+            // One value of the wind changes (a tilt channel's and a piston channel's share).
+            f[4] += 25.0;
+        }
+        if k == 6 {
+            f[4] -= 25.0;
+        }
+        m.advance(1e-3, &u, &f, 0.0).expect("step");
+        check(&m);
+    }
+}
