@@ -462,7 +462,7 @@ fn axpy4<S: Simd>(simd: S, rows: [&[f64]; 4], c: [f64; 4], y: &mut [f64]) {
 }
 
 /// `y_l = A^T x_l` for two right-hand sides with a single-precision `A` (`m x k` row-major,
-/// row stride `lda`) and `x_l`: the rows are combined [`AXPY_ROWS`] at a time, each chunk of them
+/// row stride `lda`) and `x_l`: the rows are combined four at a time, each chunk of them
 /// loaded once for both right-hand sides, into the single-precision
 /// `acc_l` (length `k`, scratch), which is added into the double-precision `y_l` every
 /// `FLUSH` rows, so no single-precision sum runs over more than `FLUSH` rows (relative error

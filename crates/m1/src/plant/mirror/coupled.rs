@@ -72,17 +72,20 @@ pub struct CoupledMirror {
     pub(super) w32: [Vec<f32>; 2],
     pub(super) acc32: [Vec<f32>; 2],
     pub(super) cols32: Vec<f32>,
-    /// `[G_p, G_t]` (the Gram matrices of the shapes' piston and tilt rows): r x 2r row-major.
-    /// One pass per coupled tick gives both the modal force of the cell-driven states and, at
-    /// a servo sample, of their drive's jump.
-    pub(super) gg: Vec<f64>,
-    /// `W - I = W M B1` with `W = (I - M B1)^-1`: r x r row-major, the implicit solve's
-    /// correction (small: the actuators' stiffness over a tick's response of the modes).
-    pub(super) wm: Vec<f64>,
-    /// The same two in single precision, read instead when [`Self::coupling_single`] (half the
-    /// traffic of the per-tick products), with `psi` and the drive's jump rounded to match;
-    /// the correction's rows zero-padded to `ld32` (whole vectors, as its input `win32`).
+    /// `[W G_p, W G_t]` with `W = (I - M B1)^-1` and `G_k` the Gram matrices of the shapes'
+    /// piston and tilt rows: r x 2r row-major, the coupled solve of a tick in one product
+    /// with the channels' cell-driven forces (after the drive's jump). In single precision too
+    /// (`wg32`), read instead when [`Self::coupling_single`].
+    pub(super) wg: Vec<f64>,
+    pub(super) wg32: Vec<f32>,
+    /// `[G_p, G_t]`, r x 2r row-major, in single precision: the modal force of the drive's
+    /// jump at a servo sample, and in single precision the whole solve of a sample's tick
+    /// (below).
     pub(super) gg32: Vec<f32>,
+    /// `W - I = W M B1`, r x r row-major in single precision, rows zero-padded to `ld32`: with
+    /// [`Self::coupling_single`], a sample's tick takes one pass over `[G_p, G_t]` with two
+    /// right-hand sides (the forces before the jump and the jump) and one over this small
+    /// correction, instead of a pass over `G` for the jump and one over `W G`.
     pub(super) wm32: Vec<f32>,
     pub(super) psi32: Vec<f32>,
     pub(super) drive32: Vec<f32>,
@@ -96,7 +99,6 @@ pub struct CoupledMirror {
     /// The products' results: `G psi`, `G drive_step`, and the correction's input.
     pub(super) gpsi: Vec<f64>,
     pub(super) gjump: Vec<f64>,
-    pub(super) win: Vec<f64>,
     pub(super) win32: Vec<f32>,
     /// Feedthrough of the drive into the cell force.
     pub(super) drive_d: f64,
@@ -241,6 +243,7 @@ impl CoupledMirror {
         let mut gg = DMatrix::<f64>::zeros(r, 2 * r);
         gg.columns_mut(0, r).copy_from(&gram[0]);
         gg.columns_mut(r, r).copy_from(&gram[1]);
+        let wg = row_major(&(&w_inv * &gg));
         let gg = row_major(&gg);
         let wm = row_major(&wm);
         Ok(Self {
@@ -269,6 +272,8 @@ impl CoupledMirror {
             w32: [vec![0.0f32; 2 * n], vec![0.0f32; 4 * n]],
             acc32: [vec![0.0f32; padded_len(r)], vec![0.0f32; padded_len(r)]],
             cols32: vec![0.0f32; 6 * padded_len(r)],
+            wg32: wg.iter().map(|&x| x as f32).collect(),
+            wg,
             gg32: gg.iter().map(|&x| x as f32).collect(),
             wm32: {
                 let ld = padded_len(r);
@@ -280,8 +285,6 @@ impl CoupledMirror {
                 }
                 m32
             },
-            gg,
-            wm,
             psi32: vec![0.0f32; 2 * r],
             drive32: vec![0.0f32; 2 * r],
             coupling_single: r >= SINGLE_COUPLING_MIN_MODES,
@@ -289,7 +292,6 @@ impl CoupledMirror {
             beta,
             gpsi: vec![0.0; r],
             gjump: vec![0.0; r],
-            win: vec![0.0; r],
             win32: vec![0.0f32; padded_len(r)],
             drive_d,
             pier: 0.0,
@@ -315,14 +317,13 @@ impl CoupledMirror {
         })
     }
 
-    /// Streams the coupled solve's matrices (the Gram matrices `[G_p, G_t]`, `r x 2r`, and the
-    /// correction `W - I`, `r x r`) in single precision (`true`, the default from
-    /// [`SINGLE_COUPLING_MIN_MODES`] retained modes) or double precision (`false`, the default
-    /// below, where the matrices fit a core's cache and halving them gains nothing). Single
-    /// precision halves their per-tick memory traffic (a TMT step with 300 modes: 14.4 MB
-    /// streamed in double precision, 9.0 MB in single); against double precision it moves the
-    /// mirror's response by about 2e-9 of its largest value (the tests `coupling_precision_*`
-    /// bound it by 1e-6 for both actuators).
+    /// Streams the coupled solve's matrices in single precision (`true`, the default from
+    /// [`SINGLE_COUPLING_MIN_MODES`] retained modes, where a sample's tick also takes the
+    /// one-pass form of the module documentation) or double precision (`false`, the default
+    /// below, where the matrices fit a core's cache and halving them gains nothing). A TMT step
+    /// with 300 modes streams 14.4 MB in double precision, 9.0 MB in single; against double
+    /// precision single moves the mirror's response by about 2e-9 of its largest value (the
+    /// tests `coupling_precision_*` bound it by 1e-6 for both actuators).
     pub fn set_coupling_single(&mut self, single: bool) {
         self.coupling_single = single;
     }
@@ -378,7 +379,8 @@ impl CoupledMirror {
     /// the matrices no longer fit a core's cache (a floor for benchmarks: at TMT size with 300
     /// modes, about 10 MB per 1 ms step).
     pub fn streamed_per_step(&self, h: f64) -> Result<Vec<(&'static str, usize, u64)>, M1Error> {
-        let ticks = self.ticks_in(h)? * u64::from(self.substeps);
+        let samples = self.ticks_in(h)?;
+        let ticks = samples * u64::from(self.substeps);
         Ok(vec![
             (
                 "mode shapes (single precision): inputs onto the modes, the mirror's \
@@ -387,22 +389,27 @@ impl CoupledMirror {
                 2,
             ),
             (
-                "Gram matrices [G_p, G_t], one pass per coupled tick",
+                "[W G_p, W G_t], one per coupled tick (in single precision: between samples)",
                 if self.coupling_single {
-                    std::mem::size_of_val(self.gg32.as_slice())
+                    std::mem::size_of_val(self.wg32.as_slice())
                 } else {
-                    std::mem::size_of_val(self.gg.as_slice())
+                    std::mem::size_of_val(self.wg.as_slice())
                 },
-                ticks,
+                if self.coupling_single {
+                    ticks - samples
+                } else {
+                    ticks
+                },
             ),
             (
-                "the implicit solve's correction W - I, one per coupled tick",
-                if self.coupling_single {
-                    std::mem::size_of_val(self.wm32.as_slice())
-                } else {
-                    std::mem::size_of_val(self.wm.as_slice())
-                },
-                ticks,
+                "Gram matrices [G_p, G_t], one per servo sample",
+                std::mem::size_of_val(self.gg32.as_slice()),
+                samples,
+            ),
+            (
+                "the solve's correction W - I, one per servo sample (single precision)",
+                std::mem::size_of_val(self.wm32.as_slice()),
+                if self.coupling_single { samples } else { 0 },
             ),
         ])
     }
@@ -461,15 +468,24 @@ impl CoupledMirror {
                 false,
             ),
             (
-                "coupled solve [G_p, G_t] (r x 2r), per coupled tick (two right-hand sides at a \
-                 servo sample)",
-                (ticks + samples) * 2 * r * r,
+                "coupled solve [W G_p, W G_t] (r x 2r), per coupled tick (in single precision: \
+                 between samples)",
+                if self.coupling_single {
+                    (ticks - samples) * 2 * r * r
+                } else {
+                    ticks * 2 * r * r
+                },
                 self.coupling_single,
             ),
             (
-                "coupled solve's correction W - I (r x r), per coupled tick",
-                ticks * r * r,
-                self.coupling_single,
+                "drive jump [G_p, G_t] (r x 2r), per servo sample (in single precision: with \
+                 the solve's right-hand side, and the correction W - I, r x r)",
+                if self.coupling_single {
+                    samples * 5 * r * r
+                } else {
+                    samples * 2 * r * r
+                },
+                true,
             ),
             ("inputs onto the modes (two columns)", 2 * na * r, true),
             (

@@ -41,9 +41,8 @@
 //! state driven by the cell motion is $\Phi_k \xi_k$, with $\xi_k$ ($r \times 10$ per channel kind)
 //! stepped by the same per-tick maps on the modal coordinates. The part driven by the command and
 //! the wind is stepped per communication step in actuator space, and its projection on the modes
-//! per tick. A tick then costs $O(r^2)$ (one pass over the Gram matrices $[G_p, G_t]$ with two
-//! right-hand sides, one over the solve's small correction $W - I$, and $O(r)$ axpys of the
-//! 12-state maps) and never touches the $na \times r$ shapes, which are used twice per
+//! per tick. A tick then costs $O(r^2)$ (the coupled solve's products below and $O(r)$ axpys
+//! of the 12-state maps) and never touches the $na \times r$ shapes, which are used twice per
 //! communication step (projecting the held inputs, reconstructing the mirror's displacement).
 //! The cell's displacement and force take a second, two-column pass, made only when they are
 //! read ([`CoupledMirror::cell_outputs`]; the mirror FMU declares them on demand). The two
@@ -68,20 +67,23 @@
 //!
 //! **The coupled solve per tick.** With $W = (I - M B_1)^{-1}$ the solve reads
 //! $u_{n+1} = h' + W G \psi$, where $G = [G_p, G_t]$ are the Gram matrices of the shapes'
-//! piston and tilt rows and $\psi$ the channels' cell-driven forces on the modes (their part
-//! known before the drive's jump $g = G\,\Delta\delta$ is $\psi_0$). Since $W M B_1 = W - I$,
-//! $u_{n+1} = h' + y + (W - I)(y + \beta \odot g)$ with $y = G \psi_0$ and
-//! $\beta = (b_0 - b_1) d_u / b_1$ per mode: one pass over $G$ ($r \times 2r$) gives $y$ and $g$
-//! together, one over $W - I$ ($r \times r$, about 4e-7 in norm for the voice coil and 8e-5
-//! for the piezo on TMT) the rest, exactly (to rounding) the same solve as $W G$ applied to
-//! $\psi$ after the jump. It replaced two $r \times 2r$ passes ($[W G_p, W G_t]$, then $G$
-//! for the jump): a quarter less traffic per tick, 1.5 times faster at 1000 modes
-//! (BENCHMARKS.md). In
-//! single precision (each vector lane sums about `2r / 8` products, then the lanes are
-//! summed, and the row's sum is added in double precision; the default from
-//! [`SINGLE_COUPLING_MIN_MODES`] modes) against double precision
-//! ([`CoupledMirror::set_coupling_single`]) the mirror's response moves by about 2e-9 of its
-//! largest value (TMT, 300 modes).
+//! piston and tilt rows and $\psi$ the channels' cell-driven forces on the modes: one pass over
+//! $W G$ ($r \times 2r$), after a pass over $G$ for the modal force of the drive's jump at a
+//! servo sample, $g = G\,\Delta\delta$ (a correction of the size of the drive's change over
+//! one servo period, in single precision). In single precision, from
+//! [`SINGLE_COUPLING_MIN_MODES`] modes, where the passes are memory-bound, a sample's tick
+//! uses an equivalent form with less traffic: with $\psi_0$ the forces before the jump and
+//! $W M B_1 = W - I$, $u_{n+1} = h' + y + (W - I)(y + \beta \odot g)$ with $y = G \psi_0$ and
+//! $\beta = (b_0 - b_1) d_u / b_1$ per mode. One pass over $G$ with two right-hand sides gives
+//! $y$ and $g$ together, one over $W - I$ ($r \times r$; about 4e-7 in norm for the voice coil
+//! and 8e-5 for the piezo on TMT) the rest: 1.5 $r \times 2r$ passes instead of 2, exact to
+//! rounding (TMT at 1000 modes, 1.2-1.5 times faster per step; BENCHMARKS.md). Below
+//! [`SINGLE_COUPLING_MIN_MODES`] the matrices are cached and the step is bound by arithmetic,
+//! where that form's extra multiply-adds (two right-hand sides in double precision) cost
+//! more than the traffic it saves. In single precision (each vector lane sums about `2r / 8`
+//! products, then the lanes are summed, and the row's sum is added in double precision)
+//! against double precision ([`CoupledMirror::set_coupling_single`]) the mirror's response
+//! moves by about 2e-9 of its largest value (TMT, 300 modes).
 //!
 //! **No static correction.** The structure is its `n_modes` lowest modes. The static correction
 //! of the truncated modes (an instantaneous, dense compliance) cannot lag a tick: against the

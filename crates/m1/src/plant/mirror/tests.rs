@@ -294,10 +294,8 @@ fn multiply_adds_follow_the_step_and_the_maps() {
     };
     assert_eq!(part("inputs onto the modes"), 2 * na * r);
     assert_eq!(part("outputs back"), na * r);
-    // The Gram matrices with two right-hand sides at each of the five samples, the
-    // correction once per tick.
-    assert_eq!(part("coupled solve [G_p"), 5 * 2 * 2 * r * r);
-    assert_eq!(part("coupled solve's correction"), 5 * r * r);
+    assert_eq!(part("coupled solve"), 5 * 2 * r * r);
+    assert_eq!(part("drive jump"), 5 * 2 * r * r);
     // Per tick, mode and kind: two maps, their inputs, two force rows, the ramp.
     let dense = 5 * 2 * r * (2 * 144 + 3 + 24 + 12);
     let maps = part("channel maps on the modes");

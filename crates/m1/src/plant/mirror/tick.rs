@@ -26,8 +26,26 @@ impl CoupledMirror {
         // The drive jumps at the sample and is held over the tick: the modal force starts the
         // tick at the end value of the last one plus that jump, then ramps (the continuous
         // part of the cell force is what varies within the tick). The free part's jump is on
-        // the modes already (`jump`); the cell-driven part's, `g = [G_p, G_t] drive_step`,
-        // comes out of the solve's pass over the Gram matrices below and is added after it.
+        // the modes already (`jump`); the cell-driven part's is `g = [G_p, G_t] drive_step`.
+        // In single precision a sample's tick takes g from the solve's own pass over the Gram
+        // matrices (`split`, below) and adds it after the solve; otherwise it comes first.
+        let split = sample && self.coupling_single;
+        if sample {
+            for (d, s) in self.drive32.iter_mut().zip(&self.drive_step) {
+                *d = *s as f32;
+            }
+        }
+        if sample && !split {
+            rows_dot_f32::<S>(
+                simd,
+                &self.gg32,
+                2 * r,
+                r,
+                2 * r,
+                &self.drive32,
+                &mut self.jump,
+            );
+        }
         // The pier input is held too: a new value loads the modes from the tick's start.
         let dp = pier_z - self.pier;
         self.pier = pier_z;
@@ -39,11 +57,8 @@ impl CoupledMirror {
         axpy(&mut self.rhs, pier_z, self.structure.pier_gains());
         // u+ = W (h + b_p p) + W G_p (psi_p + e_p a) + W G_t (psi_t + e_t a), with
         // W = (I - M B1)^-1 = I + W M B1 and W M = e_p W G_p + e_t W G_t, so that
-        // u+ = h' + W G_p (psi_p + e_p a + e_p B1 h') + W G_t (psi_t + e_t a + e_t B1 h').
-        // With psi_0 the right-hand side before the jump g (a = a_0 + alpha g), y = G psi_0
-        // and W M alpha = (W - I) beta, beta = alpha / b1:
-        // u+ = h' + y + (W - I) (y + beta g). One pass over [G_p, G_t] gives y and g
-        // together, one over the small correction W - I gives u+.
+        // u+ = h' + W G_p (psi_p + e_p a + e_p B1 h') + W G_t (psi_t + e_t a + e_t B1 h'):
+        // one r x 2r product.
         for j in 0..r {
             let (a, b0, b1) = (&self.a_mode[j], &self.b0[j], &self.b1[j]);
             let abar = a[0] * self.q[j] + a[1] * self.v[j] + (b0[0] - b1[0]) * self.u[j];
@@ -52,77 +67,62 @@ impl CoupledMirror {
             self.psi[r + j] += self.e[1] * x;
             self.cols[j] = abar;
         }
-        self.gpsi.fill(0.0);
-        self.gjump.fill(0.0);
-        if self.coupling_single {
+        self.u_new.copy_from_slice(&self.rhs);
+        if split {
+            // With psi_0 the right-hand side before the jump g (a = a_0 + alpha g),
+            // y = G psi_0 and W M alpha = (W - I) beta, beta = alpha / b1:
+            // u+ = h' + y + (W - I) (y + beta g). One pass over [G_p, G_t] gives y and g
+            // together, one over the small correction W - I gives u+ (1.5 r x 2r passes
+            // instead of 2).
             for (d, s) in self.psi32.iter_mut().zip(&self.psi) {
                 *d = *s as f32;
             }
-            if sample {
-                for (d, s) in self.drive32.iter_mut().zip(&self.drive_step) {
-                    *d = *s as f32;
-                }
-                rows_dot2_f32::<S>(
-                    simd,
-                    &self.gg32,
-                    2 * r,
-                    r,
-                    2 * r,
-                    [&self.psi32, &self.drive32],
-                    [&mut self.gpsi, &mut self.gjump],
-                );
-            } else {
-                rows_dot_f32::<S>(
-                    simd,
-                    &self.gg32,
-                    2 * r,
-                    r,
-                    2 * r,
-                    &self.psi32,
-                    &mut self.gpsi,
-                );
-            }
-        } else if sample {
-            rows_dot::<S, 2>(
+            self.gpsi.fill(0.0);
+            self.gjump.fill(0.0);
+            rows_dot2_f32::<S>(
                 simd,
-                &self.gg,
+                &self.gg32,
                 2 * r,
                 r,
                 2 * r,
-                [&self.psi, &self.drive_step],
+                [&self.psi32, &self.drive32],
                 [&mut self.gpsi, &mut self.gjump],
             );
-        } else {
-            rows_dot::<S, 1>(
-                simd,
-                &self.gg,
-                2 * r,
-                r,
-                2 * r,
-                [&self.psi],
-                [&mut self.gpsi],
-            );
-        }
-        for j in 0..r {
-            self.win[j] = self.gpsi[j] + self.beta[j] * self.gjump[j];
-            self.u_new[j] = self.rhs[j] + self.gpsi[j];
-        }
-        if self.coupling_single {
-            for (d, s) in self.win32.iter_mut().zip(&self.win) {
-                *d = *s as f32;
+            for j in 0..r {
+                self.win32[j] = (self.gpsi[j] + self.beta[j] * self.gjump[j]) as f32;
+                self.u_new[j] += self.gpsi[j];
             }
             let ld = self.ld32;
             rows_dot_f32::<S>(simd, &self.wm32, ld, r, ld, &self.win32, &mut self.u_new);
-        } else {
-            rows_dot::<S, 1>(simd, &self.wm, r, r, r, [&self.win], [&mut self.u_new]);
-        }
-        // The cell-driven jump into the tick's start force and the free response.
-        if sample {
+            // The cell-driven jump into the tick's start force and the free response.
             for j in 0..r {
                 let g = self.gjump[j];
                 self.u[j] += self.drive_d * g;
                 self.cols[j] += self.alpha[j] * g;
             }
+        } else if self.coupling_single {
+            for (d, s) in self.psi32.iter_mut().zip(&self.psi) {
+                *d = *s as f32;
+            }
+            rows_dot_f32::<S>(
+                simd,
+                &self.wg32,
+                2 * r,
+                r,
+                2 * r,
+                &self.psi32,
+                &mut self.u_new,
+            );
+        } else {
+            rows_dot::<S, 1>(
+                simd,
+                &self.wg,
+                2 * r,
+                r,
+                2 * r,
+                [&self.psi],
+                [&mut self.u_new],
+            );
         }
         // Modes at the end of the tick.
         for j in 0..r {
