@@ -826,6 +826,107 @@ pub fn state_map<S: Simd, const NS: usize, const NI: usize>(
     }
 }
 
+/// Most rows [`rows_map`] takes (its per-group masks live in fixed arrays).
+pub const ROWS_MAP_MAX: usize = 64;
+
+/// `out_i = sum_j a_ij x_j + sum_l b_il u_l` for `a.len()` (at most [`ROWS_MAP_MAX`]) rows over
+/// `n` columns: a rectangular [`state_map`] (the same storage: `x` is `NS n` state-major, `out`
+/// is `a.len() n` row-major), for maps that give more or fewer values than they read (a
+/// composite of several steps' maps with their outputs). Rows are computed [`ROW_GROUP`] at a
+/// time and a group skips the sources none of its rows reads; each row is summed in the order
+/// of `a`'s columns, then `b`'s.
+///
+/// # Panics
+/// If `a` and `b` differ in length, there are more than [`ROWS_MAP_MAX`] rows, or a slice is
+/// shorter than the dimensions say (programming errors).
+#[inline(always)]
+pub fn rows_map<S: Simd, const NS: usize, const NI: usize>(
+    simd: S,
+    a: &[[f64; NS]],
+    b: &[[f64; NI]],
+    x: &[f64],
+    u: [&[f64]; NI],
+    n: usize,
+    out: &mut [f64],
+) {
+    const G: usize = ROW_GROUP;
+    const MAXG: usize = ROWS_MAP_MAX / ROW_GROUP;
+    let rows = a.len();
+    assert!(
+        b.len() == rows && rows <= ROWS_MAP_MAX,
+        "rows_map: {rows} rows"
+    );
+    if n == 0 || rows == 0 {
+        return;
+    }
+    let xs: [&[f64]; NS] = std::array::from_fn(|j| &x[j * n..(j + 1) * n]);
+    let us: [&[f64]; NI] = std::array::from_fn(|l| &u[l][..n]);
+    let out = &mut out[..rows * n];
+    let m = S::as_simd_f64s(xs[0]).0.len();
+    let tail = n - S::as_simd_f64s(xs[0]).1.len();
+    let xh: [&[S::f64s]; NS] = std::array::from_fn(|j| &S::as_simd_f64s(xs[j]).0[..m]);
+    let uh: [&[S::f64s]; NI] = std::array::from_fn(|l| &S::as_simd_f64s(us[l]).0[..m]);
+    let groups = rows.div_ceil(G);
+    let mut use_x = [[false; NS]; MAXG];
+    let mut use_u = [[false; NI]; MAXG];
+    for i in 0..rows {
+        for j in 0..NS {
+            use_x[i / G][j] |= a[i][j] != 0.0;
+        }
+        for l in 0..NI {
+            use_u[i / G][l] |= b[i][l] != 0.0;
+        }
+    }
+    let zero = simd.splat_f64s(0.0);
+    let mut it = out.chunks_exact_mut(n);
+    for g in 0..groups {
+        let row = |r: usize| (G * g + r).min(rows - 1);
+        let mut oh: [&mut [S::f64s]; G] = std::array::from_fn(|_| match it.next() {
+            Some(o) => S::as_mut_simd_f64s(o).0,
+            None => Default::default(),
+        });
+        for c in 0..m {
+            let mut acc = [zero; G];
+            for j in 0..NS {
+                if use_x[g][j] {
+                    let v = xh[j][c];
+                    for (r, acc) in acc.iter_mut().enumerate() {
+                        let k = a[row(r)][j];
+                        *acc = simd.mul_add_e_f64s(simd.splat_f64s(k), v, *acc);
+                    }
+                }
+            }
+            for l in 0..NI {
+                if use_u[g][l] {
+                    let v = uh[l][c];
+                    for (r, acc) in acc.iter_mut().enumerate() {
+                        let k = b[row(r)][l];
+                        *acc = simd.mul_add_e_f64s(simd.splat_f64s(k), v, *acc);
+                    }
+                }
+            }
+            for (o, acc) in oh.iter_mut().zip(acc) {
+                if let Some(o) = o.get_mut(c) {
+                    *o = acc;
+                }
+            }
+        }
+    }
+    // The columns after the last whole vector.
+    for c in tail..n {
+        for i in 0..rows {
+            let mut acc = a[i][0] * xs[0][c];
+            for (j, x) in xs.iter().enumerate().skip(1) {
+                acc += a[i][j] * x[c];
+            }
+            for (l, u) in us.iter().enumerate() {
+                acc += b[i][l] * u[c];
+            }
+            out[i * n + c] = acc;
+        }
+    }
+}
+
 /// `out += a x`.
 #[inline(always)]
 pub fn axpy(out: &mut [f64], a: f64, x: &[f64]) {
@@ -875,6 +976,65 @@ mod tests {
         });
         for (a, b) in [(dense, b_dense), (sparse, b_sparse)] {
             state_map_case(&a, &b);
+        }
+    }
+
+    /// `rows_map` against the plain sums: 1, 7 (a partial group) and 9 rows of a sparse map
+    /// (a state no row of the first group reads, an input one row does not), over column
+    /// counts around the vector widths, on the best instruction set and the scalar ones.
+    #[test]
+    fn rows_map_equals_the_plain_sums() {
+        struct Case(usize);
+        impl pulp::WithSimd for Case {
+            type Output = ();
+            #[inline(always)]
+            fn with_simd<S: Simd>(self, simd: S) {
+                let rows = self.0;
+                let a: Vec<[f64; NS]> = (0..rows)
+                    .map(|i| {
+                        std::array::from_fn(|j| {
+                            if j == 1 || (j == 3 && i < ROW_GROUP) {
+                                0.0
+                            } else {
+                                ((i * 7 + j * 3) % 11) as f64 / 5.0 - 1.0
+                            }
+                        })
+                    })
+                    .collect();
+                let b: Vec<[f64; NI]> = (0..rows)
+                    .map(|i| std::array::from_fn(|l| if i == 2 { 0.0 } else { (i + l) as f64 }))
+                    .collect();
+                for n in [0usize, 1, 3, 4, 7, 8, 9, 17, 61] {
+                    let x: Vec<f64> = (0..NS * n)
+                        .map(|k| ((k * 7919) % 1013) as f64 / 1013.0 - 0.5)
+                        .collect();
+                    let u: Vec<Vec<f64>> = (0..NI)
+                        .map(|l| (0..n).map(|c| (c + l) as f64 * 0.25).collect())
+                        .collect();
+                    let mut out = vec![f64::NAN; rows * n + 3];
+                    rows_map::<S, NS, NI>(simd, &a, &b, &x, [&u[0], &u[1]], n, &mut out);
+                    for i in 0..rows {
+                        for c in 0..n {
+                            let want: f64 = (0..NS).map(|j| a[i][j] * x[j * n + c]).sum::<f64>()
+                                + (0..NI).map(|l| b[i][l] * u[l][c]).sum::<f64>();
+                            let got = out[i * n + c];
+                            assert!(
+                                (got - want).abs() <= 1e-13 * (1.0 + want.abs()),
+                                "{rows} rows, n {n}, ({i}, {c}): {got} vs {want}"
+                            );
+                        }
+                    }
+                    assert!(
+                        out[rows * n..].iter().all(|v| v.is_nan()),
+                        "wrote past the rows"
+                    );
+                }
+            }
+        }
+        for rows in [1, 7, 9] {
+            pulp::Arch::new().dispatch(Case(rows));
+            pulp::WithSimd::with_simd(Case(rows), pulp::Scalar);
+            pulp::WithSimd::with_simd(Case(rows), pulp::Scalar256b);
         }
     }
 

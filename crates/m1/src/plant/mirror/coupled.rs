@@ -22,6 +22,30 @@ use crate::plant::structure::{Flexibility, ModalModel, ModalSolver};
 /// longer fit a core's L2 cache of the project's machine (512 kB).
 pub const SINGLE_COUPLING_MIN_MODES: usize = 150;
 
+/// Most coupled ticks whose free part [`CoupledMirror`] composes into one map (a chunk): the
+/// default 1 ms TMT step (five ticks) is one chunk; the composed map's rows grow with the
+/// chunk (`12 + 2 len`), so a longer step takes several.
+pub(super) const FREE_CHUNK_TICKS: usize = 10;
+
+/// Rows of a chunk's composed map: the free states at its end, then per tick the free part's
+/// modal force and its drive's change.
+pub(super) const fn free_rows(len: usize) -> usize {
+    N_STATE + 2 * len
+}
+
+/// The free part of the channels on the modes over a chunk of `len` consecutive coupled ticks
+/// (the first at sub-step `phase` of its servo period), composed into one map per kind from
+/// the projected free states and the two held inputs (command, wind): rows
+/// [`free_rows`]`(len)`, the states at the chunk's end, then each tick's modal force
+/// `c X_t`, then each tick's change of the drive `X_t[drive] - X_t-1[drive]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub(super) struct FreeChunk {
+    pub(super) phase: u32,
+    pub(super) len: usize,
+    pub(super) a: [Vec<[f64; N_STATE]>; 2],
+    pub(super) b: [Vec<[f64; 2]>; 2],
+}
+
 /// Every segment on its actuators, coupled without delay to a modal model of the cell.
 ///
 /// Arrays in and out are in actuator order (actuator k of segment i at 3 i + k).
@@ -121,6 +145,10 @@ pub struct CoupledMirror {
     pub(super) f_cell: Vec<f64>,
     pub(super) z_cell: Vec<f64>,
     pub(super) z_mirror: Vec<f64>,
+    /// The free part's ticks composed, built when a chunk of ticks first needs them
+    /// ([`FreeChunk`]), and their values over the chunk, by kind: `FREE_ROWS(len) x r`.
+    pub(super) free_chunks: Vec<FreeChunk>,
+    pub(super) free_out: [Vec<f64>; 2],
     // Scratch.
     pub(super) scratch: [Vec<f64>; 2],
     /// Right-hand side of the coupled solve: `h` (r), then `[psi_p; psi_t]` (2r).
@@ -305,6 +333,11 @@ impl CoupledMirror {
             f_cell: vec![0.0; na],
             z_cell: vec![0.0; na],
             z_mirror: vec![0.0; na],
+            free_chunks: Vec::new(),
+            free_out: [
+                vec![0.0; r * free_rows(FREE_CHUNK_TICKS)],
+                vec![0.0; r * free_rows(FREE_CHUNK_TICKS)],
+            ],
             scratch: [vec![0.0; r * N_STATE], vec![0.0; r * N_STATE]],
             rhs: vec![0.0; r],
             psi: vec![0.0; 2 * r],
@@ -438,21 +471,26 @@ impl CoupledMirror {
             let (p, s) = self.model.closed_loop(ch);
             let (p, s) = propagate(&p, &s, samples);
             free += channels[kind] * (nnz(p.as_slice()) + nnz(s.as_slice()) + N_STATE as u64);
-            // Per coupled tick and mode: the free part's map with its command and wind inputs
-            // and the force row, the cell-driven part's with its ramp input and force row, the
-            // ramp (the first tick of a servo period samples, the others hold the drive).
+            // Per coupled tick and mode: the cell-driven part's map with its ramp input and
+            // force row, the ramp (the first tick of a servo period samples, the others hold
+            // the drive).
             for set in (0..self.substeps).map(|s| usize::from(s > 0)) {
                 let map = nnz(self.tick[set][kind].as_slice());
                 let g = &self.tick_in[set][kind];
                 let inputs = (0..N_STATE)
-                    .map(|i| {
-                        u64::from(g[(i, 0)] != 0.0)
-                            + u64::from(g[(i, 2)] != 0.0)
-                            + u64::from(g[(i, 1)] != self.ramp[kind][i])
-                    })
-                    .sum::<u64>();
+                    .filter(|&i| g[(i, 1)] != self.ramp[kind][i])
+                    .count() as u64;
                 let ramp = nnz(self.ramp[kind].as_slice());
-                on_modes += samples * r * (2 * map + inputs + 2 * N_STATE as u64 + ramp);
+                on_modes += samples * r * (map + inputs + N_STATE as u64 + ramp);
+            }
+        }
+        // The free part on the modes: per chunk of ticks, its composed map.
+        let mut composed = 0;
+        for (phase, len) in self.chunks(ticks as usize) {
+            let c = self.compose_free(phase, len);
+            for k in 0..2 {
+                let rows = c.a[k].iter().flatten().chain(c.b[k].iter().flatten());
+                composed += r * rows.filter(|v| **v != 0.0).count() as u64;
             }
         }
         let na = self.na as u64;
@@ -463,8 +501,13 @@ impl CoupledMirror {
                 false,
             ),
             (
-                "channel maps on the modes, per coupled tick",
+                "channel maps on the modes: the cell-driven part, per coupled tick",
                 on_modes,
+                false,
+            ),
+            (
+                "the free part on the modes: its ticks composed, per chunk of ticks",
+                composed,
                 false,
             ),
             (
@@ -519,6 +562,73 @@ impl CoupledMirror {
             pier_z,
         });
         Ok(())
+    }
+
+    /// The composed map of a chunk of `len` ticks starting at sub-step `phase` (built from the
+    /// per-tick maps in the order the ticks take them, kept for the next steps).
+    pub(super) fn free_chunk(&mut self, phase: u32, len: usize) -> usize {
+        if let Some(i) = self
+            .free_chunks
+            .iter()
+            .position(|c| c.phase == phase && c.len == len)
+        {
+            return i;
+        }
+        let chunk = self.compose_free(phase, len);
+        self.free_chunks.push(chunk);
+        self.free_chunks.len() - 1
+    }
+
+    /// The chunks a step of `ticks` coupled ticks is taken in: `(phase, len)` each.
+    pub(super) fn chunks(&self, ticks: usize) -> impl Iterator<Item = (u32, usize)> + use<> {
+        let sub = self.substeps as usize;
+        (0..ticks)
+            .step_by(FREE_CHUNK_TICKS)
+            .map(move |t| ((t % sub) as u32, FREE_CHUNK_TICKS.min(ticks - t)))
+    }
+
+    /// The composed map of a chunk ([`FreeChunk`]).
+    fn compose_free(&self, phase: u32, len: usize) -> FreeChunk {
+        let dr = state::DRIVE;
+        let compose = |k: usize| {
+            let mut a = SMatrix::<f64, N_STATE, N_STATE>::identity();
+            let mut b = SMatrix::<f64, N_STATE, 2>::zeros();
+            let mut force = Vec::with_capacity(len);
+            let mut drive = Vec::with_capacity(len);
+            for i in 0..len {
+                let sample = (phase as usize + i).is_multiple_of(self.substeps as usize);
+                let set = usize::from(!sample);
+                let (p, g) = (&self.tick[set][k], &self.tick_in[set][k]);
+                let (a0, b0) = (a.row(dr).into_owned(), b.row(dr).into_owned());
+                a = p * a;
+                let mut gin = SMatrix::<f64, N_STATE, 2>::zeros();
+                gin.set_column(0, &g.column(0));
+                gin.set_column(1, &g.column(2));
+                b = p * b + gin;
+                let c = &self.cell_c[k];
+                force.push((c * a, c * b));
+                drive.push((a.row(dr) - a0, b.row(dr) - b0));
+            }
+            let mut ra: Vec<[f64; N_STATE]> = Vec::with_capacity(free_rows(len));
+            let mut rb: Vec<[f64; 2]> = Vec::with_capacity(free_rows(len));
+            for i in 0..N_STATE {
+                ra.push(std::array::from_fn(|j| a[(i, j)]));
+                rb.push(std::array::from_fn(|l| b[(i, l)]));
+            }
+            for (fa, fb) in force.iter().chain(&drive) {
+                ra.push(std::array::from_fn(|j| fa[j]));
+                rb.push(std::array::from_fn(|l| fb[l]));
+            }
+            (ra, rb)
+        };
+        let (a0, b0) = compose(0);
+        let (a1, b1) = compose(1);
+        FreeChunk {
+            phase,
+            len,
+            a: [a0, a1],
+            b: [b0, b1],
+        }
     }
 
     /// The held inputs on the modes: `Phi_k^T w_k` for the command and wind columns of each

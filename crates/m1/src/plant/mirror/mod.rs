@@ -41,7 +41,9 @@
 //! state driven by the cell motion is $\Phi_k \xi_k$, with $\xi_k$ ($r \times 10$ per channel kind)
 //! stepped by the same per-tick maps on the modal coordinates. The part driven by the command and
 //! the wind is stepped per communication step in actuator space, and its projection on the modes
-//! per tick. A tick then costs $O(r^2)$ (the coupled solve's products below and $O(r)$ axpys
+//! by the ticks' maps composed over a chunk of up to ten ticks (`FREE_CHUNK_TICKS`): one pass
+//! gives the projected states at the chunk's end and each tick's modal force and drive change
+//! (TMT, 300 modes: 6 % of the step; Keck with two sub-steps per servo period: 20 %). A tick then costs $O(r^2)$ (the coupled solve's products below and $O(r)$ axpys
 //! of the 12-state maps) and never touches the $na \times r$ shapes, which are used twice per
 //! communication step (projecting the held inputs, reconstructing the mirror's displacement).
 //! The cell's displacement and force take a second, two-column pass, made only when they are

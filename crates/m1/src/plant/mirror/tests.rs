@@ -177,13 +177,19 @@ fn results_do_not_depend_on_the_communication_step() {
         for _ in 0..10 {
             a.advance(1e-3, &u, &fw, 1e-9).expect("1 ms");
         }
+        let mut c = b.clone();
         for _ in 0..50 {
             b.advance(2e-4, &u, &fw, 1e-9).expect("0.2 ms");
+        }
+        // 5 ms steps: 25 ticks, in chunks of 10, 10 and 5 with their free part composed.
+        for _ in 0..2 {
+            c.advance(5e-3, &u, &fw, 1e-9).expect("5 ms");
         }
         // Equal to rounding: the free part takes one 5-tick map against five 1-tick maps.
         let (za, fa) = a.cell_outputs();
         let (zb, fb) = b.cell_outputs();
-        for (x, y) in [(za, zb), (fa, fb)] {
+        let (zc, fc) = c.cell_outputs();
+        for (x, y) in [(za, zb), (fa, fb), (zc, zb), (fc, fb)] {
             let scale = y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             for (p, q) in x.iter().zip(y) {
                 assert!((p - q).abs() <= 1e-12 * scale, "{p} vs {q}");
@@ -194,6 +200,50 @@ fn results_do_not_depend_on_the_communication_step() {
             .expect_err("off grid")
             .to_string();
         assert!(e.contains("communicationStepSize"), "{e}");
+    }
+}
+
+/// With three coupled sub-steps per servo period (the first samples, the others hold), steps
+/// of one servo period (three ticks, one chunk) and of 3 ms (45 ticks, in chunks of 10 that
+/// start at every phase of the period, then 5) end on the same states.
+#[test]
+fn substeps_give_the_same_results_for_any_chunk_of_ticks() {
+    let layout = Layout::keck();
+    let cell = CellModel::new(&layout, &CellParams::default())
+        .expect("cell")
+        .modes()
+        .expect("modes");
+    let mut a = CoupledMirror::new(
+        layout.n_segments(),
+        SegmentModel::piezo(),
+        cell,
+        40,
+        0.02,
+        3,
+    )
+    .expect("mirror");
+    let mut b = a.clone();
+    let na = a.n_actuators();
+    let fw = wind(na);
+    let u = vec![2e-8; na];
+    for _ in 0..30 {
+        a.advance(2e-4, &u, &fw, 1e-9).expect("0.2 ms");
+    }
+    for _ in 0..2 {
+        b.advance(3e-3, &u, &fw, 1e-9).expect("3 ms");
+    }
+    let (za, fa) = a.cell_outputs();
+    let (zb, fb) = b.cell_outputs();
+    let (za, fa, zb, fb) = (za.to_vec(), fa.to_vec(), zb.to_vec(), fb.to_vec());
+    let (mut ma, mut mb) = (vec![0.0; na], vec![0.0; na]);
+    a.mirror(&mut ma);
+    b.mirror(&mut mb);
+    for (x, y) in [(&za, &zb), (&fa, &fb), (&ma, &mb)] {
+        let scale = y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        assert!(scale > 0.0);
+        for (p, q) in x.iter().zip(y.iter()) {
+            assert!((p - q).abs() <= 1e-11 * scale, "{p} vs {q}");
+        }
     }
 }
 
@@ -296,10 +346,18 @@ fn multiply_adds_follow_the_step_and_the_maps() {
     assert_eq!(part("outputs back"), na * r);
     assert_eq!(part("coupled solve"), 5 * 2 * r * r);
     assert_eq!(part("drive jump"), 5 * 2 * r * r);
-    // Per tick, mode and kind: two maps, their inputs, two force rows, the ramp.
-    let dense = 5 * 2 * r * (2 * 144 + 3 + 24 + 12);
+    // Per tick, mode and kind: the cell-driven map, its ramp input, its force row, the ramp.
+    let dense = 5 * 2 * r * (144 + 12 + 12 + 12);
     let maps = part("channel maps on the modes");
     assert!(maps < dense && 2 * maps > dense, "{maps} of {dense}");
+    // The free part's five ticks composed: per mode and kind at most 12 + 2 x 5 rows of the
+    // 12 states and 2 inputs, and less than the five per-tick maps' dense 5 x 12 x 14.
+    let composed = part("the free part on the modes");
+    assert!(composed <= 2 * r * 22 * 14, "{composed}");
+    assert!(
+        composed < 2 * r * 5 * 12 * 14 && composed > 2 * r * 22,
+        "{composed}"
+    );
     assert!(m.multiply_adds_per_step(2.5 * ts).is_err());
 }
 

@@ -7,7 +7,7 @@ use super::coupled::CoupledMirror;
 use pulp::WithSimd;
 
 use super::projection::Reconstruct;
-use crate::linalg::kernels::{axpy, rows_dot, rows_dot_f32, rows_dot2_f32, state_map};
+use crate::linalg::kernels::{axpy, rows_dot, rows_dot_f32, rows_dot2_f32, rows_map, state_map};
 use crate::plant::segment::{N_STATE, state};
 
 impl CoupledMirror {
@@ -15,11 +15,25 @@ impl CoupledMirror {
     /// carried per mode (identical segments: the channel dynamics commute with the mode shapes).
     /// Modal arrays are state-major (`[s * r + j]`), so every update is a run of axpys.
     #[inline(always)]
-    fn tick<S: pulp::Simd>(&mut self, simd: S, pier_z: f64, sample: bool) {
+    fn tick<S: pulp::Simd>(&mut self, simd: S, pier_z: f64, sample: bool, at: (usize, usize)) {
         let r = self.r;
         const S: usize = N_STATE;
-        self.rhs.fill(0.0);
-        self.jump.fill(0.0);
+        // The free part's modal force and drive change over this tick, from the chunk's
+        // composed map ([`Self::free_ticks`]): tick `i` of `len`.
+        let (i, len) = at;
+        let [o0, o1] = &self.free_out;
+        let row = |k: usize| k * r..(k + 1) * r;
+        let (fr, jr) = (row(N_STATE + i), row(N_STATE + len + i));
+        for (((h, j), (f0, f1)), (d0, d1)) in self
+            .rhs
+            .iter_mut()
+            .zip(self.jump.iter_mut())
+            .zip(o0[fr.clone()].iter().zip(&o1[fr]))
+            .zip(o0[jr.clone()].iter().zip(&o1[jr]))
+        {
+            *h = f0 + f1;
+            *j = if sample { d0 + d1 } else { 0.0 };
+        }
         for k in 0..2 {
             self.tick_channels(simd, k, sample);
         }
@@ -144,11 +158,34 @@ impl CoupledMirror {
         }
     }
 
-    /// The channels of kind `k` (0 piston, 1 tilt) over one tick of [`Self::tick`], on the
-    /// modes: the free part (projected) and the cell-driven part without this tick's ramp, with
-    /// their terms of the coupled solve's right-hand side (`rhs`, `psi`) and, at a servo sample
-    /// (`sample`), the drive's change (`jump`, `drive_step`). Each part is one pass of
-    /// [`state_map`] over the modes (the same `N_STATE x N_STATE` map for every mode).
+    /// The free part of the channels over a chunk of ticks, on the modes: one pass of the
+    /// chunk's composed map per kind ([`super::coupled::FreeChunk`]) from the projected free
+    /// states and held inputs, giving each tick's modal force and drive change and the states at
+    /// the chunk's end (the same values as stepping the per-tick maps, to rounding).
+    #[inline(always)]
+    pub(super) fn free_ticks<S: pulp::Simd>(&mut self, simd: S, chunk: usize) {
+        let r = self.r;
+        let c = &self.free_chunks[chunk];
+        for k in 0..2 {
+            let wp = &self.w_proj[k];
+            rows_map::<S, N_STATE, 2>(
+                simd,
+                &c.a[k],
+                &c.b[k],
+                &self.proj[k],
+                [&wp[..r], &wp[2 * r..3 * r]],
+                r,
+                &mut self.free_out[k],
+            );
+            self.proj[k].copy_from_slice(&self.free_out[k][..N_STATE * r]);
+        }
+    }
+
+    /// The cell-driven channels of kind `k` (0 piston, 1 tilt) over one tick of
+    /// [`Self::tick`], on the modes, without this tick's ramp, with their terms of the
+    /// coupled solve's right-hand side (`psi`) and, at a servo sample (`sample`), the drive's
+    /// change (`drive_step`): one pass of [`state_map`] over the modes (the same
+    /// `N_STATE x N_STATE` map for every mode).
     #[inline(always)]
     fn tick_channels<S: pulp::Simd>(&mut self, simd: S, k: usize, sample: bool) {
         let r = self.r;
@@ -163,27 +200,6 @@ impl CoupledMirror {
         let pa: [[f64; N_STATE]; N_STATE] =
             std::array::from_fn(|i| std::array::from_fn(|s| p[(i, s)]));
         let ca: [f64; N_STATE] = std::array::from_fn(|i| c[i]);
-        let wp = &self.w_proj[k];
-        // Free part, projected: P+_i = sum_s p_is P_s + g_i0 W_u + g_i2 W_f; h += P+ c^T.
-        let gf: [[f64; 2]; N_STATE] = std::array::from_fn(|i| [g[(i, 0)], g[(i, 2)]]);
-        state_map::<S, N_STATE, 2>(
-            simd,
-            &pa,
-            &gf,
-            &self.proj[k],
-            [&wp[..r], &wp[2 * r..3 * r]],
-            r,
-            &mut self.scratch[k],
-            Some((&ca, &mut self.rhs)),
-        );
-        std::mem::swap(&mut self.proj[k], &mut self.scratch[k]);
-        // The free part's drive change at the sample, on the modes.
-        if sample {
-            let (new, old) = (&self.proj[k][dr * r..], &self.scratch[k][dr * r..]);
-            for j in 0..r {
-                self.jump[j] += new[j] - old[j];
-            }
-        }
         // Cell-driven part without this tick's ramp: Y_i = sum_s p_is xi_s + (g_i1 - ramp_i) q;
         // psi~_k = Y c^T.
         let gc: [[f64; 1]; N_STATE] = std::array::from_fn(|i| [g[(i, 1)] - ramp[i]]);
@@ -351,10 +367,16 @@ impl pulp::WithSimd for Step<'_> {
     fn with_simd<S: pulp::Simd>(self, simd: S) {
         let m = self.mirror;
         m.project_inputs(simd);
-        for _ in 0..self.ticks {
-            for s in 0..m.substeps {
-                m.tick(simd, self.pier_z, s == 0);
+        // The ticks in chunks of at most FREE_CHUNK_TICKS, each with its free part composed.
+        let sub = m.substeps as usize;
+        let mut t = 0;
+        for (phase, len) in m.chunks(self.ticks as usize * sub) {
+            let chunk = m.free_chunk(phase, len);
+            m.free_ticks(simd, chunk);
+            for i in 0..len {
+                m.tick(simd, self.pier_z, (t + i).is_multiple_of(sub), (i, len));
             }
+            t += len;
         }
         m.write_outputs(simd);
     }
