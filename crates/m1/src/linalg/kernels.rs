@@ -561,69 +561,6 @@ fn axpy_rows_x2_f32<S: Simd, const R: usize>(
     }
 }
 
-/// `y_l += A x_l` for three right-hand sides with a single-precision `A` (`m x k` row-major,
-/// row stride `lda`) and `x_l`; each row's products are summed in single precision, by lane
-/// and then across the lanes, and added to the double-precision `y_l` (relative error about
-/// 1e-7 of the row's magnitude: each lane sums `k / lanes` products). With `k` a whole number
-/// of vectors ([`padded_len`]) there is no scalar tail, and a row costs `k / lanes` fused
-/// multiply-adds per right-hand side plus one vector reduction.
-///
-/// # Panics
-/// If a slice is shorter than the dimensions say (a programming error).
-#[inline(always)]
-pub fn rows_dot3_f32<S: Simd>(
-    simd: S,
-    a: &[f32],
-    lda: usize,
-    m: usize,
-    k: usize,
-    x: [&[f32]; 3],
-    y: [&mut [f64]; 3],
-) {
-    let [y0, y1, y2] = y;
-    let (x0, xt0) = S::as_simd_f32s(&x[0][..k]);
-    let n = x0.len();
-    let (x1, xt1) = S::as_simd_f32s(&x[1][..k]);
-    let (x2, xt2) = S::as_simd_f32s(&x[2][..k]);
-    let (x1, x2) = (&x1[..n], &x2[..n]);
-    let lanes = |v: S::f32s| -> f64 { f64::from(simd.reduce_sum_f32s(v)) };
-    let tail = |t: &[f32], xt: &[f32]| -> f64 {
-        t.iter()
-            .zip(xt)
-            .map(|(p, q)| f64::from(*p) * f64::from(*q))
-            .sum()
-    };
-    let row = |i: usize| &a[i * lda..][..k];
-    let mut i = 0;
-    while i < m {
-        let two = i + 2 <= m;
-        let (p, pt) = S::as_simd_f32s(row(i));
-        let (q, qt) = S::as_simd_f32s(row(if two { i + 1 } else { i }));
-        let (p, q) = (&p[..n], &q[..n]);
-        let zero = simd.splat_f32s(0.0);
-        let (mut p0, mut p1, mut p2, mut q0, mut q1, mut q2) = (zero, zero, zero, zero, zero, zero);
-        for c in 0..n {
-            let (pv, qv) = (p[c], q[c]);
-            let (v0, v1, v2) = (x0[c], x1[c], x2[c]);
-            p0 = simd.mul_add_f32s(pv, v0, p0);
-            p1 = simd.mul_add_f32s(pv, v1, p1);
-            p2 = simd.mul_add_f32s(pv, v2, p2);
-            q0 = simd.mul_add_f32s(qv, v0, q0);
-            q1 = simd.mul_add_f32s(qv, v1, q1);
-            q2 = simd.mul_add_f32s(qv, v2, q2);
-        }
-        y0[i] += lanes(p0) + tail(pt, xt0);
-        y1[i] += lanes(p1) + tail(pt, xt1);
-        y2[i] += lanes(p2) + tail(pt, xt2);
-        if two {
-            y0[i + 1] += lanes(q0) + tail(qt, xt0);
-            y1[i + 1] += lanes(q1) + tail(qt, xt1);
-            y2[i + 1] += lanes(q2) + tail(qt, xt2);
-        }
-        i += 2;
-    }
-}
-
 /// `y = A^T x` for a real `m x k` row-major `A` (row stride `k`) and a complex `x` given as
 /// its real and imaginary parts (length `m`; `y` length `k`), dispatched to the processor's
 /// widest vectors: one pass over `A`.
@@ -729,29 +666,19 @@ pub fn state_map<S: Simd, const NS: usize, const NI: usize>(
     dot: Option<(&[f64; NS], &mut [f64])>,
 ) {
     const G: usize = ROW_GROUP;
+    const { assert!(NS <= ROWS_MAP_MAX, "state_map: too many states") };
     if n == 0 {
         return;
     }
-    let xs: [&[f64]; NS] = std::array::from_fn(|j| &x[j * n..(j + 1) * n]);
-    let us: [&[f64]; NI] = std::array::from_fn(|l| &u[l][..n]);
+    let (xs, us) = columns(x, u, n);
     let mut rows = out[..NS * n].chunks_exact_mut(n);
     let mut outs: [&mut [f64]; NS] = std::array::from_fn(|_| rows.next().unwrap_or_default());
     let m = S::as_simd_f64s(xs[0]).0.len();
     let tail = n - S::as_simd_f64s(xs[0]).1.len();
     let xh: [&[S::f64s]; NS] = std::array::from_fn(|j| &S::as_simd_f64s(xs[j]).0[..m]);
     let uh: [&[S::f64s]; NI] = std::array::from_fn(|l| &S::as_simd_f64s(us[l]).0[..m]);
-    // Which sources (states, inputs) each group of rows reads: `[g][j]` for g < groups.
     let groups = NS.div_ceil(G);
-    let mut use_x = [[false; NS]; NS];
-    let mut use_u = [[false; NI]; NS];
-    for i in 0..NS {
-        for j in 0..NS {
-            use_x[i / G][j] |= a[i][j] != 0.0;
-        }
-        for l in 0..NI {
-            use_u[i / G][l] |= b[i][l] != 0.0;
-        }
-    }
+    let (use_x, use_u) = group_masks(a, b);
     let (w, mut d) = match dot {
         Some((w, d)) => (Some(w), Some(d)),
         None => (None, None),
@@ -769,26 +696,7 @@ pub fn state_map<S: Simd, const NS: usize, const NI: usize>(
             let uv: [S::f64s; NI] = std::array::from_fn(|l| uh[l][c]);
             let mut dacc = zero;
             for g in 0..groups {
-                let mut acc = [zero; G];
-                let row = |r: usize| (G * g + r).min(NS - 1);
-                for j in 0..NS {
-                    if use_x[g][j] {
-                        let v = xv[j];
-                        for (r, acc) in acc.iter_mut().enumerate() {
-                            let k = if G * g + r < NS { a[row(r)][j] } else { 0.0 };
-                            *acc = simd.mul_add_e_f64s(simd.splat_f64s(k), v, *acc);
-                        }
-                    }
-                }
-                for l in 0..NI {
-                    if use_u[g][l] {
-                        let v = uv[l];
-                        for (r, acc) in acc.iter_mut().enumerate() {
-                            let k = if G * g + r < NS { b[row(r)][l] } else { 0.0 };
-                            *acc = simd.mul_add_e_f64s(simd.splat_f64s(k), v, *acc);
-                        }
-                    }
-                }
+                let acc = group_sums(simd, a, b, g, (&use_x[g], &use_u[g]), &xv, &uv);
                 for (r, acc) in acc.into_iter().enumerate() {
                     let i = G * g + r;
                     if i < NS {
@@ -808,13 +716,7 @@ pub fn state_map<S: Simd, const NS: usize, const NI: usize>(
     for c in tail..n {
         let mut dacc = 0.0;
         for (i, o) in outs.iter_mut().enumerate() {
-            let mut acc = a[i][0] * xs[0][c];
-            for (j, x) in xs.iter().enumerate().skip(1) {
-                acc += a[i][j] * x[c];
-            }
-            for (l, u) in us.iter().enumerate() {
-                acc += b[i][l] * u[c];
-            }
+            let acc = row_sum(&a[i], &b[i], &xs, &us, c);
             o[c] = acc;
             if let Some(w) = w {
                 dacc += w[i] * acc;
@@ -824,6 +726,97 @@ pub fn state_map<S: Simd, const NS: usize, const NI: usize>(
             d[c] += dacc;
         }
     }
+}
+
+/// The `NS` state columns of `x` (`NS n`, state-major) and the `NI` input columns, each `n`
+/// long.
+#[inline(always)]
+#[allow(clippy::type_complexity)]
+fn columns<'a, const NS: usize, const NI: usize>(
+    x: &'a [f64],
+    u: [&'a [f64]; NI],
+    n: usize,
+) -> ([&'a [f64]; NS], [&'a [f64]; NI]) {
+    (
+        std::array::from_fn(|j| &x[j * n..(j + 1) * n]),
+        std::array::from_fn(|l| &u[l][..n]),
+    )
+}
+
+/// Groups of [`ROW_GROUP`] rows of the maps of [`state_map`] and [`rows_map`], at most.
+const MAX_GROUPS: usize = ROWS_MAP_MAX / ROW_GROUP;
+
+/// Which sources (states, inputs) each group of [`ROW_GROUP`] rows of `[a b]` reads: `[g][j]`.
+#[inline(always)]
+#[allow(clippy::type_complexity)]
+fn group_masks<const NS: usize, const NI: usize>(
+    a: &[[f64; NS]],
+    b: &[[f64; NI]],
+) -> ([[bool; NS]; MAX_GROUPS], [[bool; NI]; MAX_GROUPS]) {
+    let mut use_x = [[false; NS]; MAX_GROUPS];
+    let mut use_u = [[false; NI]; MAX_GROUPS];
+    for (i, (ai, bi)) in a.iter().zip(b).enumerate() {
+        for (j, v) in ai.iter().enumerate() {
+            use_x[i / ROW_GROUP][j] |= *v != 0.0;
+        }
+        for (l, v) in bi.iter().enumerate() {
+            use_u[i / ROW_GROUP][l] |= *v != 0.0;
+        }
+    }
+    (use_x, use_u)
+}
+
+/// The sums of group `g`'s rows of `[a b]` (rows `G g..G g + G`; past the last row the last
+/// is repeated, its sum to be dropped) at one vector of columns `xv`, `uv`, skipping the
+/// sources the group does not read; each in the order of `a`'s columns, then `b`'s.
+#[inline(always)]
+fn group_sums<S: Simd, const NS: usize, const NI: usize>(
+    simd: S,
+    a: &[[f64; NS]],
+    b: &[[f64; NI]],
+    g: usize,
+    used: (&[bool; NS], &[bool; NI]),
+    xv: &[S::f64s; NS],
+    uv: &[S::f64s; NI],
+) -> [S::f64s; ROW_GROUP] {
+    let row = |r: usize| (ROW_GROUP * g + r).min(a.len() - 1);
+    let mut acc = [simd.splat_f64s(0.0); ROW_GROUP];
+    for j in 0..NS {
+        if used.0[j] {
+            for (r, acc) in acc.iter_mut().enumerate() {
+                let k = a[row(r)][j];
+                *acc = simd.mul_add_e_f64s(simd.splat_f64s(k), xv[j], *acc);
+            }
+        }
+    }
+    for l in 0..NI {
+        if used.1[l] {
+            for (r, acc) in acc.iter_mut().enumerate() {
+                let k = b[row(r)][l];
+                *acc = simd.mul_add_e_f64s(simd.splat_f64s(k), uv[l], *acc);
+            }
+        }
+    }
+    acc
+}
+
+/// One row of `[a b]` at column `c`, in the order of `a`'s columns, then `b`'s.
+#[inline(always)]
+fn row_sum<const NS: usize, const NI: usize>(
+    a: &[f64; NS],
+    b: &[f64; NI],
+    xs: &[&[f64]; NS],
+    us: &[&[f64]; NI],
+    c: usize,
+) -> f64 {
+    let mut acc = a[0] * xs[0][c];
+    for (j, x) in xs.iter().enumerate().skip(1) {
+        acc += a[j] * x[c];
+    }
+    for (l, u) in us.iter().enumerate() {
+        acc += b[l] * u[c];
+    }
+    acc
 }
 
 /// Most rows [`rows_map`] takes (its per-group masks live in fixed arrays).
@@ -850,7 +843,6 @@ pub fn rows_map<S: Simd, const NS: usize, const NI: usize>(
     out: &mut [f64],
 ) {
     const G: usize = ROW_GROUP;
-    const MAXG: usize = ROWS_MAP_MAX / ROW_GROUP;
     let rows = a.len();
     assert!(
         b.len() == rows && rows <= ROWS_MAP_MAX,
@@ -859,52 +851,23 @@ pub fn rows_map<S: Simd, const NS: usize, const NI: usize>(
     if n == 0 || rows == 0 {
         return;
     }
-    let xs: [&[f64]; NS] = std::array::from_fn(|j| &x[j * n..(j + 1) * n]);
-    let us: [&[f64]; NI] = std::array::from_fn(|l| &u[l][..n]);
+    let (xs, us) = columns(x, u, n);
     let out = &mut out[..rows * n];
     let m = S::as_simd_f64s(xs[0]).0.len();
     let tail = n - S::as_simd_f64s(xs[0]).1.len();
     let xh: [&[S::f64s]; NS] = std::array::from_fn(|j| &S::as_simd_f64s(xs[j]).0[..m]);
     let uh: [&[S::f64s]; NI] = std::array::from_fn(|l| &S::as_simd_f64s(us[l]).0[..m]);
-    let groups = rows.div_ceil(G);
-    let mut use_x = [[false; NS]; MAXG];
-    let mut use_u = [[false; NI]; MAXG];
-    for i in 0..rows {
-        for j in 0..NS {
-            use_x[i / G][j] |= a[i][j] != 0.0;
-        }
-        for l in 0..NI {
-            use_u[i / G][l] |= b[i][l] != 0.0;
-        }
-    }
-    let zero = simd.splat_f64s(0.0);
+    let (use_x, use_u) = group_masks(a, b);
     let mut it = out.chunks_exact_mut(n);
-    for g in 0..groups {
-        let row = |r: usize| (G * g + r).min(rows - 1);
+    for g in 0..rows.div_ceil(G) {
         let mut oh: [&mut [S::f64s]; G] = std::array::from_fn(|_| match it.next() {
             Some(o) => S::as_mut_simd_f64s(o).0,
             None => Default::default(),
         });
         for c in 0..m {
-            let mut acc = [zero; G];
-            for j in 0..NS {
-                if use_x[g][j] {
-                    let v = xh[j][c];
-                    for (r, acc) in acc.iter_mut().enumerate() {
-                        let k = a[row(r)][j];
-                        *acc = simd.mul_add_e_f64s(simd.splat_f64s(k), v, *acc);
-                    }
-                }
-            }
-            for l in 0..NI {
-                if use_u[g][l] {
-                    let v = uh[l][c];
-                    for (r, acc) in acc.iter_mut().enumerate() {
-                        let k = b[row(r)][l];
-                        *acc = simd.mul_add_e_f64s(simd.splat_f64s(k), v, *acc);
-                    }
-                }
-            }
+            let xv: [S::f64s; NS] = std::array::from_fn(|j| xh[j][c]);
+            let uv: [S::f64s; NI] = std::array::from_fn(|l| uh[l][c]);
+            let acc = group_sums(simd, a, b, g, (&use_x[g], &use_u[g]), &xv, &uv);
             for (o, acc) in oh.iter_mut().zip(acc) {
                 if let Some(o) = o.get_mut(c) {
                     *o = acc;
@@ -915,14 +878,7 @@ pub fn rows_map<S: Simd, const NS: usize, const NI: usize>(
     // The columns after the last whole vector.
     for c in tail..n {
         for i in 0..rows {
-            let mut acc = a[i][0] * xs[0][c];
-            for (j, x) in xs.iter().enumerate().skip(1) {
-                acc += a[i][j] * x[c];
-            }
-            for (l, u) in us.iter().enumerate() {
-                acc += b[i][l] * u[c];
-            }
-            out[i * n + c] = acc;
+            out[i * n + c] = row_sum(&a[i], &b[i], &xs, &us, c);
         }
     }
 }
@@ -1193,19 +1149,6 @@ mod tests {
             };
             let near = |got: f64, want: f64, mag: f64| (got - want).abs() <= 1e-6 * mag + 1e-30;
             let xs: Vec<(Vec<f32>, Vec<f64>)> = x.iter().map(|v| round(v)).collect();
-            let mut y: Vec<Vec<f64>> = (0..3).map(|l| vec![l as f64; m]).collect();
-            let [y0, y1, y2] = &mut y[..] else {
-                unreachable!()
-            };
-            rows_dot3_f32::<S>(
-                simd,
-                &a32,
-                lda,
-                m,
-                k,
-                [&xs[0].0, &xs[1].0, &xs[2].0],
-                [y0, y1, y2],
-            );
             let mut single = vec![0.5; m];
             rows_dot_f32::<S>(simd, &a32, lda, m, k, &xs[2].0, &mut single);
             let mut pair: Vec<Vec<f64>> = (0..2).map(|l| vec![-(l as f64); m]).collect();
@@ -1218,7 +1161,6 @@ mod tests {
                     let terms = (0..k).map(|j| a64[i * lda + j] * xs[l].1[j]);
                     let want: f64 = terms.clone().sum();
                     let mag: f64 = terms.map(f64::abs).sum();
-                    assert!(near(y[l][i], l as f64 + want, mag), "{m}x{k} f32 dot l={l}");
                     if l == 2 {
                         assert!(near(single[i], 0.5 + want, mag), "{m}x{k} f32 dot one");
                     }
