@@ -128,13 +128,7 @@ pub fn rows_dot_f32<S: Simd>(
     let (xh, xt) = S::as_simd_f32s(x);
     let n = xh.len();
     let lanes = |v: S::f32s| -> f64 { f64::from(simd.reduce_sum_f32s(v)) };
-    let tail = |row: &[f32]| -> f64 {
-        let (_, rt) = S::as_simd_f32s(row);
-        rt.iter()
-            .zip(xt)
-            .map(|(p, q)| f64::from(*p) * f64::from(*q))
-            .sum()
-    };
+    let tail = |row: &[f32]| -> f64 { tail_dot(S::as_simd_f32s(row).1, xt) };
     let row = |i: usize| &a[i * lda..][..k];
     let mut i = 0;
     // Four rows at a time: four independent accumulation chains.
@@ -219,12 +213,7 @@ pub fn rows_dot2_f32<S: Simd>(
         for (r, accr) in acc.iter().enumerate() {
             let rt = S::as_simd_f32s(rows[r]).1;
             for (l, yl) in [&mut *y0, &mut *y1].into_iter().enumerate() {
-                let tail: f64 = rt
-                    .iter()
-                    .zip(xt[l])
-                    .map(|(u, w)| f64::from(*u) * f64::from(*w))
-                    .sum();
-                yl[i + r] += f64::from(simd.reduce_sum_f32s(accr[l])) + tail;
+                yl[i + r] += f64::from(simd.reduce_sum_f32s(accr[l])) + tail_dot(rt, xt[l]);
             }
         }
         i += 4;
@@ -238,15 +227,20 @@ pub fn rows_dot2_f32<S: Simd>(
             q = simd.mul_add_f32s(*v, xh[1][c], q);
         }
         for (l, (yl, acc)) in [(&mut *y0, p), (&mut *y1, q)].into_iter().enumerate() {
-            let tail: f64 = rt
-                .iter()
-                .zip(xt[l])
-                .map(|(u, w)| f64::from(*u) * f64::from(*w))
-                .sum();
-            yl[i] += f64::from(simd.reduce_sum_f32s(acc)) + tail;
+            yl[i] += f64::from(simd.reduce_sum_f32s(acc)) + tail_dot(rt, xt[l]);
         }
         i += 1;
     }
+}
+
+/// The products of a single-precision row's scalar tail with the vector's, summed in double
+/// precision.
+#[inline(always)]
+fn tail_dot(t: &[f32], x: &[f32]) -> f64 {
+    t.iter()
+        .zip(x)
+        .map(|(u, w)| f64::from(*u) * f64::from(*w))
+        .sum()
 }
 
 /// Sum of the lanes of a vector.
