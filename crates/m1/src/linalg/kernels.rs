@@ -31,12 +31,11 @@ pub const fn padded_len(k: usize) -> usize {
     k.div_ceil(16) * 16
 }
 
-/// `y_l += A x_l` for `L` (1, 2 or 3) right-hand sides; `A` is `m x k` row-major with row
+/// `y_l += A x_l` for `L` (1 or 2) right-hand sides; `A` is `m x k` row-major with row
 /// stride `lda`, `x_l` has length `k`, `y_l` length `m`.
 ///
 /// # Panics
-/// If a slice is shorter than the dimensions say, or `L` is not 1, 2 or 3 (programming
-/// errors).
+/// If a slice is shorter than the dimensions say, or `L` is not 1 or 2 (programming errors).
 #[inline(always)]
 pub fn rows_dot<S: Simd, const L: usize>(
     simd: S,
@@ -62,7 +61,8 @@ pub fn rows_dot<S: Simd, const L: usize>(
                 i += 4;
             }
             while i < m {
-                put(&mut y[i], dot2x3(simd, [row(i), row(i)], [x, x, x])[0][0]);
+                let [[v]] = dot_block_f64(simd, [row(i)], [x]);
+                put(&mut y[i], v);
                 i += 1;
             }
         }
@@ -88,21 +88,7 @@ pub fn rows_dot<S: Simd, const L: usize>(
                 i += 1;
             }
         }
-        3 => {
-            let x = [x[0], x[1], x[2]];
-            let mut i = 0;
-            while i < m {
-                let two = i + 2 <= m;
-                let s = dot2x3(simd, [row(i), row(if two { i + 1 } else { i })], x);
-                for (r, sr) in s.iter().enumerate().take(if two { 2 } else { 1 }) {
-                    for (l, v) in sr.iter().enumerate() {
-                        put(&mut y[l][i + r], *v);
-                    }
-                }
-                i += 2;
-            }
-        }
-        _ => panic!("rows_dot: {L} right-hand sides (1, 2 or 3 supported)"),
+        _ => panic!("rows_dot: {L} right-hand sides (1 or 2 supported)"),
     }
 }
 
@@ -321,50 +307,6 @@ fn dot_block_f64<S: Simd, const R: usize, const L: usize>(
             s
         })
     })
-}
-
-/// Dot products of two rows with three vectors.
-#[inline(always)]
-fn dot2x3<S: Simd>(simd: S, rows: [&[f64]; 2], x: [&[f64]; 3]) -> [[f64; 3]; 2] {
-    let (x0, xt0) = S::as_simd_f64s(x[0]);
-    let n = x0.len();
-    let (x1, xt1) = S::as_simd_f64s(x[1]);
-    let (x2, xt2) = S::as_simd_f64s(x[2]);
-    let (x1, x2) = (&x1[..n], &x2[..n]);
-    let (p, pt) = S::as_simd_f64s(rows[0]);
-    let (q, qt) = S::as_simd_f64s(rows[1]);
-    let (p, q) = (&p[..n], &q[..n]);
-    let zero = simd.splat_f64s(0.0);
-    let (mut p0, mut p1, mut p2, mut q0, mut q1, mut q2) = (zero, zero, zero, zero, zero, zero);
-    for c in 0..n {
-        let (pv, qv) = (p[c], q[c]);
-        let (v0, v1, v2) = (x0[c], x1[c], x2[c]);
-        p0 = simd.mul_add_f64s(pv, v0, p0);
-        p1 = simd.mul_add_f64s(pv, v1, p1);
-        p2 = simd.mul_add_f64s(pv, v2, p2);
-        q0 = simd.mul_add_f64s(qv, v0, q0);
-        q1 = simd.mul_add_f64s(qv, v1, q1);
-        q2 = simd.mul_add_f64s(qv, v2, q2);
-    }
-    let tail = |t: &[f64], xt: &[f64]| -> f64 {
-        let mut s = 0.0;
-        for (a, b) in t.iter().zip(xt) {
-            s += a * b;
-        }
-        s
-    };
-    [
-        [
-            hsum::<S>(p0) + tail(pt, xt0),
-            hsum::<S>(p1) + tail(pt, xt1),
-            hsum::<S>(p2) + tail(pt, xt2),
-        ],
-        [
-            hsum::<S>(q0) + tail(qt, xt0),
-            hsum::<S>(q1) + tail(qt, xt1),
-            hsum::<S>(q2) + tail(qt, xt2),
-        ],
-    ]
 }
 
 /// `y_l = A^T x_l` for `L` (1 or 2) right-hand sides; `A` is `m x k` row-major with row stride
@@ -587,31 +529,23 @@ pub fn real_t_times_complex(a: &[f64], m: usize, k: usize, x: [&[f64]; 2], y: [&
 
 /// `y = A x` for a real `m x k` row-major `A` (row stride `k`) and a complex `x` given as its
 /// real and imaginary parts (length `k`; `y` length `m`), dispatched to the processor's widest
-/// vectors: one pass over `A` (`scratch`, length `m`, takes a third, unused, right-hand side).
+/// vectors: one pass over `A` for both parts.
 ///
 /// # Panics
 /// If a slice is shorter than the dimensions say (a programming error).
-pub fn real_times_complex(
-    a: &[f64],
-    m: usize,
-    k: usize,
-    x: [&[f64]; 2],
-    y: [&mut [f64]; 2],
-    scratch: &mut [f64],
-) {
+pub fn real_times_complex(a: &[f64], m: usize, k: usize, x: [&[f64]; 2], y: [&mut [f64]; 2]) {
     struct Op<'a> {
         a: &'a [f64],
         m: usize,
         k: usize,
         x: [&'a [f64]; 2],
-        y: [&'a mut [f64]; 3],
+        y: [&'a mut [f64]; 2],
     }
     impl pulp::WithSimd for Op<'_> {
         type Output = ();
         #[inline(always)]
         fn with_simd<S: Simd>(self, simd: S) {
-            let [x0, x1] = self.x;
-            rows_dot::<S, 3>(simd, self.a, self.k, self.m, self.k, [x0, x1, x1], self.y);
+            rows_dot::<S, 2>(simd, self.a, self.k, self.m, self.k, self.x, self.y);
         }
     }
     let [y0, y1] = y;
@@ -622,7 +556,7 @@ pub fn real_times_complex(
         m,
         k,
         x,
-        y: [y0, y1, scratch],
+        y: [y0, y1],
     });
 }
 
@@ -1084,7 +1018,7 @@ mod tests {
                 (0..len).map(|i| ((i + 3 * l) as f64).sin()).collect()
             };
             let close = |got: f64, want: f64| (got - want).abs() < 1e-12 * (1.0 + want.abs());
-            // y = A x and y += A x, with one and three right-hand sides.
+            // y += A x, with one and two right-hand sides.
             let x: Vec<Vec<f64>> = (0..3).map(|l| vec(k, l)).collect();
             let want: Vec<Vec<f64>> = x
                 .iter()
@@ -1094,16 +1028,6 @@ mod tests {
                         .collect()
                 })
                 .collect();
-            let mut y: Vec<Vec<f64>> = (0..3).map(|l| vec![l as f64; m]).collect();
-            let [y0, y1, y2] = &mut y[..] else {
-                unreachable!()
-            };
-            rows_dot::<S, 3>(simd, &a, lda, m, k, [&x[0], &x[1], &x[2]], [y0, y1, y2]);
-            for l in 0..3 {
-                for i in 0..m {
-                    assert!(close(y[l][i], l as f64 + want[l][i]), "{m}x{k} acc l={l}");
-                }
-            }
             let mut y1 = vec![-1.0; m];
             rows_dot::<S, 1>(simd, &a, lda, m, k, [&x[1]], [&mut y1]);
             for i in 0..m {

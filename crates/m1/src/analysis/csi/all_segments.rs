@@ -164,7 +164,7 @@ impl ActuatorLoop {
             .map(|(p, t)| wx[0] * p + wx[1] * t)
             .collect();
         let big = r.max(w);
-        let mut buf = vec![0.0; 5 * big];
+        let mut buf = vec![0.0; 4 * big];
         // The solves sit in the Lanczos loop of one frequency, in this thread (the frequencies
         // are what runs in parallel), one right-hand side each.
         let mut work = Vec::with_capacity(r);
@@ -172,8 +172,7 @@ impl ActuatorLoop {
         let op = |x: &[c64], o: &mut [c64]| {
             let (xr, rest) = buf.split_at_mut(big);
             let (xi, rest) = rest.split_at_mut(big);
-            let (t0, rest) = rest.split_at_mut(big);
-            let (t1, t2) = rest.split_at_mut(big);
+            let (t0, t1) = rest.split_at_mut(big);
             for (i, v) in x.iter().enumerate() {
                 xr[i] = v.re;
                 xi[i] = v.im;
@@ -205,7 +204,6 @@ impl ActuatorLoop {
                 r,
                 [&xr[..r], &xi[..r]],
                 [&mut t0[..r], &mut t1[..r]],
-                &mut t2[..r],
             );
             let c = [cx[0].conj() * d[0], cx[1].conj() * d[1]];
             for (j, z2j) in z2.iter_mut().enumerate() {
@@ -226,7 +224,6 @@ impl ActuatorLoop {
                     r,
                     [&xr[..r], &xi[..r]],
                     [&mut t0[..m], &mut t1[..m]],
-                    &mut t2[..m],
                 );
                 let d2 = d[kd].norm_sqr();
                 let start = ranges[kd].start;
