@@ -396,18 +396,16 @@ impl<M: Model> Instance<M> {
         if !self.on_demand_stale {
             return Ok(());
         }
+        let lo = self.type_range(VarType::Real).start;
         let Some(r) = self.running.as_mut() else {
             return Ok(());
         };
-        let groups = r.on_demand();
-        if !groups.iter().any(wanted) {
+        if !r.on_demand().iter().any(wanted) {
             return Ok(());
         }
-        let groups = groups.to_vec();
         r.write_on_demand(&mut self.values)?;
         self.on_demand_stale = false;
-        let lo = self.type_range(VarType::Real).start;
-        for g in groups {
+        for g in r.on_demand() {
             let slots = (g.start - lo) as usize..(g.end - lo) as usize;
             if self.values.reals[slots].iter().any(|x| !x.is_finite()) {
                 return Err(FmuError::Model(format!(

@@ -17,9 +17,9 @@ use crate::plant::segment::{
 use crate::plant::structure::{Flexibility, ModalModel, ModalSolver};
 
 /// Retained modes from which [`CoupledMirror`] streams its coupled solve's matrices in single
-/// precision by default ([`CoupledMirror::set_coupling_single`]): there the `r x 2r` Gram
-/// matrices in double precision (360 kB at 150 modes) and the `r x r` correction (180 kB) no
-/// longer fit a core's L2 cache of the project's machine (512 kB).
+/// precision by default ([`CoupledMirror::set_coupling_single`]): there the `r x 2r` matrix
+/// `[W G_p, W G_t]` in double precision (360 kB at 150 modes) and the Gram matrices' single-
+/// precision copy (180 kB) no longer fit a core's L2 cache of the project's machine (512 kB).
 pub const SINGLE_COUPLING_MIN_MODES: usize = 150;
 
 /// Most coupled ticks whose free part [`CoupledMirror`] composes into one map (a chunk): the
@@ -91,8 +91,8 @@ pub struct CoupledMirror {
     /// [`padded_len`]`(r)`.
     pub(super) ld32: usize,
     /// Single-precision scratch: the channel inputs by kind (command then wind, `2 n_k`), the
-    /// projection's accumulators (`ld32` each) and the output columns (6 columns of `ld32`,
-    /// zero past `r`).
+    /// projection's accumulators (`ld32` each) and the output columns (at most 4 columns of
+    /// `ld32`, zero past `r`: the mirror's displacement one per kind, the cell's two per kind).
     pub(super) w32: [Vec<f32>; 2],
     pub(super) acc32: [Vec<f32>; 2],
     pub(super) cols32: Vec<f32>,
@@ -146,7 +146,7 @@ pub struct CoupledMirror {
     pub(super) z_cell: Vec<f64>,
     pub(super) z_mirror: Vec<f64>,
     /// The free part's ticks composed, built when a chunk of ticks first needs them
-    /// ([`FreeChunk`]), and their values over the chunk, by kind: `FREE_ROWS(len) x r`.
+    /// ([`FreeChunk`]), and their values over the chunk, by kind: `free_rows(len) x r`.
     pub(super) free_chunks: Vec<FreeChunk>,
     pub(super) free_out: [Vec<f64>; 2],
     // Scratch.
@@ -154,12 +154,15 @@ pub struct CoupledMirror {
     /// Right-hand side of the coupled solve: `h` (r), then `[psi_p; psi_t]` (2r).
     pub(super) rhs: Vec<f64>,
     pub(super) psi: Vec<f64>,
-    /// The cell-driven part's drive change at the sample, by kind (2r), and the free part's
-    /// modal force jump (r).
+    /// The cell-driven part's drive change at the sample, by kind (2r), and the modal force's
+    /// jump at the sample (r: the free part's, and outside the one-pass form the cell-driven
+    /// part's too).
     pub(super) drive_step: Vec<f64>,
     pub(super) jump: Vec<f64>,
     pub(super) u_new: Vec<f64>,
     pub(super) out: Vec<f64>,
+    /// Per mode, the tick's free response of the modes (`a`); between steps, scratch for the
+    /// cell's force on the modes.
     pub(super) cols: Vec<f64>,
     /// The free part's cell force per channel (piston channels, then tilt), per step.
     pub(super) free_force: Vec<f64>,
@@ -299,7 +302,7 @@ impl CoupledMirror {
             ld32: padded_len(r),
             w32: [vec![0.0f32; 2 * n], vec![0.0f32; 4 * n]],
             acc32: [vec![0.0f32; padded_len(r)], vec![0.0f32; padded_len(r)]],
-            cols32: vec![0.0f32; 6 * padded_len(r)],
+            cols32: vec![0.0f32; 4 * padded_len(r)],
             wg32: wg.iter().map(|&x| x as f32).collect(),
             wg,
             gg32: gg.iter().map(|&x| x as f32).collect(),
@@ -345,7 +348,7 @@ impl CoupledMirror {
             jump: vec![0.0; r],
             u_new: vec![0.0; r],
             out: vec![0.0; 3 * na],
-            cols: vec![0.0; 6 * r],
+            cols: vec![0.0; r],
             free_force: vec![0.0; na],
         })
     }
