@@ -12,3 +12,4 @@ pub mod lanczos;
 pub mod lu_solve;
 pub mod npy;
 pub mod skyline;
+pub mod symmetric;

@@ -11,6 +11,7 @@ use super::projection::{Project, input_columns, padded_rows_f32, row_major};
 use super::tick::{CellOutputs, Step};
 use crate::M1Error;
 use crate::linalg::kernels::padded_len;
+use crate::linalg::symmetric::SymPacked32;
 use crate::plant::segment::{
     Channel, Gamma, N_IN, N_STATE, Phi, SegmentArray, SegmentModel, modal_basis, propagate, state,
 };
@@ -77,9 +78,11 @@ pub struct CoupledMirror {
     pub(super) r: usize,
     pub(super) na: usize,
     /// Modal FOH maps per mode.
-    pub(super) a_mode: Vec<[f64; 4]>,
-    pub(super) b0: Vec<[f64; 2]>,
-    pub(super) b1: Vec<[f64; 2]>,
+    /// Component-major (`a_mode[c][j]`: component `c` of mode `j`'s map), so that the
+    /// per-mode updates of a tick run as vector operations.
+    pub(super) a_mode: [Vec<f64>; 4],
+    pub(super) b0: [Vec<f64>; 2],
+    pub(super) b1: [Vec<f64>; 2],
     /// Mode shapes in the channel basis (rows: piston channels, then tilt channels 2 s + m),
     /// `na x r` row-major.
     pub(super) phic: Vec<f64>,
@@ -106,11 +109,15 @@ pub struct CoupledMirror {
     /// jump at a servo sample, and in single precision the whole solve of a sample's tick
     /// (below).
     pub(super) gg32: Vec<f32>,
-    /// `W - I = W M B1`, r x r row-major in single precision, rows zero-padded to `ld32`: with
-    /// [`Self::coupling_single`], a sample's tick takes one pass over `[G_p, G_t]` with two
-    /// right-hand sides (the forces before the jump and the jump) and one over this small
-    /// correction, instead of a pass over `G` for the jump and one over `W G`.
-    pub(super) wm32: Vec<f32>,
+    /// The solve's correction `W - I = W M B1` in its symmetric form `K = (I - S)^-1 S`,
+    /// `S = D M D` with `D = B1^(1/2)` (so `W - I = D^-1 K D`), in single precision by its
+    /// upper block triangle (about half of the whole r x r): with [`Self::coupling_single`],
+    /// a sample's tick takes one pass over `[G_p, G_t]` with two right-hand sides (the forces
+    /// before the jump and the jump) and one over this small correction, instead of a pass
+    /// over `G` for the jump and one over `W G`.
+    pub(super) corr32: SymPacked32,
+    /// `D = B1^(1/2)` per mode (every first-order-hold gain `b1` is positive).
+    pub(super) d_half: Vec<f64>,
     pub(super) psi32: Vec<f32>,
     pub(super) drive32: Vec<f32>,
     /// Whether the coupled solve's products stream the single-precision copies.
@@ -120,10 +127,13 @@ pub struct CoupledMirror {
     /// `beta = alpha / b1` (`W M alpha = (W - I) beta`).
     pub(super) alpha: Vec<f64>,
     pub(super) beta: Vec<f64>,
-    /// The products' results: `G psi`, `G drive_step`, and the correction's input.
+    /// The products' results: `G psi`, `G drive_step`, the correction's input (scaled by
+    /// `D`, `ld32` long) and its product with `K`; scratch for the symmetric product.
     pub(super) gpsi: Vec<f64>,
     pub(super) gjump: Vec<f64>,
     pub(super) win32: Vec<f32>,
+    pub(super) corr: Vec<f64>,
+    pub(super) corr_t: Vec<f32>,
     /// Feedthrough of the drive into the cell force.
     pub(super) drive_d: f64,
     /// The pier displacement held over the last tick.
@@ -253,30 +263,38 @@ impl CoupledMirror {
             hint: "the coupled tick is singular: check the structure model and the actuator \
                    stiffness",
         })?;
-        // W - I = W M B1, formed as that product (not as a difference with the identity) so
-        // that the small correction keeps its relative precision.
-        let mut mb1 = m;
-        for (j, b) in b1.iter().enumerate() {
-            mb1.column_mut(j).scale_mut(b[0]);
-        }
-        let wm = &w_inv * &mb1;
         let drive_d = cp[state::DRIVE];
         let alpha: Vec<f64> = (0..r).map(|j| (b0[j][0] - b1[j][0]) * drive_d).collect();
         let beta: Vec<f64> = (0..r).map(|j| alpha[j] / b1[j][0]).collect();
-        if let Some(j) = (0..r).find(|&j| !beta[j].is_finite()) {
+        if let Some(j) = (0..r).find(|&j| !(b1[j][0] > 0.0 && beta[j].is_finite())) {
             return Err(M1Error::InvalidParameter {
                 name: "structure frequencies",
                 value: omega[j],
                 reason: "a retained mode does not respond within one coupled tick (its \
-                         first-order-hold gain is zero)",
+                         first-order-hold gain is not positive)",
             });
         }
+        // The correction W - I = W M B1 in symmetric form: with D = B1^(1/2) and S = D M D,
+        // W M B1 = D^-1 (I - S)^-1 S D. K = (I - S)^-1 S is formed as that solve (not as a
+        // difference with the identity) so that the small correction keeps its relative
+        // precision, and symmetrised against the solve's rounding.
+        let d_half: Vec<f64> = b1.iter().map(|b| b[0].sqrt()).collect();
+        let s_mat = DMatrix::from_fn(r, r, |i, j| d_half[i] * m[(i, j)] * d_half[j]);
+        let k_mat = (DMatrix::<f64>::identity(r, r) - &s_mat)
+            .lu()
+            .solve(&s_mat)
+            .ok_or(M1Error::Unstable {
+                channel: "coupled segments and structure",
+                spectral_radius: f64::NAN,
+                hint: "the coupled tick is singular: check the structure model and the \
+                       actuator stiffness",
+            })?;
+        let corr32 = SymPacked32::from_fn(r, |i, j| 0.5 * (k_mat[(i, j)] + k_mat[(j, i)]));
         let mut gg = DMatrix::<f64>::zeros(r, 2 * r);
         gg.columns_mut(0, r).copy_from(&gram[0]);
         gg.columns_mut(r, r).copy_from(&gram[1]);
         let wg = row_major(&(&w_inv * &gg));
         let gg = row_major(&gg);
-        let wm = row_major(&wm);
         Ok(Self {
             n_segments,
             ts,
@@ -294,9 +312,9 @@ impl CoupledMirror {
             structure,
             r,
             na,
-            a_mode,
-            b0,
-            b1,
+            a_mode: std::array::from_fn(|c| a_mode.iter().map(|a| a[c]).collect()),
+            b0: std::array::from_fn(|c| b0.iter().map(|b| b[c]).collect()),
+            b1: std::array::from_fn(|c| b1.iter().map(|b| b[c]).collect()),
             phic: row_major(&phic),
             phic32: padded_rows_f32(&phic, padded_len(r)),
             ld32: padded_len(r),
@@ -306,16 +324,8 @@ impl CoupledMirror {
             wg32: wg.iter().map(|&x| x as f32).collect(),
             wg,
             gg32: gg.iter().map(|&x| x as f32).collect(),
-            wm32: {
-                let ld = padded_len(r);
-                let mut m32 = vec![0.0f32; r * ld];
-                for (dst, src) in m32.chunks_exact_mut(ld).zip(wm.chunks_exact(r)) {
-                    for (d, s) in dst.iter_mut().zip(src) {
-                        *d = *s as f32;
-                    }
-                }
-                m32
-            },
+            corr32,
+            d_half,
             psi32: vec![0.0f32; 2 * r],
             drive32: vec![0.0f32; 2 * r],
             coupling_single: r >= SINGLE_COUPLING_MIN_MODES,
@@ -324,6 +334,8 @@ impl CoupledMirror {
             gpsi: vec![0.0; r],
             gjump: vec![0.0; r],
             win32: vec![0.0f32; padded_len(r)],
+            corr: vec![0.0; r],
+            corr_t: vec![0.0f32; padded_len(r)],
             drive_d,
             pier: 0.0,
             proj: [vec![0.0; r * N_STATE], vec![0.0; r * N_STATE]],
@@ -443,8 +455,9 @@ impl CoupledMirror {
                 samples,
             ),
             (
-                "the solve's correction W - I, one per servo sample (single precision)",
-                std::mem::size_of_val(self.wm32.as_slice()),
+                "the solve's correction W - I in symmetric form by its upper block triangle, \
+                 one per servo sample (single precision)",
+                std::mem::size_of_val(self.corr32.as_slice()),
                 if self.coupling_single { samples } else { 0 },
             ),
         ])

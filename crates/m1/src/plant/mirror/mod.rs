@@ -78,8 +78,11 @@
 //! $W M B_1 = W - I$, $u_{n+1} = h' + y + (W - I)(y + \beta \odot g)$ with $y = G \psi_0$ and
 //! $\beta = (b_0 - b_1) d_u / b_1$ per mode. One pass over $G$ with two right-hand sides gives
 //! $y$ and $g$ together, one over $W - I$ ($r \times r$; about 4e-7 in norm for the voice coil
-//! and 8e-5 for the piezo on TMT) the rest: 1.5 $r \times 2r$ passes instead of 2, exact to
-//! rounding (TMT at 1000 modes, 1.2-1.5 times faster per step; BENCHMARKS.md). Below
+//! and 8e-5 for the piezo on TMT) the rest: exact to rounding (TMT at 1000 modes, 1.2-1.5
+//! times faster per step; BENCHMARKS.md). $W - I$ is stored in a symmetric form by its upper
+//! block triangle ([`crate::linalg::symmetric`]): with $D = B_1^{1/2}$ (every $b_1 > 0$) and
+//! $S = D M D$, $W - I = D^{-1} K D$ with $K = (I - S)^{-1} S$ symmetric, so that a sample's
+//! tick streams 1.25 $r \times 2r$ matrices instead of 2. Below
 //! [`SINGLE_COUPLING_MIN_MODES`] the matrices are cached and the step is bound by arithmetic,
 //! where that form's extra multiply-adds (two right-hand sides in double precision) cost
 //! more than the traffic it saves. In single precision (each vector lane sums about `2r / 8`

@@ -8,6 +8,7 @@ use pulp::WithSimd;
 
 use super::projection::Reconstruct;
 use crate::linalg::kernels::{axpy, rows_dot, rows_dot_f32, rows_dot2_f32, rows_map, state_map};
+use crate::linalg::symmetric::sym_dot_f32;
 use crate::plant::segment::{N_STATE, state};
 
 impl CoupledMirror {
@@ -73,21 +74,27 @@ impl CoupledMirror {
         // W = (I - M B1)^-1 = I + W M B1 and W M = e_p W G_p + e_t W G_t, so that
         // u+ = h' + W G_p (psi_p + e_p a + e_p B1 h') + W G_t (psi_t + e_t a + e_t B1 h'):
         // one r x 2r product.
-        for j in 0..r {
-            let (a, b0, b1) = (&self.a_mode[j], &self.b0[j], &self.b1[j]);
-            let abar = a[0] * self.q[j] + a[1] * self.v[j] + (b0[0] - b1[0]) * self.u[j];
-            let x = abar + b1[0] * self.rhs[j];
-            self.psi[j] += self.e[0] * x;
-            self.psi[r + j] += self.e[1] * x;
-            self.cols[j] = abar;
+        {
+            let ([a0, a1, ..], b0, b1) = (&self.a_mode, &self.b0[0][..r], &self.b1[0][..r]);
+            let (a0, a1, q, v, u) = (&a0[..r], &a1[..r], &self.q[..r], &self.v[..r], &self.u[..r]);
+            let (rhs, cols) = (&self.rhs[..r], &mut self.cols[..r]);
+            let (psi_p, psi_t) = self.psi.split_at_mut(r);
+            let (psi_t, [ep, et]) = (&mut psi_t[..r], self.e);
+            for j in 0..r {
+                let abar = a0[j] * q[j] + a1[j] * v[j] + (b0[j] - b1[j]) * u[j];
+                let x = abar + b1[j] * rhs[j];
+                psi_p[j] += ep * x;
+                psi_t[j] += et * x;
+                cols[j] = abar;
+            }
         }
         self.u_new.copy_from_slice(&self.rhs);
         if split {
             // With psi_0 the right-hand side before the jump g (a = a_0 + alpha g),
             // y = G psi_0 and W M alpha = (W - I) beta, beta = alpha / b1:
             // u+ = h' + y + (W - I) (y + beta g). One pass over [G_p, G_t] gives y and g
-            // together, one over the small correction W - I gives u+ (1.5 r x 2r passes
-            // instead of 2).
+            // together, one over the small correction W - I (stored by half) gives u+ (the
+            // traffic of 1.25 r x 2r passes instead of 2).
             for (d, s) in self.psi32.iter_mut().zip(&self.psi) {
                 *d = *s as f32;
             }
@@ -102,12 +109,23 @@ impl CoupledMirror {
                 [&self.psi32, &self.drive32],
                 [&mut self.gpsi, &mut self.gjump],
             );
+            // W - I = D^-1 K D, K symmetric (stored by its upper block triangle).
             for j in 0..r {
-                self.win32[j] = (self.gpsi[j] + self.beta[j] * self.gjump[j]) as f32;
+                let x = self.gpsi[j] + self.beta[j] * self.gjump[j];
+                self.win32[j] = (self.d_half[j] * x) as f32;
                 self.u_new[j] += self.gpsi[j];
             }
-            let ld = self.ld32;
-            rows_dot_f32::<S>(simd, &self.wm32, ld, r, ld, &self.win32, &mut self.u_new);
+            self.corr.fill(0.0);
+            sym_dot_f32::<S, 1>(
+                simd,
+                &self.corr32,
+                [&self.win32],
+                [&mut self.corr],
+                [&mut self.corr_t],
+            );
+            for j in 0..r {
+                self.u_new[j] += self.corr[j] / self.d_half[j];
+            }
             // The cell-driven jump into the tick's start force and the free response.
             for j in 0..r {
                 let g = self.gjump[j];
@@ -139,12 +157,17 @@ impl CoupledMirror {
             );
         }
         // Modes at the end of the tick.
-        for j in 0..r {
-            let (a, b0, b1) = (&self.a_mode[j], &self.b0[j], &self.b1[j]);
-            let (q, vq, u0, u1) = (self.q[j], self.v[j], self.u[j], self.u_new[j]);
-            self.q[j] = self.cols[j] + b1[0] * u1;
-            self.v[j] = a[2] * q + a[3] * vq + b0[1] * u0 + b1[1] * (u1 - u0);
-            self.u[j] = u1;
+        {
+            let ([.., a2, a3], [_, b0], [b1q, b1v]) = (&self.a_mode, &self.b0, &self.b1);
+            let (a2, a3, b0, b1q, b1v) = (&a2[..r], &a3[..r], &b0[..r], &b1q[..r], &b1v[..r]);
+            let (q, v, u) = (&mut self.q[..r], &mut self.v[..r], &mut self.u[..r]);
+            let (cols, u_new) = (&self.cols[..r], &self.u_new[..r]);
+            for j in 0..r {
+                let (qj, vj, u0, u1) = (q[j], v[j], u[j], u_new[j]);
+                q[j] = cols[j] + b1q[j] * u1;
+                v[j] = a2[j] * qj + a3[j] * vj + b0[j] * u0 + b1v[j] * (u1 - u0);
+                u[j] = u1;
+            }
         }
         // Cell-driven states with this tick's ramp: xi+_i = Y_i + ramp_i q+.
         for k in 0..2 {
