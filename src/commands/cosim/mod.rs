@@ -492,6 +492,10 @@ pub(crate) fn show_progress(bar: &indicatif::ProgressBar, t0: Instant, t: f64, s
     let pos = (f * 1000.0) as u64;
     if pos != bar.position() {
         bar.set_position(pos);
+        // The message (a formatted string) once per per cent: the bar redraws at a few hertz.
+        if !pos.is_multiple_of(10) {
+            return;
+        }
         let wall = t0.elapsed().as_secs_f64();
         bar.set_message(format!(
             "t = {t:.3} s, {:.2}x real time",

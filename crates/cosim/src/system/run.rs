@@ -266,8 +266,12 @@ impl Sink for CsvSink {
     }
 
     fn row(&mut self, row: &[f64]) -> Result<()> {
-        let path = self.path.clone();
-        write_csv_row(self.out()?, row).map_err(crate::error::io(&path))?;
+        let Some(out) = self.out.as_mut() else {
+            return Err(self.out().err().unwrap_or_else(|| {
+                CosimError::Invalid("a CSV row before the columns".to_string())
+            }));
+        };
+        write_csv_row(out, row).map_err(crate::error::io(&self.path))?;
         self.rows += 1;
         Ok(())
     }
@@ -281,13 +285,16 @@ impl Sink for CsvSink {
     }
 }
 
-/// One CSV row of numbers in full precision.
+/// One CSV row of numbers in full precision: each the shortest decimal that reads back as
+/// the same value (`1e-3` as `0.001`, `1.7e-9` as `1.7e-9`; NaN and infinities as std writes
+/// them, `NaN`, `inf`, `-inf`).
 fn write_csv_row(w: &mut impl std::io::Write, row: &[f64]) -> std::io::Result<()> {
+    let mut buf = zmij::Buffer::new();
     for (k, v) in row.iter().enumerate() {
         if k > 0 {
             w.write_all(b",")?;
         }
-        write!(w, "{v:e}")?;
+        w.write_all(buf.format(*v).as_bytes())?;
     }
     w.write_all(b"\n")
 }
