@@ -369,7 +369,7 @@ impl CoupledMirror {
     /// [`SINGLE_COUPLING_MIN_MODES`] retained modes, where a sample's tick also takes the
     /// one-pass form of the module documentation) or double precision (`false`, the default
     /// below, where the matrices fit a core's cache and halving them gains nothing). A TMT step
-    /// with 300 modes streams 14.4 MB in double precision, 9.0 MB in single; against double
+    /// with 300 modes streams 14.4 MB in double precision, 8.2 MB in single; against double
     /// precision single moves the mirror's response by about 2e-9 of its largest value (the
     /// tests `coupling_precision_*` bound it by 1e-6 for both actuators).
     pub fn set_coupling_single(&mut self, single: bool) {
@@ -425,7 +425,7 @@ impl CoupledMirror {
     /// The matrices a communication step of `h` seconds streams, with how many times each is
     /// read: `(name, bytes, reads)`, each a distinct array. Their sum is the step's unavoidable memory traffic once
     /// the matrices no longer fit a core's cache (a floor for benchmarks: at TMT size with 300
-    /// modes, about 10 MB per 1 ms step).
+    /// modes, about 8 MB per 1 ms step).
     pub fn streamed_per_step(&self, h: f64) -> Result<Vec<(&'static str, usize, u64)>, M1Error> {
         let samples = self.ticks_in(h)?;
         let ticks = samples * u64::from(self.substeps);
