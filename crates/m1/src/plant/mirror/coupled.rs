@@ -662,15 +662,10 @@ impl CoupledMirror {
         let mut changed = [false; 2];
         for (kind, w) in self.free.channel_inputs().into_iter().enumerate() {
             let cnt = self.w32[kind].len() / 2;
-            let dst = &mut self.w32[kind];
-            let mut same = true;
-            for c in 0..cnt {
-                let (u, f) = (w[c] as f32, w[2 * cnt + c] as f32);
-                same &= u.to_bits() == dst[c].to_bits() && f.to_bits() == dst[cnt + c].to_bits();
-                dst[c] = u;
-                dst[cnt + c] = f;
-            }
-            changed[kind] = !same;
+            let (du, df) = self.w32[kind].split_at_mut(cnt);
+            let cu = store_f32(du, &w[..cnt]);
+            let cf = store_f32(df, &w[2 * cnt..3 * cnt]);
+            changed[kind] = cu || cf;
         }
         if changed == [false; 2] {
             return;
@@ -738,4 +733,16 @@ impl CoupledMirror {
             a.fill(0.0);
         }
     }
+}
+
+/// Stores `src` in single precision into `dst` (of the same length), and says whether any
+/// value changed (to the bit): one pass that vectorises.
+fn store_f32(dst: &mut [f32], src: &[f64]) -> bool {
+    let mut same = true;
+    for (d, s) in dst.iter_mut().zip(src) {
+        let v = *s as f32;
+        same &= v.to_bits() == d.to_bits();
+        *d = v;
+    }
+    !same
 }

@@ -109,11 +109,17 @@ impl CoupledMirror {
                 [&self.psi32, &self.drive32],
                 [&mut self.gpsi, &mut self.gjump],
             );
-            // W - I = D^-1 K D, K symmetric (stored by its upper block triangle).
-            for j in 0..r {
-                let x = self.gpsi[j] + self.beta[j] * self.gjump[j];
-                self.win32[j] = (self.d_half[j] * x) as f32;
-                self.u_new[j] += self.gpsi[j];
+            // W - I = D^-1 K D, K symmetric (stored by its upper block triangle). The per-mode
+            // loops run over slices cut to r, so that they vectorise.
+            let (gpsi, gjump, d_half) = (&self.gpsi[..r], &self.gjump[..r], &self.d_half[..r]);
+            {
+                let (beta, win, u_new) =
+                    (&self.beta[..r], &mut self.win32[..r], &mut self.u_new[..r]);
+                for j in 0..r {
+                    let x = gpsi[j] + beta[j] * gjump[j];
+                    win[j] = (d_half[j] * x) as f32;
+                    u_new[j] += gpsi[j];
+                }
             }
             self.corr.fill(0.0);
             sym_dot_f32::<S, 1>(
@@ -123,14 +129,16 @@ impl CoupledMirror {
                 [&mut self.corr],
                 [&mut self.corr_t],
             );
+            let (corr, u_new) = (&self.corr[..r], &mut self.u_new[..r]);
             for j in 0..r {
-                self.u_new[j] += self.corr[j] / self.d_half[j];
+                u_new[j] += corr[j] / d_half[j];
             }
             // The cell-driven jump into the tick's start force and the free response.
+            let (alpha, dd) = (&self.alpha[..r], self.drive_d);
+            let (u, cols) = (&mut self.u[..r], &mut self.cols[..r]);
             for j in 0..r {
-                let g = self.gjump[j];
-                self.u[j] += self.drive_d * g;
-                self.cols[j] += self.alpha[j] * g;
+                u[j] += dd * gjump[j];
+                cols[j] += alpha[j] * gjump[j];
             }
         } else if self.coupling_single {
             for (d, s) in self.psi32.iter_mut().zip(&self.psi) {
@@ -274,15 +282,18 @@ impl CoupledMirror {
         // Channel values (rows: piston channels, then tilt) to actuators, segment by segment.
         let v = self.basis;
         let [xp, xt] = self.free.state();
-        for seg in 0..n {
-            let zm = [
-                xp[mp * n + seg] + outs[seg],
-                xt[mp * 2 * n + 2 * seg] + outs[n + 2 * seg],
-                xt[mp * 2 * n + 2 * seg + 1] + outs[n + 2 * seg + 1],
-            ];
-            for a in 0..3 {
-                self.z_mirror[3 * seg + a] =
-                    v[(a, 0)] * zm[0] + v[(a, 1)] * zm[1] + v[(a, 2)] * zm[2];
+        let (xp, xt) = (&xp[mp * n..(mp + 1) * n], &xt[mp * 2 * n..(mp + 1) * 2 * n]);
+        let (op, ot) = (&outs[..n], &outs[n..3 * n]);
+        for ((((z, p), t), oq), ou) in self.z_mirror[..3 * n]
+            .chunks_exact_mut(3)
+            .zip(xp)
+            .zip(xt.chunks_exact(2))
+            .zip(op)
+            .zip(ot.chunks_exact(2))
+        {
+            let zm = [p + oq, t[0] + ou[0], t[1] + ou[1]];
+            for (a, za) in z.iter_mut().enumerate() {
+                *za = v[(a, 0)] * zm[0] + v[(a, 1)] * zm[1] + v[(a, 2)] * zm[2];
             }
         }
         self.out = outs;

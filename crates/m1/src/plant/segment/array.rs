@@ -212,11 +212,14 @@ impl SegmentArray {
         let v = self.basis;
         let [wp, wt] = &mut self.w;
         for (l, input) in [u_cmd, z_cell, f_wind].into_iter().enumerate() {
-            for (seg, a) in input.chunks_exact(3).enumerate() {
-                wp[l * n + seg] = v[(0, 0)] * a[0] + v[(1, 0)] * a[1] + v[(2, 0)] * a[2];
-                wt[l * 2 * n + 2 * seg] = v[(0, 1)] * a[0] + v[(1, 1)] * a[1] + v[(2, 1)] * a[2];
-                wt[l * 2 * n + 2 * seg + 1] =
-                    v[(0, 2)] * a[0] + v[(1, 2)] * a[1] + v[(2, 2)] * a[2];
+            let (p, t) = (
+                &mut wp[l * n..(l + 1) * n],
+                &mut wt[l * 2 * n..(l + 1) * 2 * n],
+            );
+            for ((a, p), t) in input.chunks_exact(3).zip(p).zip(t.chunks_exact_mut(2)) {
+                *p = v[(0, 0)] * a[0] + v[(1, 0)] * a[1] + v[(2, 0)] * a[2];
+                t[0] = v[(0, 1)] * a[0] + v[(1, 1)] * a[1] + v[(2, 1)] * a[2];
+                t[1] = v[(0, 2)] * a[0] + v[(1, 2)] * a[1] + v[(2, 2)] * a[2];
             }
         }
     }
