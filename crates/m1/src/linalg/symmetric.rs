@@ -1,13 +1,14 @@
 //! Symmetric matrices in single precision stored by their upper block triangle, and their
 //! product with one or two vectors reading each stored entry once.
 //!
-//! The coupled mirror's solve multiplies by the Gram matrices of the mode shapes and by a
-//! symmetric form of its small correction (`r x r`, hundreds to a thousand modes) at every
-//! coupled tick. Stored whole they are twice the memory traffic the product needs, and at 300
-//! modes the whole set no longer fits a core's L2 cache: stored by the upper block triangle
-//! they do, and each entry read serves both its row's dot product and, transposed, its
-//! column's (two multiply-adds per entry instead of one per entry of the whole matrix, so the
-//! arithmetic is the same).
+//! The coupled mirror's solve multiplies by a symmetric form of its small correction `W - I`
+//! (`r x r`, hundreds to a thousand modes) at every servo sample. Stored whole it is twice the
+//! memory traffic the product needs; stored by its upper block triangle, each entry read serves
+//! both its row's dot product and, transposed, its column's (two multiply-adds per stored entry
+//! instead of one per entry of the whole matrix: the same arithmetic, half the traffic). That
+//! pays where a product is bound by its traffic (the correction at 1000 modes); a product bound
+//! by its arithmetic gains nothing (the Gram matrices' pass with two right-hand sides was slower
+//! stored so: BENCHMARKS.md, eighth round).
 
 use pulp::Simd;
 
