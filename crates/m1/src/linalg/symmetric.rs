@@ -80,7 +80,8 @@ impl SymPacked32 {
 
 /// `y_l += A x_l` for `L` (1 or 2) right-hand sides, `A` symmetric and stored by
 /// [`SymPacked32`]: one pass over the stored entries, each applied to its row's dot product
-/// and (past the diagonal block) to its column's, [`sym_rows`] rows at a time.
+/// and (past the diagonal block) to its column's, four rows at a time with one right-hand
+/// side and two with two.
 ///
 /// `x_l` has at least `A.padded_order()` entries (those past the order are multiplied by the
 /// padding's zeros), `y_l` at least `A.order()`; `t_l` is scratch of at least the padded order.
@@ -111,7 +112,7 @@ pub fn sym_dot_f32<S: Simd, const L: usize>(
 
 /// [`sym_dot_f32`] with `R` rows at a time (`R` divides [`BLOCK`]).
 #[inline(always)]
-pub fn sym_rows<S: Simd, const L: usize, const R: usize>(
+fn sym_rows<S: Simd, const L: usize, const R: usize>(
     simd: S,
     a: &SymPacked32,
     x: [&[f32]; L],
