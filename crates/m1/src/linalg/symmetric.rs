@@ -1,5 +1,5 @@
 //! Symmetric matrices in single precision stored by their upper block triangle, and their
-//! product with one or two vectors reading each stored entry once.
+//! product with a vector reading each stored entry once.
 //!
 //! The coupled mirror's solve multiplies by a symmetric form of its small correction `W - I`
 //! (`r x r`, hundreds to a thousand modes) at every servo sample. Stored whole it is twice the
@@ -44,11 +44,6 @@ impl SymPacked32 {
         Self { m, n, data }
     }
 
-    /// Order of the matrix.
-    pub fn order(&self) -> usize {
-        self.m
-    }
-
     /// The padded order: the length the vectors of [`sym_dot_f32`] need.
     pub fn padded_order(&self) -> usize {
         self.n
@@ -60,7 +55,8 @@ impl SymPacked32 {
     }
 
     /// Entry `(i, j)` as stored (either triangle), in single precision.
-    pub fn get(&self, i: usize, j: usize) -> f32 {
+    #[cfg(test)]
+    fn get(&self, i: usize, j: usize) -> f32 {
         let (i, j) = if j / BLOCK < i / BLOCK {
             (j, i)
         } else {
@@ -78,107 +74,72 @@ impl SymPacked32 {
     }
 }
 
-/// `y_l += A x_l` for `L` (1 or 2) right-hand sides, `A` symmetric and stored by
-/// [`SymPacked32`]: one pass over the stored entries, each applied to its row's dot product
-/// and (past the diagonal block) to its column's, four rows at a time with one right-hand
-/// side and two with two.
+/// Rows of [`sym_dot_f32`] computed together: four accumulators and their rows' broadcast
+/// values stay in registers beside the column sums.
+const ROWS: usize = 4;
+
+/// `y += A x`, `A` symmetric and stored by [`SymPacked32`]: one pass over the stored entries,
+/// each applied to its row's dot product and (past the diagonal block) to its column's, four
+/// rows at a time.
 ///
-/// `x_l` has at least `A.padded_order()` entries (those past the order are multiplied by the
-/// padding's zeros), `y_l` at least `A.order()`; `t_l` is scratch of at least the padded order.
-/// Each row's dot products are summed in single precision by lane and reduced once, the
+/// `x` has at least `A.padded_order()` entries (those past the order are multiplied by the
+/// padding's zeros), `y` at least the order; `t` is scratch of at least the padded order.
+/// Each row's dot product is summed in single precision by lane and reduced once, the
 /// transposed contributions in single precision per column, and both are added to the
-/// double-precision `y_l`: the results agree with the whole matrix's product to single-
+/// double-precision `y`: the result agrees with the whole matrix's product to single-
 /// precision rounding, not bit for bit.
 ///
 /// # Panics
-/// If a slice is shorter than that, or `L` is not 1 or 2 (programming errors).
+/// If a slice is shorter than that (a programming error).
 #[inline(always)]
-pub fn sym_dot_f32<S: Simd, const L: usize>(
-    simd: S,
-    a: &SymPacked32,
-    x: [&[f32]; L],
-    y: [&mut [f64]; L],
-    t: [&mut [f32]; L],
-) {
-    assert!(L == 1 || L == 2, "one or two right-hand sides");
-    // Four rows at a time with one right-hand side, two with two: the accumulators and the
-    // rows' broadcast values stay in sixteen vector registers.
-    if L == 1 {
-        sym_rows::<S, L, 4>(simd, a, x, y, t);
-    } else {
-        sym_rows::<S, L, 2>(simd, a, x, y, t);
-    }
-}
-
-/// [`sym_dot_f32`] with `R` rows at a time (`R` divides [`BLOCK`]).
-#[inline(always)]
-fn sym_rows<S: Simd, const L: usize, const R: usize>(
-    simd: S,
-    a: &SymPacked32,
-    x: [&[f32]; L],
-    y: [&mut [f64]; L],
-    t: [&mut [f32]; L],
-) {
-    const { assert!(BLOCK.is_multiple_of(R)) };
+pub fn sym_dot_f32<S: Simd>(simd: S, a: &SymPacked32, x: &[f32], y: &mut [f64], t: &mut [f32]) {
+    const { assert!(BLOCK.is_multiple_of(ROWS)) };
     let (m, n) = (a.m, a.n);
-    let xh: [&[S::f32s]; L] = std::array::from_fn(|l| S::as_simd_f32s(&x[l][..n]).0);
-    let mut th: [&mut [S::f32s]; L] = t.map(|tl| S::as_mut_simd_f32s(&mut tl[..n]).0);
-    for tl in th.iter_mut() {
-        tl.fill(simd.splat_f32s(0.0));
-    }
+    let xh = S::as_simd_f32s(&x[..n]).0;
+    let th = S::as_mut_simd_f32s(&mut t[..n]).0;
+    let zero = simd.splat_f32s(0.0);
+    th.fill(zero);
     // Vectors per block (the scalar fallback has one lane).
     let vpb = BLOCK / S::F32_LANES;
-    let zero = simd.splat_f32s(0.0);
     let mut off = 0;
     for b in 0..n / BLOCK {
         let len = n - BLOCK * b;
         let c0 = b * vpb;
-        let mut i = BLOCK * b;
-        while i < BLOCK * (b + 1) {
-            let rows: [&[S::f32s]; R] = std::array::from_fn(|k| {
+        for i in (BLOCK * b..BLOCK * (b + 1)).step_by(ROWS) {
+            let rows: [&[S::f32s]; ROWS] = std::array::from_fn(|k| {
                 S::as_simd_f32s(&a.data[off + k * len..off + (k + 1) * len]).0
             });
-            let mut acc = [[zero; L]; R];
+            let mut acc = [zero; ROWS];
             // The diagonal block, stored whole: dot products only.
             for c in 0..vpb {
-                for l in 0..L {
-                    let xv = xh[l][c0 + c];
-                    for k in 0..R {
-                        acc[k][l] = simd.mul_add_f32s(rows[k][c], xv, acc[k][l]);
-                    }
+                let xv = xh[c0 + c];
+                for k in 0..ROWS {
+                    acc[k] = simd.mul_add_f32s(rows[k][c], xv, acc[k]);
                 }
             }
             // Past it: each entry also adds its row's value to its column's sum.
-            let bc: [[S::f32s; L]; R] =
-                std::array::from_fn(|k| std::array::from_fn(|l| simd.splat_f32s(x[l][i + k])));
+            let bc: [S::f32s; ROWS] = std::array::from_fn(|k| simd.splat_f32s(x[i + k]));
             for c in vpb..len / S::F32_LANES {
-                for l in 0..L {
-                    let xv = xh[l][c0 + c];
-                    let mut tv = th[l][c0 + c];
-                    for k in 0..R {
-                        let v = rows[k][c];
-                        acc[k][l] = simd.mul_add_f32s(v, xv, acc[k][l]);
-                        tv = simd.mul_add_f32s(v, bc[k][l], tv);
-                    }
-                    th[l][c0 + c] = tv;
+                let xv = xh[c0 + c];
+                let mut tv = th[c0 + c];
+                for k in 0..ROWS {
+                    let v = rows[k][c];
+                    acc[k] = simd.mul_add_f32s(v, xv, acc[k]);
+                    tv = simd.mul_add_f32s(v, bc[k], tv);
                 }
+                th[c0 + c] = tv;
             }
-            for (k, acck) in acc.iter().enumerate() {
+            for (k, acck) in acc.into_iter().enumerate() {
                 if i + k < m {
-                    for l in 0..L {
-                        y[l][i + k] += f64::from(simd.reduce_sum_f32s(acck[l]));
-                    }
+                    y[i + k] += f64::from(simd.reduce_sum_f32s(acck));
                 }
             }
-            off += R * len;
-            i += R;
+            off += ROWS * len;
         }
     }
-    for l in 0..L {
-        let tl: &[f32] = pulp::bytemuck::cast_slice(&*th[l]);
-        for (yj, tj) in y[l][..m].iter_mut().zip(tl) {
-            *yj += f64::from(*tj);
-        }
+    let tl: &[f32] = pulp::bytemuck::cast_slice(&*th);
+    for (yj, tj) in y[..m].iter_mut().zip(tl) {
+        *yj += f64::from(*tj);
     }
 }
 
@@ -186,35 +147,18 @@ fn sym_rows<S: Simd, const L: usize, const R: usize>(
 mod tests {
     use super::*;
 
-    struct Run<'a, const L: usize> {
+    struct Run<'a> {
         a: &'a SymPacked32,
-        x: [Vec<f32>; L],
-        y: [Vec<f64>; L],
+        x: Vec<f32>,
+        y: Vec<f64>,
     }
 
-    impl<const L: usize> pulp::WithSimd for Run<'_, L> {
-        type Output = [Vec<f64>; L];
-        fn with_simd<S: Simd>(self, simd: S) -> [Vec<f64>; L] {
-            let n = self.a.padded_order();
-            let mut t: [Vec<f32>; L] = std::array::from_fn(|_| vec![f32::NAN; n]);
+    impl pulp::WithSimd for Run<'_> {
+        type Output = Vec<f64>;
+        fn with_simd<S: Simd>(self, simd: S) -> Vec<f64> {
+            let mut t = vec![f32::NAN; self.a.padded_order()];
             let mut y = self.y;
-            {
-                let ys: [&mut [f64]; L] = {
-                    let mut it = y.iter_mut();
-                    std::array::from_fn(|_| it.next().unwrap().as_mut_slice())
-                };
-                let ts: [&mut [f32]; L] = {
-                    let mut it = t.iter_mut();
-                    std::array::from_fn(|_| it.next().unwrap().as_mut_slice())
-                };
-                sym_dot_f32::<S, L>(
-                    simd,
-                    self.a,
-                    std::array::from_fn(|l| self.x[l].as_slice()),
-                    ys,
-                    ts,
-                );
-            }
+            sym_dot_f32::<S>(simd, self.a, &self.x, &mut y, &mut t);
             y
         }
     }
@@ -262,36 +206,18 @@ mod tests {
                     );
                 }
             };
-            let two = || Run::<2> {
-                a: &a,
-                x: x.clone(),
-                y: y0.clone(),
-            };
-            let one = || Run::<1> {
-                a: &a,
-                x: [x[1].clone()],
-                y: [y0[1].clone()],
-            };
             use pulp::WithSimd;
-            let runs = [
-                (
-                    pulp::Arch::new().dispatch(two()),
-                    pulp::Arch::new().dispatch(one()),
-                ),
-                (two().with_simd(pulp::Scalar), one().with_simd(pulp::Scalar)),
-                (
-                    two().with_simd(pulp::Scalar256b),
-                    one().with_simd(pulp::Scalar256b),
-                ),
-                (
-                    two().with_simd(pulp::Scalar512b),
-                    one().with_simd(pulp::Scalar512b),
-                ),
-            ];
-            for (got2, got1) in runs {
-                check(&got2[0], &want[0], "two right-hand sides, first");
-                check(&got2[1], &want[1], "two right-hand sides, second");
-                check(&got1[0], &want[1], "one right-hand side");
+            for l in 0..2 {
+                let run = || Run {
+                    a: &a,
+                    x: x[l].clone(),
+                    y: y0[l].clone(),
+                };
+                let what = format!("right-hand side {l}");
+                check(&pulp::Arch::new().dispatch(run()), &want[l], &what);
+                check(&run().with_simd(pulp::Scalar), &want[l], &what);
+                check(&run().with_simd(pulp::Scalar256b), &want[l], &what);
+                check(&run().with_simd(pulp::Scalar512b), &want[l], &what);
             }
             // Storage: about half the whole matrix, both triangles read back.
             let b = n / BLOCK;

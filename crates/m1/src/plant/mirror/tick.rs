@@ -122,12 +122,12 @@ impl CoupledMirror {
                 }
             }
             self.corr.fill(0.0);
-            sym_dot_f32::<S, 1>(
+            sym_dot_f32::<S>(
                 simd,
                 &self.corr32,
-                [&self.win32],
-                [&mut self.corr],
-                [&mut self.corr_t],
+                &self.win32,
+                &mut self.corr,
+                &mut self.corr_t,
             );
             let (corr, u_new) = (&self.corr[..r], &mut self.u_new[..r]);
             for j in 0..r {
