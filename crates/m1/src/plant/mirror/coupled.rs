@@ -251,18 +251,6 @@ impl CoupledMirror {
             phic.rows(n, 2 * n).transpose() * phic.rows(n, 2 * n),
         ];
         let m = &gram[0] * e[0] + &gram[1] * e[1];
-        let mut lhs = DMatrix::<f64>::identity(r, r);
-        for i in 0..r {
-            for j in 0..r {
-                lhs[(i, j)] -= m[(i, j)] * b1[j][0];
-            }
-        }
-        let w_inv = lhs.try_inverse().ok_or(M1Error::Unstable {
-            channel: "coupled segments and structure",
-            spectral_radius: f64::NAN,
-            hint: "the coupled tick is singular: check the structure model and the actuator \
-                   stiffness",
-        })?;
         let drive_d = cp[state::DRIVE];
         let alpha: Vec<f64> = (0..r).map(|j| (b0[j][0] - b1[j][0]) * drive_d).collect();
         let beta: Vec<f64> = (0..r).map(|j| alpha[j] / b1[j][0]).collect();
@@ -274,10 +262,11 @@ impl CoupledMirror {
                          first-order-hold gain is not positive)",
             });
         }
-        // The correction W - I = W M B1 in symmetric form: with D = B1^(1/2) and S = D M D,
-        // W M B1 = D^-1 (I - S)^-1 S D. K = (I - S)^-1 S is formed as that solve (not as a
-        // difference with the identity) so that the small correction keeps its relative
-        // precision, and symmetrised against the solve's rounding.
+        // The solve W = (I - M B1)^-1 through its symmetric form: with D = B1^(1/2) and
+        // S = D M D, W - I = W M B1 = D^-1 K D with K = (I - S)^-1 S. K is formed by that one
+        // factorisation (not as a difference with the identity) so that the small correction
+        // keeps its relative precision, symmetrised against the solve's rounding; W follows
+        // from it.
         let d_half: Vec<f64> = b1.iter().map(|b| b[0].sqrt()).collect();
         let s_mat = DMatrix::from_fn(r, r, |i, j| d_half[i] * m[(i, j)] * d_half[j]);
         let k_mat = (DMatrix::<f64>::identity(r, r) - &s_mat)
@@ -289,7 +278,11 @@ impl CoupledMirror {
                 hint: "the coupled tick is singular: check the structure model and the \
                        actuator stiffness",
             })?;
-        let corr32 = SymPacked32::from_fn(r, |i, j| 0.5 * (k_mat[(i, j)] + k_mat[(j, i)]));
+        let k_sym = DMatrix::from_fn(r, r, |i, j| 0.5 * (k_mat[(i, j)] + k_mat[(j, i)]));
+        let w_inv = DMatrix::from_fn(r, r, |i, j| {
+            f64::from(u8::from(i == j)) + k_sym[(i, j)] * d_half[j] / d_half[i]
+        });
+        let corr32 = SymPacked32::from_fn(r, |i, j| k_sym[(i, j)]);
         let mut gg = DMatrix::<f64>::zeros(r, 2 * r);
         gg.columns_mut(0, r).copy_from(&gram[0]);
         gg.columns_mut(r, r).copy_from(&gram[1]);
