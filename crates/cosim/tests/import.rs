@@ -850,6 +850,108 @@ fn gauss_seidel_lookahead_changes_no_value() {
     );
 }
 
+/// Recorded components on Gauss-Seidel's look-ahead thread (threshold 0): `run` gives the rows
+/// of the sequential order bit for bit, at every decimation. b and e (each the only instance of
+/// its FMU, both recorded; b read only by d every third step, e by nobody) step there, both in
+/// flight at once while d and c step, so the rows sampled meanwhile show their previous outputs until the
+/// master patches them; b's integer step count is recorded too. A recorded component failing
+/// there ends the run as in the sequential order, with the same rows kept.
+#[test]
+fn recorded_components_on_the_lookahead_thread_change_no_row() {
+    use cosim::SchedulerParams;
+    let path = tiny_fmu("lookahead_rows", &tiny_xml(), &[], true);
+    let (own_b, own_e) = (
+        path.with_file_name("tiny_b.fmu"),
+        path.with_file_name("tiny_e.fmu"),
+    );
+    std::fs::copy(&path, &own_b).unwrap();
+    std::fs::copy(&path, &own_e).unwrap();
+    let sys = |lookahead: bool, fail_e: f64, every_e: usize| {
+        let mut s = System::new(0.2, 0.001)
+            .component("a", &path)
+            .parameter("a", "u", Value::Real(1.5))
+            .component("b", &own_b)
+            .parameter("b", "k", Value::Real(0.7))
+            .component("e", &own_e)
+            .every(every_e)
+            .parameter("e", "k", Value::Real(0.3))
+            .parameter("e", "fail_at", Value::Real(fail_e))
+            .component("d", &path)
+            .every(3)
+            .component("c", &path)
+            .connect("a.y", "b.u")
+            .connect("a.y", "c.u")
+            .connect("a.y", "e.u")
+            .connect("b.y", "d.u")
+            .order(Order::GaussSeidel)
+            .scheduler(SchedulerParams {
+                lookahead_min_seconds: 0.0,
+                ..SchedulerParams::default()
+            });
+        s.no_lookahead = !lookahead;
+        s
+    };
+    let record = [
+        "b.y".to_string(),
+        "b.steps".to_string(),
+        "e.y".to_string(),
+        "d.y".to_string(),
+    ];
+    for every_e in [1, 4] {
+        for decimation in [1, 3] {
+            let what = format!("e every {every_e}, decimation {decimation}");
+            let seq = run(
+                &sys(false, -1.0, every_e),
+                &record,
+                decimation,
+                &mut |_, _| {},
+            )
+            .unwrap();
+            let la = run(
+                &sys(true, -1.0, every_e),
+                &record,
+                decimation,
+                &mut |_, _| {},
+            )
+            .unwrap();
+            assert_eq!(seq.timing.lookahead_steps, 0, "{what}");
+            // b and e step there at most of their turns (b not when d is next: 4 in 5 turns
+            // with e every 4 steps), so both are in flight at once.
+            let turns = 200 + 200 / every_e as u64;
+            assert!(
+                la.timing.lookahead_steps * 4 >= turns * 3,
+                "{what}: {} of {turns} steps went ahead",
+                la.timing.lookahead_steps
+            );
+            assert_eq!(seq.n_rows(), 200 / decimation + 1, "{what}");
+            assert!(seq.values().iter().all(|x| x.is_finite()));
+            assert!(seq.column("e.y").unwrap().iter().any(|&x| x != 0.0));
+            assert_eq!(
+                la.values(),
+                seq.values(),
+                "{what}: the look-ahead changed a row"
+            );
+        }
+    }
+    // e fails at t = 0.05 on the look-ahead thread: the same error and the same rows kept.
+    let failed = |lookahead| {
+        let f = run(&sys(lookahead, 0.05, 1), &record, 1, &mut |_, _| {}).unwrap_err();
+        (
+            f.error.to_string(),
+            f.partial.expect("rows before the failure"),
+        )
+    };
+    let (seq_msg, seq_rows) = failed(false);
+    let (la_msg, la_rows) = failed(true);
+    assert!(
+        seq_msg.contains("e: fmi2DoStep returned fmi2Error at t = 0.05"),
+        "{seq_msg}"
+    );
+    assert_eq!(la_msg, seq_msg);
+    assert_eq!(la_rows.values(), seq_rows.values());
+    assert_eq!(seq_rows.n_rows(), 51);
+}
+
 /// Jacobi with one heavy component (a waits 0.4 ms per step, b and c 0.04 ms): a steps on this
 /// thread while b and c step in turn on a worker, and every value is that of the same system
 /// stepped on one thread (no waits). Gauss-Seidel through `run` with a component slow enough
@@ -920,7 +1022,7 @@ fn scheduler_params_change_no_value() {
             d.lookahead_min_seconds,
             d.mean_weight
         ),
-        (2e-4, 5e-5, 1.5e-4, 5e-5, 0.05)
+        (2e-4, 5e-5, 1.5e-4, 5e-6, 0.05)
     );
     assert_eq!(System::default().scheduler, d);
     let path = tiny_fmu("scheduler", &tiny_xml(), &[], true);

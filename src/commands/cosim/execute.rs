@@ -343,6 +343,8 @@ pub(super) fn summary_row(o: &RunOutcome, duration: f64) -> serde_json::Value {
         "setup_seconds": (o.seconds - timing.loop_seconds).max(0.0),
         "loop_real_time_factor": simulated / timing.loop_seconds.max(1e-9),
         "master_share": timing.master_share(),
+        // Components' steps the master's second thread took (Gauss-Seidel's look-ahead).
+        "lookahead_steps": timing.lookahead_steps,
         "component_seconds": timing.components.iter()
             .map(|(n, t)| (n.clone(), json!(t)))
             .collect::<serde_json::Map<_, _>>(),

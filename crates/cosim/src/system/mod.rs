@@ -43,17 +43,23 @@
 //! on a worker when they add up to [`SchedulerParams::split_min_seconds`] and it outlasts them by
 //! [`SchedulerParams::wake_seconds`] (the worker's wake-up hides behind it); in turn otherwise
 //! (same results in every case). In Gauss-Seidel order, **look-ahead**: a component whose
-//! outputs nobody needs right away (the next due component does not read them, they are not
-//! recorded, and no other component is an instance of its FMU, whose library might keep global
-//! state) may step on a second thread while the master goes on with the next components, into
-//! the next base step if nothing reads it: its inputs are gathered at its turn, and it is
-//! waited for before anything that reads it (or its own next step, or the end of the run).
-//! Every component therefore receives exactly the values of the sequential order, bit for bit
-//! (tested); only the wall time changes. One component is in flight at a time, and only one
-//! taking at least [`SchedulerParams::lookahead_min_seconds`] per step (a running mean), so that
-//! handing it over pays. In the standard TMT system the edge sensors (read by the 20 Hz
-//! controller only) step while the master moves on to the optics and the next step's wind and
-//! mirror.
+//! outputs the next turn does not need (the next due component does not read them, and no other
+//! component is an instance of its FMU, whose library might keep global state) may step on a
+//! second thread while the master goes on with the next components, into the next base step
+//! if nothing reads it: its inputs are gathered at its turn, and it is waited for before
+//! anything that reads it (or its own next step, or the end of the run). Up to
+//! four steps are in flight at once (`threads::LOOKAHEAD_SLOTS`); they step there in
+//! turn, in the order handed over, and come back in that order. Only components taking at least
+//! [`SchedulerParams::lookahead_min_seconds`] per step (a running mean) go, so that handing one
+//! over pays. A recorded component may go too when [`run`] or [`run_into`] drives the
+//! simulation: the rows sampled while its step is in flight are held (as every row after a
+//! step in flight began, so that a failure there keeps the rows of the sequential order) and
+//! get its outputs when it is back. Every component therefore receives exactly the values of
+//! the sequential order, and every row shows them, bit for bit (tested); only the wall time
+//! changes. In the standard TMT system the edge sensors (read by the 20 Hz controller only)
+//! and the optics (recorded, read by nobody) step there while the master moves on to the next
+//! step's wind and mirror. [`Simulation::step`] driven directly keeps recorded components on
+//! the master's thread, so that [`Simulation::recorded_values`] is current after every step.
 //!
 //! The thresholds of these decisions are one parameter struct, [`SchedulerParams`] (its
 //! [`Default`] holds the measured values; [`System::scheduler`] sets others); they change the

@@ -54,6 +54,8 @@ pub struct Timing {
     pub components: Vec<(String, f64)>,
     /// Wall time of each component's set-up, instantiation to the end of initialisation (s).
     pub setup_components: Vec<(String, f64)>,
+    /// Components' steps taken on Gauss-Seidel's look-ahead thread.
+    pub lookahead_steps: u64,
 }
 
 impl Timing {
@@ -343,10 +345,10 @@ pub fn run_into(
     let width = columns.len();
     let mut row = vec![0.0; width];
     let mut rows = 0usize;
-    // Rows taken after the step now on the look-ahead thread began wait here (with their base
-    // step) until it is back: if that step fails or ends the run, the sequential order would
-    // have stopped before them, and they are dropped (so the look-ahead changes no row and no
-    // outcome). `flush(upto)` writes the held rows of base steps up to `upto`.
+    // Rows taken after the oldest step now on the look-ahead thread began wait here (with their
+    // base step) until it is back: if that step fails or ends the run, the sequential order
+    // would have stopped before them, and they are dropped (so the look-ahead changes no row
+    // and no outcome). `flush(upto)` writes the held rows of base steps up to `upto`.
     let mut held: Vec<f64> = Vec::new();
     let mut held_at: Vec<u64> = Vec::new();
     let mut flush = |sink: &mut dyn Sink,
@@ -366,6 +368,20 @@ pub fn run_into(
     let sample = |sim: &Simulation, row: &mut [f64]| {
         row[0] = sim.time();
         sim.recorded_values(&mut row[1..]);
+    };
+    // Recorded components may step on the look-ahead thread too: a held row sampled while
+    // one was in flight gets the values it missed when that step comes back.
+    sim.set_late_rows(true);
+    let patch = |sim: &mut Simulation, held: &mut [f64], held_at: &[u64]| {
+        sim.take_late(|due, upto, values| {
+            for (h, &at) in held.chunks_exact_mut(width).zip(held_at) {
+                if (due..=upto).contains(&at) {
+                    for &(c, v) in values {
+                        h[1 + c] = v;
+                    }
+                }
+            }
+        });
     };
     sample(&sim, &mut row);
     held.extend_from_slice(&row);
@@ -389,7 +405,8 @@ pub fn run_into(
             held.extend_from_slice(&row);
             held_at.push(k as u64);
         }
-        // Rows before the step in flight began are final.
+        patch(&mut sim, &mut held, &held_at);
+        // Rows before the oldest step in flight began are final.
         let upto = sim.in_flight_since().unwrap_or(u64::MAX);
         if let Err(e) = flush(sink, &mut held, &mut held_at, upto) {
             stopped = Some(e);
@@ -400,6 +417,7 @@ pub fn run_into(
     // that failed since, so in the sequential order its error comes first; an error that came
     // from it (now or inside a step) keeps only the rows up to the base step where it began.
     let settled = sim.settle();
+    patch(&mut sim, &mut held, &held_at);
     let stopped = match settled {
         Err(e) => Some(e),
         Ok(()) => stopped,
@@ -432,6 +450,7 @@ pub fn run_into(
         fmu_seconds: sim.fmu_critical_seconds(),
         components: sim.component_seconds(),
         setup_components: sim.component_setup_seconds(),
+        lookahead_steps: sim.lookahead_steps(),
     };
     sim.terminate().map_err(|e| Box::new(Failure::from(e)))?;
     Ok(Report {

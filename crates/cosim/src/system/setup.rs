@@ -9,7 +9,7 @@ use std::time::Instant;
 use super::definition::{Order, System, Value};
 use super::init;
 use super::ports::{Port, Ports, Values};
-use super::simulation::{Recorded, Simulation};
+use super::simulation::{Late, Recorded, Simulation};
 use super::step::Running;
 use super::threads::Lookahead;
 use super::wiring::{Kind, Recording, Wiring, var_of};
@@ -182,23 +182,23 @@ fn exit_initialization(comps: &mut [Running]) -> Result<()> {
     Ok(())
 }
 
-/// Per component, whether it must stay on the master's thread in Gauss-Seidel order: any of
-/// its outputs recorded (`rec_local`), or another instance of its FMU in the system.
-fn stay_on_master(fmu_of: &[usize], rec_local: &[Recording]) -> Vec<bool> {
-    let n = fmu_of.len();
-    // Components that may go to the look-ahead thread: not recorded, and the only
-    // instance of their FMU (instances of one library may share its global state, and
-    // the sequential order never ran two of them at once).
-    let mut stay_on_master = vec![false; n];
-    for r in rec_local {
-        stay_on_master[r.component] = true;
+/// Per component, whether it must stay on the master's thread in Gauss-Seidel order: another
+/// instance of its FMU is in the system (instances of one library may share its global state,
+/// and the sequential order never runs two of them at once).
+fn stay_on_master(fmu_of: &[usize]) -> Vec<bool> {
+    fmu_of
+        .iter()
+        .map(|f| fmu_of.iter().filter(|&g| g == f).count() > 1)
+        .collect()
+}
+
+/// Per component, its recorded outputs: (column, kind, slot among its outputs of that kind).
+fn recorded_of(n: usize, rec_local: &[Recording]) -> Vec<Vec<(usize, Kind, usize)>> {
+    let mut of = vec![Vec::new(); n];
+    for (c, r) in rec_local.iter().enumerate() {
+        of[r.component].push((c, r.kind, r.slot));
     }
-    for c in 0..n {
-        if fmu_of.iter().filter(|&&k| k == fmu_of[c]).count() > 1 {
-            stay_on_master[c] = true;
-        }
-    }
-    stay_on_master
+    of
 }
 
 impl Simulation {
@@ -226,7 +226,8 @@ impl Simulation {
             init::propagate(system, &fmus, &fmu_of, &wiring, &mut comps)?;
         }
         exit_initialization(&mut comps)?;
-        let stay_on_master = stay_on_master(&fmu_of, &rec_local);
+        let stay_on_master = stay_on_master(&fmu_of);
+        let recorded_of = recorded_of(comps.len(), &rec_local);
         let recorded = Recorded {
             columns: rec_local.iter().map(|r| r.column.clone()).collect(),
             slots: rec_local
@@ -235,6 +236,7 @@ impl Simulation {
                 .collect(),
         };
         let mut sim = Self::assemble(system, comps, &wiring, stay_on_master, recorded, fmus)?;
+        sim.recorded_of = recorded_of;
         // The initial outputs feed the first step (or zeros, fmpy.ssp's convention).
         if !system.zero_start {
             for c in 0..sim.comps.len() {
@@ -266,9 +268,11 @@ impl Simulation {
             names: comps.iter().map(|r| r.name.clone()).collect(),
             comps: comps.into_iter().map(|r| Some(Box::new(r))).collect(),
             sources: wiring.sources(),
+            recorded_of: vec![Vec::new(); n],
+            late_rows: false,
+            late: Late::default(),
             stay_on_master,
             lookahead,
-            in_flight_since: None,
             lookahead_failed_at: None,
             params: system.scheduler,
             parallel_steps: 0,

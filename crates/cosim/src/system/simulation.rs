@@ -6,7 +6,7 @@
 use super::definition::Order;
 use super::ports::Values;
 use super::step::Running;
-use super::threads::{Lookahead, SchedulerParams};
+use super::threads::{InFlight, Lookahead, SchedulerParams};
 use super::wiring::Kind;
 use crate::error::Result;
 use crate::fmu::Fmu;
@@ -20,6 +20,17 @@ pub struct Recorded {
     pub(super) slots: Vec<(Kind, usize)>,
 }
 
+/// Recorded values that came back late, per step that brought them: the base step from which
+/// its outputs were visible (`due`), the last row sampled before it came back (`upto`), and its
+/// recorded columns' values, which rows `due..=upto` should show.
+#[derive(Debug, Default)]
+pub(super) struct Late {
+    /// Per step: `(due, upto, end of its values in `values`)`.
+    steps: Vec<(u64, u64, usize)>,
+    /// `(column, value)`, step after step.
+    values: Vec<(usize, f64)>,
+}
+
 /// The system instantiated and initialised, ready to step.
 pub struct Simulation {
     /// The components in order; `None` while on the look-ahead thread.
@@ -30,13 +41,20 @@ pub struct Simulation {
     pub(super) every: Vec<u64>,
     /// Component names in order (also while one is on the look-ahead thread).
     pub(super) names: Vec<String>,
-    /// Per component, whether it must stay on the master's thread in Gauss-Seidel order: any of
-    /// its outputs recorded, or another instance of its FMU in the system.
+    /// Per component, whether it must stay on the master's thread in Gauss-Seidel order:
+    /// another instance of its FMU is in the system.
     pub(super) stay_on_master: Vec<bool>,
+    /// Per component, its recorded outputs: (column, kind, slot among its outputs of that
+    /// kind).
+    pub(super) recorded_of: Vec<Vec<(usize, Kind, usize)>>,
+    /// Whether components with recorded outputs may step on the look-ahead thread: the caller
+    /// then takes the values the rows sampled meanwhile missed ([`Self::take_late`]).
+    pub(super) late_rows: bool,
+    /// Recorded values that came back from the look-ahead thread after rows that should show
+    /// them were sampled ([`Self::take_late`]).
+    pub(super) late: Late,
     /// Gauss-Seidel's look-ahead thread (None: off, or Jacobi).
     pub(super) lookahead: Option<Lookahead>,
-    /// The base step at which the step now on the look-ahead thread began.
-    pub(super) in_flight_since: Option<u64>,
     /// The base step at which a step that came back from the look-ahead thread with an error
     /// (or an end) had begun.
     pub(super) lookahead_failed_at: Option<u64>,
@@ -100,10 +118,55 @@ impl Simulation {
         self.parallel_steps
     }
 
-    /// The base step at which the component now on the look-ahead thread began its step (None:
-    /// none is). Rows recorded since then are only final once it is back ([`Self::settle`]).
+    /// The base step at which the oldest step now on the look-ahead thread began (None: none
+    /// is). Rows recorded since then are only final once it is back ([`Self::settle`]).
     pub fn in_flight_since(&self) -> Option<u64> {
-        self.in_flight_since
+        self.lookahead
+            .as_ref()
+            .and_then(|l| l.in_flight.front())
+            .map(|f| f.since)
+    }
+
+    /// Lets components whose outputs are recorded step on the look-ahead thread: the rows
+    /// sampled while such a step is in flight show its component's previous outputs, and
+    /// [`Self::take_late`] hands over the values they should show once it is back. The caller
+    /// must hold those rows until then ([`Self::in_flight_since`]); [`super::run_into`] does.
+    pub(super) fn set_late_rows(&mut self, on: bool) {
+        self.late_rows = on;
+    }
+
+    /// Notes the recorded values of a step back from the look-ahead thread, if rows sampled
+    /// before it came back should show them (when on, [`Self::set_late_rows`]).
+    pub(super) fn note_late(&mut self, step: InFlight) {
+        // Rows sampled so far are those of base steps up to `n_steps` (a step under way has
+        // not counted itself yet).
+        let upto = self.n_steps;
+        let cols = &self.recorded_of[step.index];
+        if !self.late_rows || cols.is_empty() || step.due > upto {
+            return;
+        }
+        let Some(r) = self.comps[step.index].as_deref() else {
+            return;
+        };
+        let late = &mut self.late;
+        late.values.extend(
+            cols.iter()
+                .map(|&(c, kind, slot)| (c, r.ports.number(kind, slot))),
+        );
+        late.steps.push((step.due, upto, late.values.len()));
+    }
+
+    /// Hands each recorded value that came back late to `patch(due, upto, values)`: rows of
+    /// base steps `due..=upto` should show `values` (`(column, value)`, columns counted without
+    /// time), in the order they came back; then forgets them.
+    pub(super) fn take_late(&mut self, mut patch: impl FnMut(u64, u64, &[(usize, f64)])) {
+        let mut start = 0;
+        for &(due, upto, end) in &self.late.steps {
+            patch(due, upto, &self.late.values[start..end]);
+            start = end;
+        }
+        self.late.steps.clear();
+        self.late.values.clear();
     }
 
     /// The base step at which a step that came back from the look-ahead thread with an error

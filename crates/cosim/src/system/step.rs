@@ -2,7 +2,7 @@
 //! [`Running`] component sets its gathered inputs, steps and reads its outputs; Jacobi gives
 //! every due component the outputs of the communication point and publishes theirs after all
 //! have stepped; Gauss-Seidel steps the due components in order, each on the newest outputs,
-//! waiting for the component on the look-ahead thread before anything that reads it. Where the
+//! waiting for the steps on the look-ahead thread before anything that reads them. Where the
 //! FMU calls run is the thread policy's choice (`threads.rs`) and changes no value.
 
 use std::time::Instant;
@@ -10,7 +10,7 @@ use std::time::Instant;
 use super::definition::Order;
 use super::ports::{Ports, Values};
 use super::simulation::Simulation;
-use super::threads::{self, Job};
+use super::threads::{self, InFlight, Job};
 use crate::error::{CosimError, Result};
 use crate::instance::Instance;
 
@@ -45,9 +45,9 @@ impl Running {
         })
     }
 
-    /// Copies its inputs out of `shared`.
-    pub(super) fn gather(&mut self, shared: &Values) {
-        self.ports.gather(shared);
+    /// Copies its inputs out of `shared` for a step on another thread.
+    pub(super) fn gather_for_other_thread(&mut self, shared: &Values) {
+        self.ports.gather_for_other_thread(shared);
     }
 
     /// [`Self::advance`] on the inputs already gathered.
@@ -201,12 +201,16 @@ impl Simulation {
             if !k.is_multiple_of(self.every[i]) {
                 continue;
             }
-            // Wait for the component in flight if it is this one's previous step or this one
-            // reads it.
-            if let Some(j) = self.lookahead.as_ref().and_then(|l| l.in_flight)
-                && (j == i || self.sources[i].binary_search(&j).is_ok())
-            {
-                self.settle()?;
+            // Wait for the steps in flight up to the last that is this one's previous step or
+            // that it reads (they come back in the order they went).
+            let sources = &self.sources[i];
+            let wait = self.lookahead.as_ref().and_then(|l| {
+                l.in_flight
+                    .iter()
+                    .rposition(|f| f.index == i || sources.binary_search(&f.index).is_ok())
+            });
+            if let Some(p) = wait {
+                self.settle_some(p + 1)?;
             }
             self.gs_turn(i, k, t, h, left)?;
         }
@@ -216,10 +220,7 @@ impl Simulation {
     /// The turn of due component `i` in Gauss-Seidel order (nothing it reads is in flight).
     fn gs_turn(&mut self, i: usize, k: u64, t: f64, h: f64, left: usize) -> Result<()> {
         let n = self.comps.len();
-        let free = self
-            .lookahead
-            .as_ref()
-            .is_some_and(|l| l.in_flight.is_none());
+        let room = self.lookahead.as_ref().is_some_and(|l| l.has_room());
         let at = self.due_at(i, k, left);
         let Some(r) = self.comps[i].as_deref_mut() else {
             return Err(CosimError::Invalid(format!(
@@ -234,23 +235,25 @@ impl Simulation {
                 .find(|&j| k.is_multiple_of(self.every[j]))
                 .or_else(|| (0..=i).find(|&j| (k + 1).is_multiple_of(self.every[j])))
         };
-        let defer = free
+        let defer = room
             && !self.stay_on_master[i]
+            && (self.late_rows || self.recorded_of[i].is_empty())
             && self.params.worth_lookahead(r.mean)
             && next().is_some_and(|j| j != i && self.sources[j].binary_search(&i).is_err());
         self.pending[i] = Some(at);
         if defer
             && let Some(la) = self.lookahead.as_mut()
-            && la.jobs.is_some()
             && let Some(mut comp) = self.comps[i].take()
         {
             // The thread steps it while the master moves on: its inputs are copied now.
-            comp.gather(&self.outputs);
-            match la.hand_over(i, comp, t, h, left) {
-                Ok(()) => {
-                    self.in_flight_since = Some(k);
-                    return Ok(());
-                }
+            comp.gather_for_other_thread(&self.outputs);
+            let step = InFlight {
+                index: i,
+                since: k,
+                due: at,
+            };
+            match la.hand_over(step, comp, t, h, left) {
+                Ok(()) => return Ok(()),
                 Err(comp) => {
                     // The thread is gone: step it here, and no more look-ahead.
                     self.comps[i] = Some(comp);
@@ -278,42 +281,73 @@ impl Simulation {
         Ok(())
     }
 
-    /// Waits for the component on the look-ahead thread (if any) and puts it back, publishing
-    /// its outputs if they are due: afterwards every component is in place and every visible
+    /// Waits for every step on the look-ahead thread and puts the components back, publishing
+    /// their outputs if they are due: afterwards every component is in place and every visible
     /// output current.
     ///
     /// # Errors
-    /// The error of that component's step (naming it and the time), or a look-ahead thread
-    /// that stopped.
+    /// The error of the first of those steps that failed (naming the component and the time),
+    /// or a look-ahead thread that stopped.
     pub fn settle(&mut self) -> Result<()> {
-        let Some(la) = self.lookahead.as_mut() else {
-            return Ok(());
-        };
-        let Some(i) = la.in_flight.take() else {
-            return Ok(());
-        };
-        let t0 = Instant::now();
-        let job = threads::receive(&la.done, threads::SPIN_MASTER).ok_or_else(|| {
-            CosimError::Invalid(format!(
-                "{}: the look-ahead thread stopped during its step",
-                self.names[i]
-            ))
-        })?;
-        self.fmu_critical += t0.elapsed().as_secs_f64();
-        let Job {
-            index,
-            comp,
-            result,
-            ..
-        } = job;
-        self.comps[index] = Some(comp);
-        let since = self.in_flight_since.take();
-        if result.is_ok() {
-            self.publish_due(self.visible);
-        } else {
-            self.lookahead_failed_at = since;
+        let n = self.lookahead.as_ref().map_or(0, |l| l.in_flight.len());
+        self.settle_some(n)
+    }
+
+    /// Waits for the `n` oldest steps on the look-ahead thread (they come back in the order
+    /// they went), as [`Self::settle`]: all of them come back even if one failed, and the
+    /// first failure is the error.
+    fn settle_some(&mut self, n: usize) -> Result<()> {
+        let mut first = Ok(());
+        for _ in 0..n {
+            let Some(la) = self.lookahead.as_mut() else {
+                break;
+            };
+            let Some(step) = la.in_flight.pop_front() else {
+                break;
+            };
+            let t0 = Instant::now();
+            let Some(job) = threads::receive(&la.done, threads::SPIN_MASTER) else {
+                // The thread is gone with the components in flight: no more look-ahead.
+                la.in_flight.clear();
+                self.lookahead = None;
+                self.lookahead_failed_at = Some(
+                    self.lookahead_failed_at
+                        .map_or(step.since, |f| f.min(step.since)),
+                );
+                if first.is_ok() {
+                    first = Err(CosimError::Invalid(format!(
+                        "{}: the look-ahead thread stopped during its step",
+                        self.names[step.index]
+                    )));
+                }
+                break;
+            };
+            self.fmu_critical += t0.elapsed().as_secs_f64();
+            let Job {
+                index,
+                comp,
+                result,
+                ..
+            } = job;
+            debug_assert_eq!(index, step.index);
+            self.comps[index] = Some(comp);
+            match result {
+                Ok(()) => {
+                    self.publish_due(self.visible);
+                    self.note_late(step);
+                }
+                Err(e) => {
+                    self.lookahead_failed_at = Some(
+                        self.lookahead_failed_at
+                            .map_or(step.since, |f| f.min(step.since)),
+                    );
+                    if first.is_ok() {
+                        first = Err(e);
+                    }
+                }
+            }
         }
-        result
+        first
     }
 }
 

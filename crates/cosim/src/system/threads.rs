@@ -6,8 +6,9 @@
 //! - Jacobi: the due components by recursive halving on rayon's pool ([`advance_split`]), the
 //!   heaviest alone beside the others stepping in turn on a worker, or all in turn on the
 //!   calling thread ([`plan_jacobi`], [`advance_jacobi`]).
-//! - Gauss-Seidel: one component at a time on the look-ahead thread ([`Lookahead`]), when it
-//!   takes long enough per step ([`SchedulerParams::worth_lookahead`]).
+//! - Gauss-Seidel: components' steps on the look-ahead thread ([`Lookahead`], up to
+//!   [`LOOKAHEAD_SLOTS`] in flight), when they take long enough per step
+//!   ([`SchedulerParams::worth_lookahead`]).
 
 use super::ports::Values;
 use super::step::Running;
@@ -32,10 +33,12 @@ pub struct SchedulerParams {
     /// 1.5e-4.
     pub wake_seconds: f64,
     /// Mean time per step (s) from which a component may step on the look-ahead thread in
-    /// Gauss-Seidel order (handing it over and back costs a few microseconds when the thread is
-    /// awake, up to 50-150 us to wake it on the 2-core machine, hidden while the master steps
-    /// the others). Default 5e-5; [`super::Simulation::set_lookahead`] changes it on a running
-    /// simulation.
+    /// Gauss-Seidel order. Handing a step over and taking it back costs the master about 1 us
+    /// when the thread is awake (measured on the 2-core machine with the TMT edge sensors and
+    /// optics, whose inputs are the mirror's 1476 displacements: 0.3 us to copy them, 0.5 us to
+    /// send the step, the rest to receive it); waking a sleeping thread takes 50-150 us there,
+    /// hidden while the master steps the others. Default 5e-6, five times that cost;
+    /// [`super::Simulation::set_lookahead`] changes it on a running simulation.
     pub lookahead_min_seconds: f64,
     /// Weight of the newest step in each component's running mean of its step time (the mean
     /// the thresholds above are compared with): `mean += weight * (last - mean)`. Default 0.05.
@@ -48,7 +51,7 @@ impl Default for SchedulerParams {
             parallel_min_seconds: 2e-4,
             split_min_seconds: 5e-5,
             wake_seconds: 1.5e-4,
-            lookahead_min_seconds: 5e-5,
+            lookahead_min_seconds: 5e-6,
             mean_weight: 0.05,
         }
     }
@@ -108,20 +111,37 @@ pub(super) struct Job {
     pub(super) result: Result<()>,
 }
 
-/// The look-ahead thread of a Gauss-Seidel simulation and the component it has in flight.
+/// Most component steps in flight on the look-ahead thread at once. They step there one after
+/// the other in the order they were handed over, which is their Gauss-Seidel order.
+pub(super) const LOOKAHEAD_SLOTS: usize = 4;
+
+/// A step in flight on the look-ahead thread.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) struct InFlight {
+    /// The component.
+    pub(super) index: usize,
+    /// The base step at which its step began.
+    pub(super) since: u64,
+    /// The base step at which its outputs become visible.
+    pub(super) due: u64,
+}
+
+/// The look-ahead thread of a Gauss-Seidel simulation and the steps it has in flight.
 pub(super) struct Lookahead {
     pub(super) jobs: Option<std::sync::mpsc::SyncSender<Job>>,
     pub(super) done: std::sync::mpsc::Receiver<Job>,
     thread: Option<std::thread::JoinHandle<()>>,
-    pub(super) in_flight: Option<usize>,
+    /// The steps in flight, oldest first: the order in which they come back.
+    pub(super) in_flight: std::collections::VecDeque<InFlight>,
     /// Components' steps taken there so far.
     pub(super) deferred: u64,
 }
 
 impl Lookahead {
     pub(super) fn start() -> Result<Self> {
-        let (jobs, inbox) = std::sync::mpsc::sync_channel::<Job>(1);
-        let (outbox, done) = std::sync::mpsc::sync_channel::<Job>(1);
+        // Room for every step in flight in either channel: a send never blocks.
+        let (jobs, inbox) = std::sync::mpsc::sync_channel::<Job>(LOOKAHEAD_SLOTS);
+        let (outbox, done) = std::sync::mpsc::sync_channel::<Job>(LOOKAHEAD_SLOTS);
         let thread = std::thread::Builder::new()
             .name("cosim-lookahead".into())
             .spawn(move || {
@@ -137,16 +157,21 @@ impl Lookahead {
             jobs: Some(jobs),
             done,
             thread: Some(thread),
-            in_flight: None,
+            in_flight: std::collections::VecDeque::with_capacity(LOOKAHEAD_SLOTS),
             deferred: 0,
         })
     }
 
-    /// Sends component `index` (its inputs gathered) to step from `t` on the thread; it is in
-    /// flight until received from `done`. Gives the component back if the thread is gone.
+    /// Whether another step can go in flight.
+    pub(super) fn has_room(&self) -> bool {
+        self.jobs.is_some() && self.in_flight.len() < LOOKAHEAD_SLOTS
+    }
+
+    /// Sends a component (its inputs gathered) to step from `t` on the thread; it is in flight
+    /// (`step`) until received from `done`. Gives the component back if the thread is gone.
     pub(super) fn hand_over(
         &mut self,
-        index: usize,
+        step: InFlight,
         comp: Box<Running>,
         t: f64,
         h: f64,
@@ -156,7 +181,7 @@ impl Lookahead {
             return Err(comp);
         };
         let job = Job {
-            index,
+            index: step.index,
             comp,
             t,
             h,
@@ -165,7 +190,7 @@ impl Lookahead {
         };
         match tx.send(job) {
             Ok(()) => {
-                self.in_flight = Some(index);
+                self.in_flight.push_back(step);
                 self.deferred += 1;
                 Ok(())
             }
@@ -176,12 +201,14 @@ impl Lookahead {
 
 impl Drop for Lookahead {
     fn drop(&mut self) {
-        // Closing the channel ends the thread's loop; a job still in flight comes back (or is
-        // dropped with the thread) before the libraries close: Simulation's fields drop after
-        // this one.
+        // Closing the channel ends the thread's loop; the steps still in flight come back (or
+        // are dropped with the thread) before the libraries close: Simulation's fields drop
+        // after this one.
         self.jobs = None;
-        if self.in_flight.take().is_some() {
-            let _ = self.done.recv();
+        for _ in self.in_flight.drain(..) {
+            if self.done.recv().is_err() {
+                break;
+            }
         }
         if let Some(t) = self.thread.take() {
             let _ = t.join();
