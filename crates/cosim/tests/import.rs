@@ -850,12 +850,15 @@ fn gauss_seidel_lookahead_changes_no_value() {
     );
 }
 
-/// Recorded components on Gauss-Seidel's look-ahead thread (threshold 0): `run` gives the rows
-/// of the sequential order bit for bit, at every decimation. b and e (each the only instance of
-/// its FMU, both recorded; b read only by d every third step, e by nobody) step there, both in
-/// flight at once while d and c step, so the rows sampled meanwhile show their previous outputs until the
-/// master patches them; b's integer step count is recorded too. A recorded component failing
-/// there ends the run as in the sequential order, with the same rows kept.
+/// Recorded components on the look-ahead thread (threshold 0): `run` gives the rows of the
+/// sequential order bit for bit, in both orders, at every decimation. In Gauss-Seidel order b
+/// (the only instance of its FMU, recorded, read only by d every third step) steps there while
+/// the next components step; e (recorded, read by nobody, every base step) is a sink, kept
+/// there in both orders, its steps queued one after the other. The rows sampled meanwhile show
+/// their previous outputs until the master patches them (b's integer step count is recorded
+/// too). A slow sink (0.3 ms per step against the others' microseconds) fills the queue, and
+/// the master waits for room. A recorded component failing there ends the run as in the
+/// sequential order, with the same error and the same rows kept.
 #[test]
 fn recorded_components_on_the_lookahead_thread_change_no_row() {
     use cosim::SchedulerParams;
@@ -866,16 +869,25 @@ fn recorded_components_on_the_lookahead_thread_change_no_row() {
     );
     std::fs::copy(&path, &own_b).unwrap();
     std::fs::copy(&path, &own_e).unwrap();
-    let sys = |lookahead: bool, fail_e: f64, every_e: usize| {
-        let mut s = System::new(0.2, 0.001)
+    struct Case {
+        order: Order,
+        lookahead: bool,
+        fail_e: f64,
+        every_e: usize,
+        busy_e: f64,
+        stop: f64,
+    }
+    let sys = |c: &Case| {
+        let mut s = System::new(c.stop, 0.001)
             .component("a", &path)
             .parameter("a", "u", Value::Real(1.5))
             .component("b", &own_b)
             .parameter("b", "k", Value::Real(0.7))
             .component("e", &own_e)
-            .every(every_e)
+            .every(c.every_e)
             .parameter("e", "k", Value::Real(0.3))
-            .parameter("e", "fail_at", Value::Real(fail_e))
+            .parameter("e", "fail_at", Value::Real(c.fail_e))
+            .parameter("e", "busy", Value::Real(c.busy_e))
             .component("d", &path)
             .every(3)
             .component("c", &path)
@@ -883,12 +895,12 @@ fn recorded_components_on_the_lookahead_thread_change_no_row() {
             .connect("a.y", "c.u")
             .connect("a.y", "e.u")
             .connect("b.y", "d.u")
-            .order(Order::GaussSeidel)
+            .order(c.order)
             .scheduler(SchedulerParams {
                 lookahead_min_seconds: 0.0,
                 ..SchedulerParams::default()
             });
-        s.no_lookahead = !lookahead;
+        s.no_lookahead = !c.lookahead;
         s
     };
     let record = [
@@ -897,33 +909,46 @@ fn recorded_components_on_the_lookahead_thread_change_no_row() {
         "e.y".to_string(),
         "d.y".to_string(),
     ];
-    for every_e in [1, 4] {
-        for decimation in [1, 3] {
-            let what = format!("e every {every_e}, decimation {decimation}");
-            let seq = run(
-                &sys(false, -1.0, every_e),
-                &record,
-                decimation,
-                &mut |_, _| {},
-            )
-            .unwrap();
-            let la = run(
-                &sys(true, -1.0, every_e),
-                &record,
-                decimation,
-                &mut |_, _| {},
-            )
-            .unwrap();
+    let cases = [
+        (1, 1, 0.0, 0.2),
+        (1, 3, 0.0, 0.2),
+        (4, 1, 0.0, 0.2),
+        (4, 3, 0.0, 0.2),
+        (1, 1, 3e-4, 0.4),
+    ];
+    for order in [Order::GaussSeidel, Order::Jacobi] {
+        for &(every_e, decimation, busy_e, stop) in &cases {
+            let what =
+                format!("{order:?}, e every {every_e}, decimation {decimation}, busy {busy_e}");
+            let case = |lookahead| Case {
+                order,
+                lookahead,
+                fail_e: -1.0,
+                every_e,
+                busy_e,
+                stop,
+            };
+            let seq = run(&sys(&case(false)), &record, decimation, &mut |_, _| {}).unwrap();
+            let la = run(&sys(&case(true)), &record, decimation, &mut |_, _| {}).unwrap();
             assert_eq!(seq.timing.lookahead_steps, 0, "{what}");
-            // b and e step there at most of their turns (b not when d is next: 4 in 5 turns
-            // with e every 4 steps), so both are in flight at once.
-            let turns = 200 + 200 / every_e as u64;
+            let steps = (stop / 0.001).round() as u64;
+            // Gauss-Seidel: b and e step there at most of their turns (b not when d is next:
+            // 4 in 5 turns with e every 4 steps), so both are in flight at once. Jacobi: e
+            // alone, kept from its second step on when it steps every base step.
+            let (went, expected) = match (order, every_e) {
+                (Order::GaussSeidel, _) => (
+                    la.timing.lookahead_steps * 4,
+                    (steps + steps / every_e as u64) * 3,
+                ),
+                (Order::Jacobi, 1) => (la.timing.lookahead_steps, steps - 1),
+                (Order::Jacobi, _) => (la.timing.lookahead_steps * 1000, 0),
+            };
             assert!(
-                la.timing.lookahead_steps * 4 >= turns * 3,
-                "{what}: {} of {turns} steps went ahead",
+                went >= expected && (order == Order::GaussSeidel || went <= expected),
+                "{what}: {} steps went there",
                 la.timing.lookahead_steps
             );
-            assert_eq!(seq.n_rows(), 200 / decimation + 1, "{what}");
+            assert_eq!(seq.n_rows(), steps as usize / decimation + 1, "{what}");
             assert!(seq.values().iter().all(|x| x.is_finite()));
             assert!(seq.column("e.y").unwrap().iter().any(|&x| x != 0.0));
             assert_eq!(
@@ -932,24 +957,32 @@ fn recorded_components_on_the_lookahead_thread_change_no_row() {
                 "{what}: the look-ahead changed a row"
             );
         }
+        // e fails at t = 0.05 on the look-ahead thread: the same error and the same rows kept.
+        let failed = |lookahead| {
+            let case = Case {
+                order,
+                lookahead,
+                fail_e: 0.05,
+                every_e: 1,
+                busy_e: 0.0,
+                stop: 0.2,
+            };
+            let f = run(&sys(&case), &record, 1, &mut |_, _| {}).unwrap_err();
+            (
+                f.error.to_string(),
+                f.partial.expect("rows before the failure"),
+            )
+        };
+        let (seq_msg, seq_rows) = failed(false);
+        let (la_msg, la_rows) = failed(true);
+        assert!(
+            seq_msg.contains("e: fmi2DoStep returned fmi2Error at t = 0.05"),
+            "{order:?}: {seq_msg}"
+        );
+        assert_eq!(la_msg, seq_msg, "{order:?}");
+        assert_eq!(la_rows.values(), seq_rows.values(), "{order:?}");
+        assert_eq!(seq_rows.n_rows(), 51, "{order:?}");
     }
-    // e fails at t = 0.05 on the look-ahead thread: the same error and the same rows kept.
-    let failed = |lookahead| {
-        let f = run(&sys(lookahead, 0.05, 1), &record, 1, &mut |_, _| {}).unwrap_err();
-        (
-            f.error.to_string(),
-            f.partial.expect("rows before the failure"),
-        )
-    };
-    let (seq_msg, seq_rows) = failed(false);
-    let (la_msg, la_rows) = failed(true);
-    assert!(
-        seq_msg.contains("e: fmi2DoStep returned fmi2Error at t = 0.05"),
-        "{seq_msg}"
-    );
-    assert_eq!(la_msg, seq_msg);
-    assert_eq!(la_rows.values(), seq_rows.values());
-    assert_eq!(seq_rows.n_rows(), 51);
 }
 
 /// Jacobi with one heavy component (a waits 0.4 ms per step, b and c 0.04 ms): a steps on this

@@ -203,7 +203,8 @@ pub struct RunCmd {
     /// nobody reads right away (the edge sensors) steps on a second thread meanwhile (same
     /// values; see --no-lookahead). Jacobi steps them in parallel on the values of the last
     /// communication point (results independent of the component order; fmpy.ssp's
-    /// convention).
+    /// convention). In both, a component nobody reads (the optics) steps on the second thread,
+    /// its steps queued there.
     #[arg(long, value_enum)]
     pub order: Option<OrderArg>,
     /// Print the summary as one JSON object.
@@ -213,8 +214,8 @@ pub struct RunCmd {
     /// convention; for comparisons with it).
     #[arg(long)]
     pub zero_start: bool,
-    /// Gauss-Seidel without the look-ahead thread (every component in turn on this thread;
-    /// the same values, for timing comparisons).
+    /// Without the master's second thread (every component in turn on this thread; the same
+    /// values, for timing comparisons).
     #[arg(long)]
     pub no_lookahead: bool,
 }

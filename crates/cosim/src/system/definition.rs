@@ -76,7 +76,7 @@ pub struct System {
     /// Start every connection at 0 instead of the components' initial outputs (the convention
     /// of fmpy.ssp, for comparisons with it).
     pub zero_start: bool,
-    /// Gauss-Seidel without the look-ahead thread (module docs): the same values, one thread.
+    /// Without the look-ahead thread (module docs): the same values, without its thread.
     pub no_lookahead: bool,
     /// The thresholds by which the master decides which steps go to other threads (the
     /// defaults unless set; they change the wall time only, never a value).

@@ -42,24 +42,35 @@
 //! mean); with one such component, it steps on the calling thread while the others step in turn
 //! on a worker when they add up to [`SchedulerParams::split_min_seconds`] and it outlasts them by
 //! [`SchedulerParams::wake_seconds`] (the worker's wake-up hides behind it); in turn otherwise
-//! (same results in every case). In Gauss-Seidel order, **look-ahead**: a component whose
-//! outputs the next turn does not need (the next due component does not read them, and no other
-//! component is an instance of its FMU, whose library might keep global state) may step on a
-//! second thread while the master goes on with the next components, into the next base step
-//! if nothing reads it: its inputs are gathered at its turn, and it is waited for before
-//! anything that reads it (or its own next step, or the end of the run). Up to
-//! four steps are in flight at once (`threads::LOOKAHEAD_SLOTS`); they step there in
-//! turn, in the order handed over, and come back in that order. Only components taking at least
-//! [`SchedulerParams::lookahead_min_seconds`] per step (a running mean) go, so that handing one
-//! over pays. A recorded component may go too when [`run`] or [`run_into`] drives the
-//! simulation: the rows sampled while its step is in flight are held (as every row after a
-//! step in flight began, so that a failure there keeps the rows of the sequential order) and
-//! get its outputs when it is back. Every component therefore receives exactly the values of
-//! the sequential order, and every row shows them, bit for bit (tested); only the wall time
-//! changes. In the standard TMT system the edge sensors (read by the 20 Hz controller only)
-//! and the optics (recorded, read by nobody) step there while the master moves on to the next
-//! step's wind and mirror. [`Simulation::step`] driven directly keeps recorded components on
-//! the master's thread, so that [`Simulation::recorded_values`] is current after every step.
+//! (same results in every case).
+//!
+//! **The look-ahead thread** (started with the simulation unless [`System::no_lookahead`]) takes
+//! steps that nothing needs right away, so that they run beside the master's:
+//!
+//! - In Gauss-Seidel order, a component whose outputs the next turn does not read (and that is
+//!   the only instance of its FMU, whose library might keep global state) may step there while
+//!   the master goes on with the next components, into the next base step if nothing reads
+//!   it: its inputs are gathered at its turn, and it is waited for before anything that reads
+//!   it (or its own next step, or the end of the run).
+//! - In both orders, a **sink** (a component no other one reads, stepping every base step,
+//!   the only instance of its FMU, with Real inputs only: the optics metrics of the standard
+//!   systems) is kept there: at each of its turns the master sends its inputs (from the
+//!   snapshot in Jacobi order, the newest outputs in Gauss-Seidel order) and goes on. Its steps
+//!   queue there one after the other, so a step that takes many base steps now and then (the
+//!   optics' PSSN at 10 Hz, about 1 ms) is caught up over the next ones instead of making the
+//!   master wait; the master waits only when 256 messages are in flight.
+//!
+//! Its steps run in the order they were sent and their replies come back in that order. Only
+//! components taking at least [`SchedulerParams::lookahead_min_seconds`] per step (a running
+//! mean) go there, so that handing one over pays. A recorded component may go too when [`run`]
+//! or [`run_into`] drives the simulation: the rows sampled while its step is there are held (as
+//! every row after the oldest step there began, so that a failure there keeps the rows of the
+//! sequential order) and get its outputs when they come back. Every component therefore
+//! receives exactly the values of the sequential order, and every row shows them, bit for bit
+//! (tested); only the wall time changes. In the standard TMT system the edge sensors (read by
+//! the 20 Hz controller only) step there while the master moves on, and the optics are kept
+//! there. [`Simulation::step`] driven directly keeps recorded components on the master's
+//! thread, so that [`Simulation::recorded_values`] is current after every step.
 //!
 //! The thresholds of these decisions are one parameter struct, [`SchedulerParams`] (its
 //! [`Default`] holds the measured values; [`System::scheduler`] sets others); they change the

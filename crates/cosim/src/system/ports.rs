@@ -40,6 +40,17 @@ impl Values {
         self.string.clone_from_slice(&other.string);
     }
 
+    /// Sets slot `slot` of kind `kind` from a number ([`Self::number`]'s inverse; a String
+    /// is left as it is).
+    pub(super) fn set_number(&mut self, kind: Kind, slot: usize, v: f64) {
+        match kind {
+            Kind::Real => self.real[slot] = v,
+            Kind::Integer => self.integer[slot] = v as i32,
+            Kind::Boolean => self.boolean[slot] = v != 0.0,
+            Kind::String => {}
+        }
+    }
+
     /// The value in slot `slot` of kind `kind` as a number (a Boolean as 0 or 1; a String has
     /// none: NaN).
     pub(super) fn number(&self, kind: Kind, slot: usize) -> f64 {
@@ -111,6 +122,11 @@ impl<T: Clone + Default> Port<T> {
     /// than the calls added.
     pub(super) fn direct(&self) -> bool {
         !self.in_runs.is_empty() && self.in_runs.len() <= DIRECT_MAX_RUNS
+    }
+
+    /// Where its inputs come from: runs of `(first source slot, first input, length)`.
+    pub(super) fn in_runs(&self) -> &[(usize, usize, usize)] {
+        &self.in_runs
     }
 
     /// Copies its outputs into the shared buffer `shared`.
@@ -228,7 +244,7 @@ impl Ports {
 /// buffer the look-ahead thread read a step earlier costs the master about 4 us, nearly all of
 /// it waiting for those lines; this one about 0.3 us (the other core then reads them from
 /// memory, off the master's path). Elsewhere a plain copy.
-fn copy_past_cache(dst: &mut [f64], src: &[f64]) {
+pub(super) fn copy_past_cache(dst: &mut [f64], src: &[f64]) {
     assert_eq!(dst.len(), src.len(), "copy_past_cache: lengths differ");
     #[cfg(target_arch = "x86_64")]
     {

@@ -6,10 +6,10 @@
 
 use std::time::Instant;
 
-use super::definition::{Order, System, Value};
+use super::definition::{System, Value};
 use super::init;
 use super::ports::{Port, Ports, Values};
-use super::simulation::{Late, Recorded, Simulation};
+use super::simulation::{KeptSink, Late, Recorded, Simulation};
 use super::step::Running;
 use super::threads::Lookahead;
 use super::wiring::{Kind, Recording, Wiring, var_of};
@@ -258,16 +258,34 @@ impl Simulation {
     ) -> Result<Self> {
         let n = comps.len();
         let total = Kind::ALL.map(|k| wiring.offsets(k)[n]);
-        let lookahead = if system.order == Order::GaussSeidel && n > 1 && !system.no_lookahead {
-            Some(Lookahead::start()?)
+        let lookahead = if n > 1 && !system.no_lookahead {
+            Some(Lookahead::start(n)?)
         } else {
             None
         };
+        let sources = wiring.sources();
+        let sinks = comps
+            .iter()
+            .enumerate()
+            .map(|(i, r)| {
+                let read = sources.iter().any(|s| s.binary_search(&i).is_ok());
+                let p = &r.ports;
+                let only_real = p.integer.in_vrs.is_empty()
+                    && p.boolean.in_vrs.is_empty()
+                    && p.string.in_vrs.is_empty();
+                (!read && !stay_on_master[i] && r.every == 1 && only_real).then(|| KeptSink {
+                    runs: p.real.in_runs().to_vec(),
+                    inputs: p.real.in_vrs.len(),
+                    ..KeptSink::default()
+                })
+            })
+            .collect();
         Ok(Self {
             every: comps.iter().map(|r| r.every as u64).collect(),
             names: comps.iter().map(|r| r.name.clone()).collect(),
             comps: comps.into_iter().map(|r| Some(Box::new(r))).collect(),
-            sources: wiring.sources(),
+            sources,
+            sinks,
             recorded_of: vec![Vec::new(); n],
             late_rows: false,
             late: Late::default(),

@@ -31,6 +31,16 @@ pub(super) struct Late {
     values: Vec<(usize, f64)>,
 }
 
+/// How a sink kept on the look-ahead thread gets its inputs: its Real port's runs from the
+/// shared buffer, its number of inputs, and the buffers that come back from its steps.
+#[derive(Debug, Default)]
+pub(super) struct KeptSink {
+    pub(super) runs: Vec<(usize, usize, usize)>,
+    pub(super) inputs: usize,
+    pub(super) free_inputs: Vec<Vec<f64>>,
+    pub(super) free_recorded: Vec<Vec<f64>>,
+}
+
 /// The system instantiated and initialised, ready to step.
 pub struct Simulation {
     /// The components in order; `None` while on the look-ahead thread.
@@ -53,8 +63,12 @@ pub struct Simulation {
     /// Recorded values that came back from the look-ahead thread after rows that should show
     /// them were sampled ([`Self::take_late`]).
     pub(super) late: Late,
-    /// Gauss-Seidel's look-ahead thread (None: off, or Jacobi).
+    /// The look-ahead thread (None: off, or a single component).
     pub(super) lookahead: Option<Lookahead>,
+    /// Per component, if it is a sink that may be kept on the look-ahead thread (no other
+    /// component reads it, it steps every base step, it is the only instance of its FMU and
+    /// its connected inputs are all Real): how its inputs are gathered there.
+    pub(super) sinks: Vec<Option<KeptSink>>,
     /// The base step at which a step that came back from the look-ahead thread with an error
     /// (or an end) had begun.
     pub(super) lookahead_failed_at: Option<u64>,
@@ -88,9 +102,10 @@ pub struct Simulation {
 }
 
 impl Simulation {
-    /// Turns Gauss-Seidel's look-ahead off (`None`) or lets components of at least that mean
-    /// step time (s) use it (the default is [`SchedulerParams::lookahead_min_seconds`]);
-    /// results are the same either way. No effect in Jacobi order.
+    /// Turns the look-ahead thread off (`None`) or lets components of at least that mean step
+    /// time (s) use it (the default is [`SchedulerParams::lookahead_min_seconds`]): in
+    /// Gauss-Seidel order components whose outputs are not needed right away, in both orders
+    /// sinks kept there (module docs). Results are the same either way.
     ///
     /// # Errors
     /// As [`Self::settle`] (a component in flight is waited for first).
@@ -100,8 +115,8 @@ impl Simulation {
             None => self.lookahead = None,
             Some(m) => {
                 self.params.lookahead_min_seconds = m;
-                if self.lookahead.is_none() && self.order == Order::GaussSeidel {
-                    self.lookahead = Some(Lookahead::start()?);
+                if self.lookahead.is_none() && self.comps.len() > 1 {
+                    self.lookahead = Some(Lookahead::start(self.comps.len())?);
                 }
             }
         }
@@ -138,21 +153,35 @@ impl Simulation {
     /// Notes the recorded values of a step back from the look-ahead thread, if rows sampled
     /// before it came back should show them (when on, [`Self::set_late_rows`]).
     pub(super) fn note_late(&mut self, step: InFlight) {
-        // Rows sampled so far are those of base steps up to `n_steps` (a step under way has
-        // not counted itself yet).
-        let upto = self.n_steps;
-        let cols = &self.recorded_of[step.index];
-        if !self.late_rows || cols.is_empty() || step.due > upto {
-            return;
-        }
         let Some(r) = self.comps[step.index].as_deref() else {
             return;
         };
+        let cols = &self.recorded_of[step.index];
+        // Rows sampled so far are those of base steps up to `n_steps` (a step under way has
+        // not counted itself yet).
+        let upto = self.n_steps;
+        if !self.late_rows || cols.is_empty() || step.due > upto {
+            return;
+        }
         let late = &mut self.late;
         late.values.extend(
             cols.iter()
                 .map(|&(c, kind, slot)| (c, r.ports.number(kind, slot))),
         );
+        late.steps.push((step.due, upto, late.values.len()));
+    }
+
+    /// [`Self::note_late`] for a kept sink's step, with its recorded outputs `values` (in
+    /// `recorded_of` order).
+    pub(super) fn note_late_values(&mut self, step: InFlight, values: &[f64]) {
+        let cols = &self.recorded_of[step.index];
+        let upto = self.n_steps;
+        if !self.late_rows || cols.is_empty() || step.due > upto {
+            return;
+        }
+        let late = &mut self.late;
+        late.values
+            .extend(cols.iter().zip(values).map(|(&(c, _, _), &v)| (c, v)));
         late.steps.push((step.due, upto, late.values.len()));
     }
 

@@ -8,9 +8,10 @@
 use std::time::Instant;
 
 use super::definition::Order;
+use super::ports::copy_past_cache;
 use super::ports::{Ports, Values};
 use super::simulation::Simulation;
-use super::threads::{self, InFlight, Job};
+use super::threads::{self, Flight, InFlight, Job, Kept, KeptStep, LOOKAHEAD_SLOTS, Reply, Work};
 use crate::error::{CosimError, Result};
 use crate::instance::Instance;
 
@@ -143,6 +144,7 @@ impl Simulation {
             Order::Jacobi => self.step_jacobi(k, t, h, left)?,
             Order::GaussSeidel => self.step_gauss_seidel(k, t, h, left)?,
         }
+        self.collect_ready()?;
         self.n_steps += 1;
         self.time = self.start + self.n_steps as f64 * h;
         Ok(())
@@ -175,6 +177,12 @@ impl Simulation {
     fn step_jacobi(&mut self, k: u64, t: f64, h: f64, left: usize) -> Result<()> {
         let due = |r: &Running| k.is_multiple_of(r.every as u64);
         self.snapshot.copy_from(&self.outputs);
+        // Sinks kept on the look-ahead thread get their inputs from the snapshot and step there.
+        for i in 0..self.comps.len() {
+            if k.is_multiple_of(self.every[i]) {
+                self.kept_turn(i, k, t, h, left, true)?;
+            }
+        }
         let snapshot = &self.snapshot;
         let plan = threads::plan_jacobi(&self.comps, &due, &self.params);
         if plan.is_parallel() {
@@ -201,18 +209,22 @@ impl Simulation {
             if !k.is_multiple_of(self.every[i]) {
                 continue;
             }
-            // Wait for the steps in flight up to the last that is this one's previous step or
-            // that it reads (they come back in the order they went).
+            // Wait for the components in flight up to the last that is this one (its previous
+            // step) or that it reads: replies come in the order the steps went. A kept sink's
+            // steps are not waited for: nobody reads it, and its steps queue there.
             let sources = &self.sources[i];
             let wait = self.lookahead.as_ref().and_then(|l| {
-                l.in_flight
-                    .iter()
-                    .rposition(|f| f.index == i || sources.binary_search(&f.index).is_ok())
+                l.in_flight.iter().rposition(|f| {
+                    f.what == Flight::Step
+                        && (f.index == i || sources.binary_search(&f.index).is_ok())
+                })
             });
             if let Some(p) = wait {
                 self.settle_some(p + 1)?;
             }
-            self.gs_turn(i, k, t, h, left)?;
+            if !self.kept_turn(i, k, t, h, left, false)? {
+                self.gs_turn(i, k, t, h, left)?;
+            }
         }
         Ok(())
     }
@@ -247,16 +259,20 @@ impl Simulation {
         {
             // The thread steps it while the master moves on: its inputs are copied now.
             comp.gather_for_other_thread(&self.outputs);
-            let step = InFlight {
+            let flight = InFlight {
                 index: i,
                 since: k,
                 due: at,
+                what: Flight::Step,
             };
-            match la.hand_over(step, comp, t, h, left) {
+            let job = Work::Step(Job::new(i, comp, t, h, left));
+            match la.send(flight, job) {
                 Ok(()) => return Ok(()),
-                Err(comp) => {
+                Err(work) => {
                     // The thread is gone: step it here, and no more look-ahead.
-                    self.comps[i] = Some(comp);
+                    if let Work::Step(job) = *work {
+                        self.comps[i] = Some(job.comp);
+                    }
                     self.lookahead = None;
                 }
             }
@@ -267,6 +283,123 @@ impl Simulation {
         }
         self.publish_due(self.visible);
         Ok(())
+    }
+
+    /// The turn of due component `i` as a sink kept on the look-ahead thread (module docs):
+    /// if it is one (or becomes one now), its inputs go there from `self.snapshot` (Jacobi) or
+    /// `self.outputs` and it steps there, and this returns true. A full queue is waited for
+    /// first.
+    fn kept_turn(
+        &mut self,
+        i: usize,
+        k: u64,
+        t: f64,
+        h: f64,
+        left: usize,
+        from_snapshot: bool,
+    ) -> Result<bool> {
+        let Some(la) = self.lookahead.as_ref() else {
+            return Ok(false);
+        };
+        if self.sinks[i].is_none() {
+            return Ok(false);
+        }
+        let kept = la.kept[i];
+        if !kept {
+            // Kept from now on if its rows can wait for it and it is worth handing over.
+            let eligible = (self.late_rows || self.recorded_of[i].is_empty())
+                && self.comps[i]
+                    .as_deref()
+                    .is_some_and(|r| self.params.worth_lookahead(r.mean));
+            if !eligible {
+                return Ok(false);
+            }
+        }
+        let need = if kept { 1 } else { 2 };
+        while self
+            .lookahead
+            .as_ref()
+            .is_some_and(|l| l.jobs.is_some() && l.in_flight.len() + need > LOOKAHEAD_SLOTS)
+        {
+            self.settle_some(1)?;
+        }
+        let at = self.due_at(i, k, left);
+        if !kept {
+            let Some(comp) = self.comps[i].take() else {
+                return Ok(false);
+            };
+            let recorded = self.recorded_of[i]
+                .iter()
+                .map(|&(_, kind, slot)| (kind, slot))
+                .collect();
+            let flight = InFlight {
+                index: i,
+                since: k,
+                due: at,
+                what: Flight::Keep,
+            };
+            let Some(la) = self.lookahead.as_mut() else {
+                self.comps[i] = Some(comp);
+                return Ok(false);
+            };
+            match la.send(
+                flight,
+                Work::Keep(
+                    i,
+                    Box::new(Kept {
+                        comp,
+                        recorded,
+                        failed: false,
+                    }),
+                ),
+            ) {
+                Ok(()) => la.kept[i] = true,
+                Err(work) => {
+                    if let Work::Keep(_, kept) = *work {
+                        self.comps[i] = Some(kept.comp);
+                    }
+                    self.lookahead = None;
+                    return Ok(false);
+                }
+            }
+        }
+        let shared = if from_snapshot {
+            &self.snapshot.real
+        } else {
+            &self.outputs.real
+        };
+        let Some(sink) = self.sinks[i].as_mut() else {
+            return Ok(false);
+        };
+        let mut inputs = sink.free_inputs.pop().unwrap_or_default();
+        inputs.resize(sink.inputs, 0.0);
+        for &(src, dst, n) in &sink.runs {
+            copy_past_cache(&mut inputs[dst..dst + n], &shared[src..src + n]);
+        }
+        let recorded = sink.free_recorded.pop().unwrap_or_default();
+        let step = KeptStep::new(i, t, h, left, inputs, recorded);
+        let flight = InFlight {
+            index: i,
+            since: k,
+            due: at,
+            what: Flight::KeptStep,
+        };
+        self.pending[i] = Some(at);
+        let sent = self
+            .lookahead
+            .as_mut()
+            .map(|la| la.send(flight, Work::KeptStep(step)));
+        match sent {
+            Some(Ok(())) => Ok(true),
+            _ => {
+                // The thread is gone, and the component with it.
+                self.lookahead = None;
+                Err(CosimError::Invalid(format!(
+                    "{}: the look-ahead thread stopped",
+                    self.names[i]
+                )))
+            }
+        }
     }
 
     /// Reads component `c`'s current outputs and publishes them at once (after
@@ -281,73 +414,180 @@ impl Simulation {
         Ok(())
     }
 
-    /// Waits for every step on the look-ahead thread and puts the components back, publishing
-    /// their outputs if they are due: afterwards every component is in place and every visible
-    /// output current.
+    /// Waits for everything on the look-ahead thread and brings every component back (the kept
+    /// ones too), publishing their outputs if they are due: afterwards every component is in
+    /// place and every visible output current.
     ///
     /// # Errors
     /// The error of the first of those steps that failed (naming the component and the time),
     /// or a look-ahead thread that stopped.
     pub fn settle(&mut self) -> Result<()> {
-        let n = self.lookahead.as_ref().map_or(0, |l| l.in_flight.len());
-        self.settle_some(n)
+        let mut first = Ok(());
+        let n = self.comps.len();
+        for i in 0..n {
+            if !self.lookahead.as_ref().is_some_and(|l| l.kept[i]) {
+                continue;
+            }
+            while self
+                .lookahead
+                .as_ref()
+                .is_some_and(|l| l.jobs.is_some() && !l.has_room())
+            {
+                let r = self.settle_some(1);
+                if first.is_ok() {
+                    first = r;
+                }
+            }
+            let flight = InFlight {
+                index: i,
+                since: self.n_steps,
+                due: self.n_steps,
+                what: Flight::GiveBack,
+            };
+            if let Some(la) = self.lookahead.as_mut()
+                && la.send(flight, Work::GiveBack(i)).is_err()
+            {
+                self.lookahead = None;
+            }
+        }
+        let all = self.lookahead.as_ref().map_or(0, |l| l.in_flight.len());
+        let r = self.settle_some(all);
+        if first.is_ok() {
+            first = r;
+        }
+        if first.is_ok() && self.comps.iter().any(Option::is_none) {
+            first = Err(CosimError::Invalid(
+                "the look-ahead thread stopped with components on it".into(),
+            ));
+        }
+        first
     }
 
-    /// Waits for the `n` oldest steps on the look-ahead thread (they come back in the order
-    /// they went), as [`Self::settle`]: all of them come back even if one failed, and the
-    /// first failure is the error.
+    /// Takes the replies of the look-ahead thread that have come, without waiting: the kept
+    /// sinks' outputs for the rows, the components stepped there. The first error among them.
+    pub(super) fn collect_ready(&mut self) -> Result<()> {
+        let mut first = Ok(());
+        while let Some(r) = self.take_reply(false) {
+            if first.is_ok() {
+                first = r;
+            }
+        }
+        first
+    }
+
+    /// Waits for the replies to the `n` oldest messages on the look-ahead thread (they come in
+    /// the order the messages went), as [`Self::settle`]: all of them come even if one step
+    /// failed, and the first failure is the error.
     fn settle_some(&mut self, n: usize) -> Result<()> {
         let mut first = Ok(());
         for _ in 0..n {
-            let Some(la) = self.lookahead.as_mut() else {
-                break;
-            };
-            let Some(step) = la.in_flight.pop_front() else {
-                break;
-            };
-            let t0 = Instant::now();
-            let Some(job) = threads::receive(&la.done, threads::SPIN_MASTER) else {
-                // The thread is gone with the components in flight: no more look-ahead.
-                la.in_flight.clear();
-                self.lookahead = None;
-                self.lookahead_failed_at = Some(
-                    self.lookahead_failed_at
-                        .map_or(step.since, |f| f.min(step.since)),
-                );
-                if first.is_ok() {
-                    first = Err(CosimError::Invalid(format!(
-                        "{}: the look-ahead thread stopped during its step",
-                        self.names[step.index]
-                    )));
-                }
-                break;
-            };
-            self.fmu_critical += t0.elapsed().as_secs_f64();
-            let Job {
-                index,
-                comp,
-                result,
-                ..
-            } = job;
-            debug_assert_eq!(index, step.index);
-            self.comps[index] = Some(comp);
-            match result {
-                Ok(()) => {
-                    self.publish_due(self.visible);
-                    self.note_late(step);
-                }
-                Err(e) => {
-                    self.lookahead_failed_at = Some(
-                        self.lookahead_failed_at
-                            .map_or(step.since, |f| f.min(step.since)),
-                    );
+            match self.take_reply(true) {
+                None => break,
+                Some(r) => {
                     if first.is_ok() {
-                        first = Err(e);
+                        first = r;
                     }
                 }
             }
         }
         first
+    }
+
+    /// Takes the reply to the oldest message on the look-ahead thread: waits for it (`wait`)
+    /// or takes it only if it has come. None: nothing in flight, or not come.
+    fn take_reply(&mut self, wait: bool) -> Option<Result<()>> {
+        let la = self.lookahead.as_mut()?;
+        let flight = *la.in_flight.front()?;
+        let t0 = Instant::now();
+        let reply = if wait {
+            threads::receive(&la.done, threads::SPIN_MASTER)
+        } else {
+            match la.done.try_recv() {
+                Ok(r) => Some(r),
+                Err(std::sync::mpsc::TryRecvError::Empty) => return None,
+                Err(std::sync::mpsc::TryRecvError::Disconnected) => None,
+            }
+        };
+        la.in_flight.pop_front();
+        let Some(reply) = reply else {
+            // The thread is gone with what it had: no more look-ahead.
+            la.in_flight.clear();
+            self.lookahead = None;
+            self.failed_since(flight.since);
+            return Some(Err(CosimError::Invalid(format!(
+                "{}: the look-ahead thread stopped during its step",
+                self.names[flight.index]
+            ))));
+        };
+        if wait {
+            self.fmu_critical += t0.elapsed().as_secs_f64();
+        }
+        Some(match reply {
+            Reply::Stepped(job) => {
+                let (index, comp, result) = job.into_parts();
+                self.comps[index] = Some(comp);
+                match result {
+                    Ok(()) => {
+                        self.publish_due(self.visible);
+                        self.note_late(flight);
+                        Ok(())
+                    }
+                    Err(e) => {
+                        self.failed_since(flight.since);
+                        Err(e)
+                    }
+                }
+            }
+            Reply::Kept => Ok(()),
+            Reply::KeptStepped(mut step) => {
+                let result = std::mem::replace(&mut step.result, Ok(()));
+                let out = match result {
+                    Ok(()) => {
+                        // The sink's recorded outputs into the shared buffer (later rows read
+                        // them there) and into the rows sampled before they came.
+                        for (&(c, _, _), &v) in
+                            self.recorded_of[flight.index].iter().zip(&step.recorded)
+                        {
+                            let (kind, slot) = self.recorded.slots[c];
+                            self.outputs.set_number(kind, slot, v);
+                        }
+                        self.note_late_values(flight, &step.recorded);
+                        Ok(())
+                    }
+                    Err(e) => {
+                        self.failed_since(flight.since);
+                        Err(e)
+                    }
+                };
+                if let Some(sink) = self.sinks[flight.index].as_mut() {
+                    let (inputs, recorded) = step.into_buffers();
+                    sink.free_inputs.push(inputs);
+                    sink.free_recorded.push(recorded);
+                }
+                out
+            }
+            Reply::Returned(index, comp) => {
+                if let Some(la) = self.lookahead.as_mut() {
+                    la.kept[index] = false;
+                }
+                match comp {
+                    Some(comp) => {
+                        self.comps[index] = Some(comp);
+                        self.publish_due(self.visible);
+                        Ok(())
+                    }
+                    None => Err(CosimError::Invalid(format!(
+                        "{}: not kept on the look-ahead thread (internal error)",
+                        self.names[index]
+                    ))),
+                }
+            }
+        })
+    }
+
+    /// Notes that a step begun at base step `since` failed on the look-ahead thread.
+    fn failed_since(&mut self, since: u64) {
+        self.lookahead_failed_at = Some(self.lookahead_failed_at.map_or(since, |f| f.min(since)));
     }
 }
 

@@ -12,6 +12,7 @@
 
 use super::ports::Values;
 use super::step::Running;
+use super::wiring::Kind;
 use crate::error::{CosimError, Result};
 
 /// The master's scheduling thresholds: the wall-time heuristics that decide when a step goes
@@ -111,11 +112,116 @@ pub(super) struct Job {
     pub(super) result: Result<()>,
 }
 
-/// Most component steps in flight on the look-ahead thread at once. They step there one after
-/// the other in the order they were handed over, which is their Gauss-Seidel order.
-pub(super) const LOOKAHEAD_SLOTS: usize = 4;
+impl Job {
+    pub(super) fn new(index: usize, comp: Box<Running>, t: f64, h: f64, left: usize) -> Self {
+        Self {
+            index,
+            comp,
+            t,
+            h,
+            left,
+            result: Ok(()),
+        }
+    }
 
-/// A step in flight on the look-ahead thread.
+    /// The component, back, and the outcome of its step.
+    pub(super) fn into_parts(self) -> (usize, Box<Running>, Result<()>) {
+        (self.index, self.comp, self.result)
+    }
+}
+
+/// A step of a component kept on the look-ahead thread (a sink, [`Work::Kept`]): its Real
+/// inputs, and room for its recorded outputs; both come back with the outcome.
+pub(super) struct KeptStep {
+    pub(super) index: usize,
+    t: f64,
+    h: f64,
+    left: usize,
+    /// Its Real inputs, laid out as its port's (coming back: the buffer they replaced).
+    pub(super) inputs: Vec<f64>,
+    /// Its recorded outputs after the step, as numbers (in [`Kept::recorded`]'s order).
+    pub(super) recorded: Vec<f64>,
+    pub(super) result: Result<()>,
+}
+
+impl KeptStep {
+    pub(super) fn new(
+        index: usize,
+        t: f64,
+        h: f64,
+        left: usize,
+        inputs: Vec<f64>,
+        recorded: Vec<f64>,
+    ) -> Self {
+        Self {
+            index,
+            t,
+            h,
+            left,
+            inputs,
+            recorded,
+            result: Ok(()),
+        }
+    }
+
+    /// Its buffers, for the next step.
+    pub(super) fn into_buffers(self) -> (Vec<f64>, Vec<f64>) {
+        (self.inputs, self.recorded)
+    }
+}
+
+/// A component that stays on the look-ahead thread, and where its recorded outputs are among
+/// its outputs (kind, slot).
+pub(super) struct Kept {
+    pub(super) comp: Box<Running>,
+    pub(super) recorded: Vec<(Kind, usize)>,
+    /// Whether one of its steps failed: it steps no more (the sequential order would not
+    /// have stepped it again), and its later steps reply with no values.
+    pub(super) failed: bool,
+}
+
+/// What the master sends the look-ahead thread; each message has one reply, and replies come
+/// in the order of the messages.
+pub(super) enum Work {
+    /// Step this component, then give it back ([`Reply::Stepped`]).
+    Step(Job),
+    /// Keep this component (the first of its kept steps follows).
+    Keep(usize, Box<Kept>),
+    /// Step a kept component on these inputs ([`Reply::KeptStepped`]).
+    KeptStep(KeptStep),
+    /// Give this kept component back ([`Reply::Returned`]).
+    GiveBack(usize),
+}
+
+/// The look-ahead thread's replies.
+pub(super) enum Reply {
+    Stepped(Job),
+    Kept,
+    KeptStepped(KeptStep),
+    Returned(usize, Option<Box<Running>>),
+}
+
+/// Most messages in flight to the look-ahead thread at once. Its steps run there one after the
+/// other in the order they were sent: components' steps in their order of the sequential run,
+/// and a kept component's steps one after the other, as many as this allows (a sink whose step
+/// takes several base steps now and then, such as the optics when they compute PSSN, catches
+/// up over the next ones).
+pub(super) const LOOKAHEAD_SLOTS: usize = 256;
+
+/// What a message in flight is about.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Flight {
+    /// A component's step, the component with it.
+    Step,
+    /// A component going to be kept.
+    Keep,
+    /// A step of a kept component.
+    KeptStep,
+    /// A kept component coming back.
+    GiveBack,
+}
+
+/// A message in flight to the look-ahead thread.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) struct InFlight {
     /// The component.
@@ -124,86 +230,136 @@ pub(super) struct InFlight {
     pub(super) since: u64,
     /// The base step at which its outputs become visible.
     pub(super) due: u64,
+    pub(super) what: Flight,
 }
 
-/// The look-ahead thread of a Gauss-Seidel simulation and the steps it has in flight.
+/// The look-ahead thread of a simulation and the messages it has in flight.
 pub(super) struct Lookahead {
-    pub(super) jobs: Option<std::sync::mpsc::SyncSender<Job>>,
-    pub(super) done: std::sync::mpsc::Receiver<Job>,
+    pub(super) jobs: Option<std::sync::mpsc::SyncSender<Work>>,
+    pub(super) done: std::sync::mpsc::Receiver<Reply>,
     thread: Option<std::thread::JoinHandle<()>>,
-    /// The steps in flight, oldest first: the order in which they come back.
+    /// The messages in flight, oldest first: the order in which their replies come.
     pub(super) in_flight: std::collections::VecDeque<InFlight>,
+    /// Per component, whether the thread keeps it.
+    pub(super) kept: Vec<bool>,
     /// Components' steps taken there so far.
     pub(super) deferred: u64,
 }
 
 impl Lookahead {
-    pub(super) fn start() -> Result<Self> {
-        // Room for every step in flight in either channel: a send never blocks.
-        let (jobs, inbox) = std::sync::mpsc::sync_channel::<Job>(LOOKAHEAD_SLOTS);
-        let (outbox, done) = std::sync::mpsc::sync_channel::<Job>(LOOKAHEAD_SLOTS);
+    /// The thread, for a simulation of `n` components.
+    pub(super) fn start(n: usize) -> Result<Self> {
+        // Room for every message in flight in either channel: a send never blocks.
+        let (jobs, inbox) = std::sync::mpsc::sync_channel::<Work>(LOOKAHEAD_SLOTS);
+        let (outbox, done) = std::sync::mpsc::sync_channel::<Reply>(LOOKAHEAD_SLOTS);
         let thread = std::thread::Builder::new()
             .name("cosim-lookahead".into())
-            .spawn(move || {
-                while let Some(mut job) = receive(&inbox, SPIN_WORKER) {
-                    job.result = job.comp.step_gathered(job.t, job.h, job.left);
-                    if outbox.send(job).is_err() {
-                        break;
-                    }
-                }
-            })
+            .spawn(move || work(&inbox, &outbox, n))
             .map_err(|e| CosimError::Invalid(format!("cannot start the look-ahead thread: {e}")))?;
         Ok(Self {
             jobs: Some(jobs),
             done,
             thread: Some(thread),
             in_flight: std::collections::VecDeque::with_capacity(LOOKAHEAD_SLOTS),
+            kept: vec![false; n],
             deferred: 0,
         })
     }
 
-    /// Whether another step can go in flight.
+    /// Whether another message can go in flight.
     pub(super) fn has_room(&self) -> bool {
         self.jobs.is_some() && self.in_flight.len() < LOOKAHEAD_SLOTS
     }
 
-    /// Sends a component (its inputs gathered) to step from `t` on the thread; it is in flight
-    /// (`step`) until received from `done`. Gives the component back if the thread is gone.
-    pub(super) fn hand_over(
+    /// Sends `work` (about `flight`), in flight until its reply is received from `done`. Gives
+    /// it back if the thread is gone (or no room is left: the caller checks
+    /// [`Self::has_room`] first).
+    pub(super) fn send(
         &mut self,
-        step: InFlight,
-        comp: Box<Running>,
-        t: f64,
-        h: f64,
-        left: usize,
-    ) -> std::result::Result<(), Box<Running>> {
-        let Some(tx) = self.jobs.as_ref() else {
-            return Err(comp);
+        flight: InFlight,
+        work: Work,
+    ) -> std::result::Result<(), Box<Work>> {
+        let Some(tx) = self
+            .jobs
+            .as_ref()
+            .filter(|_| self.in_flight.len() < LOOKAHEAD_SLOTS)
+        else {
+            return Err(Box::new(work));
         };
-        let job = Job {
-            index: step.index,
-            comp,
-            t,
-            h,
-            left,
-            result: Ok(()),
-        };
-        match tx.send(job) {
+        match tx.send(work) {
             Ok(()) => {
-                self.in_flight.push_back(step);
-                self.deferred += 1;
+                self.in_flight.push_back(flight);
+                if matches!(flight.what, Flight::Step | Flight::KeptStep) {
+                    self.deferred += 1;
+                }
                 Ok(())
             }
-            Err(std::sync::mpsc::SendError(job)) => Err(job.comp),
+            Err(std::sync::mpsc::SendError(work)) => Err(Box::new(work)),
+        }
+    }
+}
+
+/// The look-ahead thread's loop: each message in turn, one reply each, until the master hangs
+/// up; the components it keeps are dropped here then (after every reply).
+fn work(
+    inbox: &std::sync::mpsc::Receiver<Work>,
+    outbox: &std::sync::mpsc::SyncSender<Reply>,
+    n: usize,
+) {
+    let mut kept: Vec<Option<Box<Kept>>> = (0..n).map(|_| None).collect();
+    while let Some(w) = receive(inbox, SPIN_WORKER) {
+        let reply = match w {
+            Work::Step(mut job) => {
+                job.result = job.comp.step_gathered(job.t, job.h, job.left);
+                Reply::Stepped(job)
+            }
+            Work::Keep(i, k) => {
+                if let Some(slot) = kept.get_mut(i) {
+                    *slot = Some(k);
+                }
+                Reply::Kept
+            }
+            Work::KeptStep(mut s) => {
+                s.result = match kept.get_mut(s.index).and_then(Option::as_mut) {
+                    Some(k) if k.failed => {
+                        s.recorded.clear();
+                        Ok(())
+                    }
+                    Some(k) => {
+                        let r = &mut k.comp;
+                        std::mem::swap(&mut r.ports.real.in_buf, &mut s.inputs);
+                        let out = r.step_gathered(s.t, s.h, s.left);
+                        s.recorded.clear();
+                        s.recorded.extend(
+                            k.recorded
+                                .iter()
+                                .map(|&(kind, slot)| r.ports.number(kind, slot)),
+                        );
+                        k.failed = out.is_err();
+                        out
+                    }
+                    None => Err(CosimError::Invalid(format!(
+                        "component {} is not kept on the look-ahead thread (internal error)",
+                        s.index
+                    ))),
+                };
+                Reply::KeptStepped(s)
+            }
+            Work::GiveBack(i) => {
+                Reply::Returned(i, kept.get_mut(i).and_then(Option::take).map(|k| k.comp))
+            }
+        };
+        if outbox.send(reply).is_err() {
+            break;
         }
     }
 }
 
 impl Drop for Lookahead {
     fn drop(&mut self) {
-        // Closing the channel ends the thread's loop; the steps still in flight come back (or
-        // are dropped with the thread) before the libraries close: Simulation's fields drop
-        // after this one.
+        // Closing the channel ends the thread's loop; the messages still in flight get their
+        // replies (or are dropped with the thread), and the kept components are dropped there,
+        // before the libraries close: Simulation's fields drop after this one.
         self.jobs = None;
         for _ in self.in_flight.drain(..) {
             if self.done.recv().is_err() {
