@@ -247,11 +247,22 @@ impl Simulation {
                 .find(|&j| k.is_multiple_of(self.every[j]))
                 .or_else(|| (0..=i).find(|&j| (k + 1).is_multiple_of(self.every[j])))
         };
-        let defer = room
+        let mut defer = room
             && !self.stay_on_master[i]
             && (self.late_rows || self.recorded_of[i].is_empty())
             && self.params.worth_lookahead(r.mean)
             && next().is_some_and(|j| j != i && self.sources[j].binary_search(&i).is_err());
+        if defer {
+            // Not behind a kept sink's steps still under way there (the optics' PSSN takes
+            // milliseconds): its next turn would wait for them. What has come back is taken
+            // first.
+            self.collect_ready()?;
+            defer = self.lookahead.as_ref().is_some_and(|l| {
+                !l.in_flight
+                    .iter()
+                    .any(|f| matches!(f.what, Flight::Keep | Flight::KeptStep))
+            });
+        }
         self.pending[i] = Some(at);
         if defer
             && let Some(la) = self.lookahead.as_mut()
