@@ -343,50 +343,22 @@ pub fn run_into(
     sink.columns(&columns, steps / decimation + 1)
         .map_err(|e| Box::new(Failure::from(e)))?;
     let width = columns.len();
-    let mut row = vec![0.0; width];
-    let mut rows = 0usize;
     // Rows taken after the oldest step now on the look-ahead thread began wait here (with their
     // base step) until it is back: if that step fails or ends the run, the sequential order
     // would have stopped before them, and they are dropped (so the look-ahead changes no row
-    // and no outcome). `flush(upto)` writes the held rows of base steps up to `upto`.
-    let mut held: Vec<f64> = Vec::new();
-    let mut held_at: Vec<u64> = Vec::new();
-    let mut flush = |sink: &mut dyn Sink,
-                     held: &mut Vec<f64>,
-                     held_at: &mut Vec<u64>,
-                     upto: u64|
-     -> Result<()> {
-        let n = held_at.iter().take_while(|&&a| a <= upto).count();
-        for h in held[..n * width].chunks_exact(width) {
-            sink.row(h)?;
-            rows += 1;
-        }
-        held.drain(..n * width);
-        held_at.drain(..n);
-        Ok(())
-    };
+    // and no outcome); a recorded component's step there patches the rows that missed its
+    // outputs.
+    let mut held = HeldRows::new(width);
     let sample = |sim: &Simulation, row: &mut [f64]| {
         row[0] = sim.time();
         sim.recorded_values(&mut row[1..]);
     };
-    // Recorded components may step on the look-ahead thread too: a held row sampled while
-    // one was in flight gets the values it missed when that step comes back.
     sim.set_late_rows(true);
-    let patch = |sim: &mut Simulation, held: &mut [f64], held_at: &[u64]| {
-        sim.take_late(|due, upto, values| {
-            for (h, &at) in held.chunks_exact_mut(width).zip(held_at) {
-                if (due..=upto).contains(&at) {
-                    for &(c, v) in values {
-                        h[1 + c] = v;
-                    }
-                }
-            }
-        });
+    let patch = |sim: &mut Simulation, held: &mut HeldRows| {
+        sim.take_late(|due, upto, values| held.patch(due, upto, values));
     };
-    sample(&sim, &mut row);
-    held.extend_from_slice(&row);
-    held_at.push(0);
-    let mut stopped = flush(sink, &mut held, &mut held_at, 0).err();
+    sample(&sim, held.push(0));
+    let mut stopped = held.flush(sink, 0).err();
     let mut k = 0usize;
     let t0 = Instant::now();
     let mut interrupted = None;
@@ -401,14 +373,12 @@ pub fn run_into(
         }
         k += 1;
         if k.is_multiple_of(decimation) {
-            sample(&sim, &mut row);
-            held.extend_from_slice(&row);
-            held_at.push(k as u64);
+            sample(&sim, held.push(k as u64));
         }
-        patch(&mut sim, &mut held, &held_at);
+        patch(&mut sim, &mut held);
         // Rows before the oldest step in flight began are final.
         let upto = sim.in_flight_since().unwrap_or(u64::MAX);
-        if let Err(e) = flush(sink, &mut held, &mut held_at, upto) {
+        if let Err(e) = held.flush(sink, upto) {
             stopped = Some(e);
         }
         progress(sim.time(), sim.stop_time());
@@ -417,13 +387,13 @@ pub fn run_into(
     // that failed since, so in the sequential order its error comes first; an error that came
     // from it (now or inside a step) keeps only the rows up to the base step where it began.
     let settled = sim.settle();
-    patch(&mut sim, &mut held, &held_at);
+    patch(&mut sim, &mut held);
     let stopped = match settled {
         Err(e) => Some(e),
         Ok(()) => stopped,
     };
     let upto = sim.lookahead_failed_at().unwrap_or(u64::MAX);
-    if let Err(e) = flush(sink, &mut held, &mut held_at, upto)
+    if let Err(e) = held.flush(sink, upto)
         && stopped.is_none()
     {
         return Err(Box::new(Failure::from(e)));
@@ -457,8 +427,80 @@ pub fn run_into(
         timing,
         ended,
         interrupted,
-        rows,
+        rows: held.written,
     })
+}
+
+/// The rows of [`run_into`] not yet handed to the sink, oldest first: rows of `width` values
+/// from row `start` on, with their base steps. Flushed rows are skipped, not moved; the buffer
+/// is compacted once [`Self::COMPACT`] of them have gone (a row is a mirror's 1476
+/// displacements when they are recorded, and the rows after the oldest step on the look-ahead
+/// thread are held every step).
+struct HeldRows {
+    width: usize,
+    values: Vec<f64>,
+    at: Vec<u64>,
+    start: usize,
+    /// Rows handed to the sink so far.
+    written: usize,
+}
+
+impl HeldRows {
+    const COMPACT: usize = 64;
+
+    fn new(width: usize) -> Self {
+        // Room for the rows a run usually holds at once, reserved before the loop.
+        let rows = 2 * Self::COMPACT;
+        Self {
+            width,
+            values: Vec::with_capacity(rows * width),
+            at: Vec::with_capacity(rows),
+            start: 0,
+            written: 0,
+        }
+    }
+
+    /// Room for the row of base step `at`, to be filled.
+    fn push(&mut self, at: u64) -> &mut [f64] {
+        let end = self.values.len();
+        self.values.resize(end + self.width, 0.0);
+        self.at.push(at);
+        &mut self.values[end..]
+    }
+
+    /// Writes `values` (`(column, value)`, columns counted without time) into the held rows
+    /// of base steps `due..=upto`.
+    fn patch(&mut self, due: u64, upto: u64, values: &[(usize, f64)]) {
+        let w = self.width;
+        let rows = self.values[self.start * w..].chunks_exact_mut(w.max(1));
+        for (row, &at) in rows.zip(&self.at[self.start..]) {
+            if (due..=upto).contains(&at) {
+                for &(c, v) in values {
+                    row[1 + c] = v;
+                }
+            }
+        }
+    }
+
+    /// Hands the held rows of base steps up to `upto` to `sink`.
+    fn flush(&mut self, sink: &mut dyn Sink, upto: u64) -> Result<()> {
+        let w = self.width;
+        while self.start < self.at.len() && self.at[self.start] <= upto {
+            sink.row(&self.values[self.start * w..(self.start + 1) * w])?;
+            self.start += 1;
+            self.written += 1;
+        }
+        if self.start == self.at.len() {
+            self.values.clear();
+            self.at.clear();
+            self.start = 0;
+        } else if self.start >= Self::COMPACT {
+            self.values.drain(..self.start * w);
+            self.at.drain(..self.start);
+            self.start = 0;
+        }
+        Ok(())
+    }
 }
 
 /// Runs `system` to its stop time, recording `record` every `decimation` base steps (and at
