@@ -6,9 +6,12 @@
 //! - Jacobi: the due components by recursive halving on rayon's pool ([`advance_split`]), the
 //!   heaviest alone beside the others stepping in turn on a worker, or all in turn on the
 //!   calling thread ([`plan_jacobi`], [`advance_jacobi`]).
-//! - Gauss-Seidel: components' steps on the look-ahead thread ([`Lookahead`], up to
-//!   [`LOOKAHEAD_SLOTS`] in flight), when they take long enough per step
-//!   ([`SchedulerParams::worth_lookahead`]).
+//! - Gauss-Seidel: components' steps on the look-ahead thread ([`Lookahead`]), when they take
+//!   long enough per step ([`SchedulerParams::worth_lookahead`]).
+//! - Both orders: sinks kept on the look-ahead thread, their steps queued there ([`Work`]).
+//!
+//! At most [`LOOKAHEAD_SLOTS`] messages are in flight to the look-ahead thread; they run there
+//! in the order sent.
 
 use super::ports::Values;
 use super::step::Running;
