@@ -28,8 +28,9 @@ pub(super) struct UnitScreen {
     to_load: Vec<[[f64; 3]; 3]>,
     /// Wind-frame integrals -> actuator forces (`P^-T` times `to_load`), per segment.
     to_forces: Vec<[[f64; 3]; 3]>,
-    /// `tables[(3 i + q) N + n]`: integral `q` of segment `i` with the screen shifted by
-    /// `(along_i - n) dx`.
+    /// `tables[3 (i N + n) + q]`: integral `q` of segment `i` with the screen shifted by
+    /// `(along_i - n) dx`. The three integrals of a sample are adjacent, so that a step reads
+    /// each segment's four samples around its position in one or two cache lines.
     tables: Vec<f64>,
     /// Expected rms of `G_0`.
     force_rms: f64,
@@ -273,9 +274,14 @@ impl WindLoads {
         let n = self.screen.samples;
         let u = self.screen.along[i] - self.speed * t / self.screen.spacing;
         let (idx, w) = periodic_stencil(u, n);
+        let tab = &self.screen.tables[3 * i * n..3 * (i + 1) * n];
         std::array::from_fn(|q| {
-            let tab = &self.screen.tables[(3 * i + q) * n..(3 * i + q + 1) * n];
-            self.pressure_rms * idx.iter().zip(w).map(|(&j, wj)| wj * tab[j]).sum::<f64>()
+            self.pressure_rms
+                * idx
+                    .iter()
+                    .zip(w)
+                    .map(|(&j, wj)| wj * tab[3 * j + q])
+                    .sum::<f64>()
         })
     }
 
@@ -387,11 +393,11 @@ fn synthesise(
     let mut tables = vec![0.0; 3 * nseg * n];
     let mut fill = |q: usize, buf: &[Complex64], part: fn(&Complex64) -> f64| {
         for (i, (rs, w)) in stencils.iter().enumerate() {
-            let out = &mut tables[(3 * i + q) * n..(3 * i + q + 1) * n];
+            let out = &mut tables[3 * i * n..3 * (i + 1) * n];
             for (r, wr) in rs.iter().zip(w) {
                 let row = &buf[r * n..(r + 1) * n];
-                for (o, v) in out.iter_mut().zip(row) {
-                    *o += wr * SQRT_2 * part(v);
+                for (o, v) in out.chunks_exact_mut(3).zip(row) {
+                    o[q] += wr * SQRT_2 * part(v);
                 }
             }
         }
