@@ -54,12 +54,18 @@ impl Values {
     /// The value in slot `slot` of kind `kind` as a number (a Boolean as 0 or 1; a String has
     /// none: NaN).
     pub(super) fn number(&self, kind: Kind, slot: usize) -> f64 {
-        match kind {
-            Kind::Real => self.real[slot],
-            Kind::Integer => f64::from(self.integer[slot]),
-            Kind::Boolean => f64::from(u8::from(self.boolean[slot])),
-            Kind::String => f64::NAN,
-        }
+        number(&self.real, &self.integer, &self.boolean, kind, slot)
+    }
+}
+
+/// Slot `slot` of kind `kind` among these buffers as a number: a Boolean as 0 or 1; a String
+/// has none (NaN).
+fn number(real: &[f64], integer: &[i32], boolean: &[bool], kind: Kind, slot: usize) -> f64 {
+    match kind {
+        Kind::Real => real[slot],
+        Kind::Integer => f64::from(integer[slot]),
+        Kind::Boolean => f64::from(u8::from(boolean[slot])),
+        Kind::String => f64::NAN,
     }
 }
 
@@ -169,12 +175,8 @@ impl Ports {
     /// Its latest output in slot `slot` (among its outputs) of kind `kind`, as a number (as
     /// [`Values::number`]).
     pub(super) fn number(&self, kind: Kind, slot: usize) -> f64 {
-        match kind {
-            Kind::Real => self.real.out_buf[slot],
-            Kind::Integer => f64::from(self.integer.out_buf[slot]),
-            Kind::Boolean => f64::from(u8::from(self.boolean.out_buf[slot])),
-            Kind::String => f64::NAN,
-        }
+        let (r, i, b) = (&self.real, &self.integer, &self.boolean);
+        number(&r.out_buf, &i.out_buf, &b.out_buf, kind, slot)
     }
 
     /// Sets the gathered inputs on `inst`: one call per kind that has any.

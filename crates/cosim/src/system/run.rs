@@ -54,7 +54,8 @@ pub struct Timing {
     pub components: Vec<(String, f64)>,
     /// Wall time of each component's set-up, instantiation to the end of initialisation (s).
     pub setup_components: Vec<(String, f64)>,
-    /// Components' steps taken on Gauss-Seidel's look-ahead thread.
+    /// Components' steps taken on the look-ahead thread (handed over in Gauss-Seidel order, or
+    /// of sinks kept there in either order).
     pub lookahead_steps: u64,
 }
 

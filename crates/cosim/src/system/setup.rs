@@ -9,7 +9,7 @@ use std::time::Instant;
 use super::definition::{System, Value};
 use super::init;
 use super::ports::{Port, Ports, Values};
-use super::simulation::{KeptSink, Late, Recorded, Simulation};
+use super::simulation::{KeptSink, Late, Recorded, RecordedOf, Simulation};
 use super::step::Running;
 use super::threads::Lookahead;
 use super::wiring::{Kind, Recording, Wiring, var_of};
@@ -192,8 +192,8 @@ fn stay_on_master(fmu_of: &[usize]) -> Vec<bool> {
         .collect()
 }
 
-/// Per component, its recorded outputs: (column, kind, slot among its outputs of that kind).
-fn recorded_of(n: usize, rec_local: &[Recording]) -> Vec<Vec<(usize, Kind, usize)>> {
+/// Per component, its recorded outputs.
+fn recorded_of(n: usize, rec_local: &[Recording]) -> RecordedOf {
     let mut of = vec![Vec::new(); n];
     for (c, r) in rec_local.iter().enumerate() {
         of[r.component].push((c, r.kind, r.slot));
@@ -235,8 +235,14 @@ impl Simulation {
                 .map(|r| (r.kind, offsets[r.kind as usize][r.component] + r.slot))
                 .collect(),
         };
-        let mut sim = Self::assemble(system, comps, &wiring, stay_on_master, recorded, fmus)?;
-        sim.recorded_of = recorded_of;
+        let mut sim = Self::assemble(
+            system,
+            comps,
+            &wiring,
+            stay_on_master,
+            (recorded, recorded_of),
+            fmus,
+        )?;
         // The initial outputs feed the first step (or zeros, fmpy.ssp's convention).
         if !system.zero_start {
             for c in 0..sim.comps.len() {
@@ -253,7 +259,7 @@ impl Simulation {
         comps: Vec<Running>,
         wiring: &Wiring,
         stay_on_master: Vec<bool>,
-        recorded: Recorded,
+        (recorded, recorded_of): (Recorded, RecordedOf),
         fmus: Vec<Fmu>,
     ) -> Result<Self> {
         let n = comps.len();
@@ -286,7 +292,7 @@ impl Simulation {
             comps: comps.into_iter().map(|r| Some(Box::new(r))).collect(),
             sources,
             sinks,
-            recorded_of: vec![Vec::new(); n],
+            recorded_of,
             late_rows: false,
             late: Late::default(),
             stay_on_master,

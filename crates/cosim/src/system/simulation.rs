@@ -20,6 +20,9 @@ pub struct Recorded {
     pub(super) slots: Vec<(Kind, usize)>,
 }
 
+/// Per component, its recorded outputs: (column, kind, slot among its outputs of that kind).
+pub(super) type RecordedOf = Vec<Vec<(usize, Kind, usize)>>;
+
 /// Recorded values that came back late, per step that brought them: the base step from which
 /// its outputs were visible (`due`), the last row sampled before it came back (`upto`), and its
 /// recorded columns' values, which rows `due..=upto` should show.
@@ -54,9 +57,8 @@ pub struct Simulation {
     /// Per component, whether it must stay on the master's thread in Gauss-Seidel order:
     /// another instance of its FMU is in the system.
     pub(super) stay_on_master: Vec<bool>,
-    /// Per component, its recorded outputs: (column, kind, slot among its outputs of that
-    /// kind).
-    pub(super) recorded_of: Vec<Vec<(usize, Kind, usize)>>,
+    /// Per component, its recorded outputs.
+    pub(super) recorded_of: RecordedOf,
     /// Whether components with recorded outputs may step on the look-ahead thread: the caller
     /// then takes the values the rows sampled meanwhile missed ([`Self::take_late`]).
     pub(super) late_rows: bool,
@@ -151,11 +153,10 @@ impl Simulation {
     }
 
     /// Notes the recorded values of a step back from the look-ahead thread, if rows sampled
-    /// before it came back should show them (when on, [`Self::set_late_rows`]).
-    pub(super) fn note_late(&mut self, step: InFlight) {
-        let Some(r) = self.comps[step.index].as_deref() else {
-            return;
-        };
+    /// before it came back should show them (when on, [`Self::set_late_rows`]): a kept sink's
+    /// `values` as its reply brought them (in `recorded_of` order), else its component's
+    /// outputs, back in place.
+    pub(super) fn note_late(&mut self, step: InFlight, values: Option<&[f64]>) {
         let cols = &self.recorded_of[step.index];
         // Rows sampled so far are those of base steps up to `n_steps` (a step under way has
         // not counted itself yet).
@@ -164,24 +165,20 @@ impl Simulation {
             return;
         }
         let late = &mut self.late;
-        late.values.extend(
-            cols.iter()
-                .map(|&(c, kind, slot)| (c, r.ports.number(kind, slot))),
-        );
-        late.steps.push((step.due, upto, late.values.len()));
-    }
-
-    /// [`Self::note_late`] for a kept sink's step, with its recorded outputs `values` (in
-    /// `recorded_of` order).
-    pub(super) fn note_late_values(&mut self, step: InFlight, values: &[f64]) {
-        let cols = &self.recorded_of[step.index];
-        let upto = self.n_steps;
-        if !self.late_rows || cols.is_empty() || step.due > upto {
-            return;
+        match values {
+            Some(values) => late
+                .values
+                .extend(cols.iter().zip(values).map(|(&(c, _, _), &v)| (c, v))),
+            None => {
+                let Some(r) = self.comps[step.index].as_deref() else {
+                    return;
+                };
+                late.values.extend(
+                    cols.iter()
+                        .map(|&(c, kind, slot)| (c, r.ports.number(kind, slot))),
+                );
+            }
         }
-        let late = &mut self.late;
-        late.values
-            .extend(cols.iter().zip(values).map(|(&(c, _, _), &v)| (c, v)));
         late.steps.push((step.due, upto, late.values.len()));
     }
 

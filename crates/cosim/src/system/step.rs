@@ -540,7 +540,7 @@ impl Simulation {
                 match result {
                     Ok(()) => {
                         self.publish_due(self.visible);
-                        self.note_late(flight);
+                        self.note_late(flight, None);
                         Ok(())
                     }
                     Err(e) => {
@@ -562,7 +562,7 @@ impl Simulation {
                             let (kind, slot) = self.recorded.slots[c];
                             self.outputs.set_number(kind, slot, v);
                         }
-                        self.note_late_values(flight, &step.recorded);
+                        self.note_late(flight, Some(&step.recorded));
                         Ok(())
                     }
                     Err(e) => {

@@ -133,7 +133,7 @@ impl Job {
     }
 }
 
-/// A step of a component kept on the look-ahead thread (a sink, [`Work::Kept`]): its Real
+/// A step of a component kept on the look-ahead thread (a sink, [`Work::Keep`]): its Real
 /// inputs, and room for its recorded outputs; both come back with the outcome.
 pub(super) struct KeptStep {
     pub(super) index: usize,
