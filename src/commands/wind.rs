@@ -179,6 +179,7 @@ fn base_system(a: &WindArgs) -> SystemArgs {
         cell: a.cell,
         structure_modes: a.structure_modes,
         structure: a.structure.clone(),
+        solver_threads: 0,
         uniform: false,
         optical: false,
         zenith: None,

@@ -142,6 +142,17 @@ fmu::variables! {
                  reduced to its low-frequency stiffness and servo integrator (any step; nothing \
                  faster than about 1 Hz is modelled)",
             ),
+        solver_threads: IntVar = T::integer("solver_threads")
+            .parameter()
+            .start_int(0)
+            .non_negative()
+            .describe(
+                "Threads of the coupled solver's large products: 1 keeps them on the thread \
+                 that calls fmi2DoStep, 2 splits them with a helper thread (the same results to \
+                 the bit), 0 chooses 2 from 500 retained modes (where one core's cache \
+                 bandwidth bounds the step) and 1 below. Set 1 when other simulations already \
+                 occupy every core",
+            ),
     }
 }
 
@@ -269,6 +280,19 @@ impl<V: MirrorVariant> Model for Mirror<V> {
                 substeps,
             )
             .map_err(wiring::model_error)?;
+            let mut m = m;
+            match v.integer(self.vars.solver_threads) {
+                0 => {}
+                1 => m.set_two_threads(false),
+                2 => m.set_two_threads(true),
+                n => {
+                    return Err(FmuError::BadValue {
+                        variable: "solver_threads".into(),
+                        value: n.to_string(),
+                        reason: "is not 0 (automatic), 1 or 2".into(),
+                    });
+                }
+            }
             self.vars.cell.write_calculated(v, m.structure());
             Solver::Coupled(Box::new(m))
         };

@@ -111,6 +111,11 @@ pub struct SystemArgs {
     pub structure_modes: i32,
     #[arg(long, default_value = m1::plant::structure::DEFAULT_STRUCTURE, help = super::STRUCTURE_HELP)]
     pub structure: String,
+    /// Threads of the coupled mirror's large products (its `solver_threads` parameter): 1 on
+    /// the thread that steps it, 2 split with a helper thread (the same results to the bit), 0
+    /// two from 500 retained modes. Use 1 when other runs already occupy every core.
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(i32).range(0..=2))]
+    pub solver_threads: i32,
     /// Step every component at the base step (no multi-rate), as fmpy.ssp does.
     #[arg(long)]
     pub uniform: bool,
@@ -312,6 +317,9 @@ pub fn standard_system(a: &SystemArgs, closed: bool) -> Result<System, String> {
     let structure = (structure != m1::plant::structure::DEFAULT_STRUCTURE).then_some(structure);
     if a.cell == Cell::QuasiStatic {
         s = s.parameter(mirror, "quasi_static", Value::Boolean(true));
+    }
+    if a.solver_threads != 0 && a.cell == Cell::Coupled {
+        s = s.parameter(mirror, "solver_threads", Value::Integer(a.solver_threads));
     }
     let cell_fmu = match a.cell {
         Cell::Coupled | Cell::QuasiStatic => Some(mirror),

@@ -100,7 +100,8 @@ pub(super) fn receive<T>(
         if polls.is_multiple_of(64) && start.elapsed() >= spin {
             return rx.recv().ok();
         }
-        std::hint::spin_loop();
+        // A thread with work on this core (an FMU's own helper thread) runs first.
+        std::thread::yield_now();
     }
 }
 

@@ -11,5 +11,6 @@ pub mod krylov;
 pub mod lanczos;
 pub mod lu_solve;
 pub mod npy;
+pub mod pair;
 pub mod skyline;
 pub mod symmetric;

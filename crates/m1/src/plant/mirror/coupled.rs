@@ -11,6 +11,7 @@ use super::projection::{Project, input_columns, padded_rows_f32, row_major};
 use super::tick::{CellOutputs, Step};
 use crate::M1Error;
 use crate::linalg::kernels::padded_len;
+use crate::linalg::pair::LazyPair;
 use crate::linalg::symmetric::SymPacked32;
 use crate::plant::segment::{
     Channel, Gamma, N_IN, N_STATE, Phi, SegmentArray, SegmentModel, modal_basis, propagate, state,
@@ -22,6 +23,10 @@ use crate::plant::structure::{Flexibility, ModalModel, ModalSolver};
 /// `[W G_p, W G_t]` in double precision (360 kB at 150 modes) and the Gram matrices' single-
 /// precision copy (180 kB) no longer fit a core's L2 cache of the project's machine (512 kB).
 pub const SINGLE_COUPLING_MIN_MODES: usize = 150;
+
+/// Retained modes from which [`CoupledMirror`] splits its large streaming products between two
+/// threads by default ([`CoupledMirror::set_two_threads`]).
+pub const TWO_THREADS_MIN_MODES: usize = 500;
 
 /// Most coupled ticks whose free part [`CoupledMirror`] composes into one map (a chunk): the
 /// default 1 ms TMT step (five ticks) is one chunk; the composed map's rows grow with the
@@ -122,6 +127,13 @@ pub struct CoupledMirror {
     pub(super) drive32: Vec<f32>,
     /// Whether the coupled solve's products stream the single-precision copies.
     pub(super) coupling_single: bool,
+    /// Whether the large streaming products are split between two threads
+    /// ([`CoupledMirror::set_two_threads`]).
+    #[serde(default)]
+    pub(super) two_threads: bool,
+    /// The helper thread of [`Self::two_threads`], started on the first step that uses it.
+    #[serde(skip)]
+    pub(super) pair: LazyPair,
     /// Per mode, the modal force's jump at a sample reaches the tick's start force through
     /// `alpha = (b0 - b1) d` (`d` the drive's feedthrough), and the solve through
     /// `beta = alpha / b1` (`W M alpha = (W - I) beta`).
@@ -322,6 +334,8 @@ impl CoupledMirror {
             psi32: vec![0.0f32; 2 * r],
             drive32: vec![0.0f32; 2 * r],
             coupling_single: r >= SINGLE_COUPLING_MIN_MODES,
+            two_threads: r >= TWO_THREADS_MIN_MODES,
+            pair: LazyPair::default(),
             alpha,
             beta,
             gpsi: vec![0.0; r],
@@ -367,6 +381,26 @@ impl CoupledMirror {
     /// tests `coupling_precision_*` bound it by 1e-6 for both actuators).
     pub fn set_coupling_single(&mut self, single: bool) {
         self.coupling_single = single;
+    }
+
+    /// Splits the step's large streaming products (the coupled solve's pass over the Gram
+    /// matrices or `W G` at every tick, the shapes' pass back to the actuators) between this
+    /// thread and a helper thread (`true`), or keeps them on the calling thread (`false`).
+    /// Every row of a split product is summed as on one thread, so the results are the same
+    /// to the bit. The default is `true` from [`TWO_THREADS_MIN_MODES`] modes, where the
+    /// products are bound by one core's share of the cache bandwidth; the helper polls for
+    /// work for 0.3 ms after each product and sleeps after that
+    /// ([`crate::linalg::pair`]).
+    pub fn set_two_threads(&mut self, two: bool) {
+        self.two_threads = two;
+        if !two {
+            self.pair.stop();
+        }
+    }
+
+    /// Whether the large products are split between two threads.
+    pub fn two_threads(&self) -> bool {
+        self.two_threads
     }
 
     /// Whether the coupled solve streams its matrix in single precision.

@@ -90,6 +90,16 @@
 //! against double precision ([`CoupledMirror::set_coupling_single`]) the mirror's response
 //! moves by about 2e-9 of its largest value (TMT, 300 modes).
 //!
+//! **Two threads from 500 modes.** The tick's pass over the Gram matrices (or `W G`) and the
+//! shapes' pass back to the actuators are split by rows between the calling thread and a
+//! helper thread ([`crate::linalg::pair`], [`CoupledMirror::set_two_threads`], default from
+//! [`TWO_THREADS_MIN_MODES`]): each row is summed as on one thread, so the outputs are the same
+//! to the bit (tested). Measured in the TMT wind system (`m1cs run --solver-threads 1|2`): 1000
+//! modes 0.64-0.72x -> 1.06-1.12x real time, 800 modes 1.20-1.25x -> 1.76-1.78x, 600 modes
+//! 2.12-2.14x -> 2.29-2.47x, and at 300 modes a loss (5.4-5.6x -> 4.3-4.7x: the products fit
+//! the caches there, and the joins and the master's second thread cost more than the split
+//! saves).
+//!
 //! **No static correction.** The structure is its `n_modes` lowest modes. The static correction
 //! of the truncated modes (an instantaneous, dense compliance) cannot lag a tick: against the
 //! stiff actuators that lag diverges (measured: Keck voice coil with 30 modes, TMT piezo with 60);
@@ -113,5 +123,5 @@ mod projection;
 mod tests;
 mod tick;
 
-pub use coupled::{CoupledMirror, SINGLE_COUPLING_MIN_MODES};
+pub use coupled::{CoupledMirror, SINGLE_COUPLING_MIN_MODES, TWO_THREADS_MIN_MODES};
 pub use maps::foh_mode;

@@ -8,6 +8,7 @@ use pulp::WithSimd;
 
 use super::projection::Reconstruct;
 use crate::linalg::kernels::{axpy, rows_dot, rows_dot_f32, rows_dot2_f32, rows_map, state_map};
+use crate::linalg::pair::{LazyPair, Pair};
 use crate::linalg::symmetric::sym_dot_f32;
 use crate::plant::segment::{N_STATE, state};
 
@@ -100,15 +101,15 @@ impl CoupledMirror {
             }
             self.gpsi.fill(0.0);
             self.gjump.fill(0.0);
-            rows_dot2_f32::<S>(
-                simd,
-                &self.gg32,
-                2 * r,
-                r,
-                2 * r,
-                [&self.psi32, &self.drive32],
-                [&mut self.gpsi, &mut self.gjump],
-            );
+            RowsDot2 {
+                a: &self.gg32,
+                lda: 2 * r,
+                m: r,
+                k: 2 * r,
+                x: [&self.psi32, &self.drive32],
+                y: [&mut self.gpsi, &mut self.gjump],
+            }
+            .split(simd, pair(&mut self.pair, self.two_threads));
             // W - I = D^-1 K D, K symmetric (stored by its upper block triangle). The per-mode
             // loops run over slices cut to r, so that they vectorise.
             let (gpsi, gjump, d_half) = (&self.gpsi[..r], &self.gjump[..r], &self.d_half[..r]);
@@ -144,15 +145,15 @@ impl CoupledMirror {
             for (d, s) in self.psi32.iter_mut().zip(&self.psi) {
                 *d = *s as f32;
             }
-            rows_dot_f32::<S>(
-                simd,
-                &self.wg32,
-                2 * r,
-                r,
-                2 * r,
-                &self.psi32,
-                &mut self.u_new,
-            );
+            RowsDot1 {
+                a: &self.wg32,
+                lda: 2 * r,
+                m: r,
+                k: 2 * r,
+                x: &self.psi32,
+                y: &mut self.u_new,
+            }
+            .split(simd, pair(&mut self.pair, self.two_threads));
         } else {
             rows_dot::<S, 1>(
                 simd,
@@ -270,15 +271,44 @@ impl CoupledMirror {
             }
         }
         let mut outs = std::mem::take(&mut self.out);
-        Reconstruct::<1> {
-            phic: &self.phic32,
-            ld,
-            n,
-            rows: 0..na,
-            cols: &self.cols32[..2 * ld],
-            out: [&mut outs[..na]],
+        let (phic, cols) = (&self.phic32[..], &self.cols32[..2 * ld]);
+        match pair(&mut self.pair, self.two_threads) {
+            Some(p) => {
+                let h = split_rows(na);
+                let (lo, hi) = outs[..na].split_at_mut(h);
+                p.join(
+                    || {
+                        simd.vectorize(Reconstruct::<1> {
+                            phic,
+                            ld,
+                            n,
+                            rows: 0..h,
+                            cols,
+                            out: [lo],
+                        });
+                    },
+                    move || {
+                        simd.vectorize(Reconstruct::<1> {
+                            phic,
+                            ld,
+                            n,
+                            rows: h..na,
+                            cols,
+                            out: [hi],
+                        });
+                    },
+                );
+            }
+            None => Reconstruct::<1> {
+                phic,
+                ld,
+                n,
+                rows: 0..na,
+                cols,
+                out: [&mut outs[..na]],
+            }
+            .with_simd(simd),
         }
-        .with_simd(simd);
         // Channel values (rows: piston channels, then tilt) to actuators, segment by segment.
         let v = self.basis;
         let [xp, xt] = self.free.state();
@@ -413,5 +443,131 @@ impl pulp::WithSimd for Step<'_> {
             t += len;
         }
         m.write_outputs(simd);
+    }
+}
+
+/// The helper pair when a model splits its products (started on first use).
+fn pair(lazy: &mut LazyPair, two: bool) -> Option<&mut Pair> {
+    if two { lazy.get() } else { None }
+}
+
+/// Where a product of `m` rows is split between the two threads: half, rounded down to whole
+/// groups of four rows (each row's sum is the same wherever the split falls; this keeps the
+/// kernels' four-row groups as they are on one thread).
+fn split_rows(m: usize) -> usize {
+    (m / 2) & !3
+}
+
+/// `y_l += A x_l` for two right-hand sides ([`rows_dot2_f32`]) as a SIMD operation, split by
+/// rows between a [`Pair`]'s threads.
+struct RowsDot2<'a> {
+    a: &'a [f32],
+    lda: usize,
+    m: usize,
+    k: usize,
+    x: [&'a [f32]; 2],
+    y: [&'a mut [f64]; 2],
+}
+
+impl pulp::WithSimd for RowsDot2<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
+        rows_dot2_f32::<S>(simd, self.a, self.lda, self.m, self.k, self.x, self.y);
+    }
+}
+
+impl RowsDot2<'_> {
+    /// The product, on this thread alone without `pair`.
+    #[inline(always)]
+    fn split<S: pulp::Simd>(self, simd: S, pair: Option<&mut Pair>) {
+        let Some(p) = pair else {
+            return self.with_simd(simd);
+        };
+        let (h, lda, k, x) = (split_rows(self.m), self.lda, self.k, self.x);
+        let (a_lo, a_hi) = (self.a, &self.a[h * lda..]);
+        let [y0, y1] = self.y;
+        let (y0_lo, y0_hi) = y0.split_at_mut(h);
+        let (y1_lo, y1_hi) = y1.split_at_mut(h);
+        let rest = self.m - h;
+        p.join(
+            || {
+                simd.vectorize(RowsDot2 {
+                    a: a_lo,
+                    lda,
+                    m: h,
+                    k,
+                    x,
+                    y: [y0_lo, y1_lo],
+                });
+            },
+            move || {
+                simd.vectorize(RowsDot2 {
+                    a: a_hi,
+                    lda,
+                    m: rest,
+                    k,
+                    x,
+                    y: [y0_hi, y1_hi],
+                });
+            },
+        );
+    }
+}
+
+/// `y += A x` ([`rows_dot_f32`]) as a SIMD operation, split by rows between a [`Pair`]'s
+/// threads.
+struct RowsDot1<'a> {
+    a: &'a [f32],
+    lda: usize,
+    m: usize,
+    k: usize,
+    x: &'a [f32],
+    y: &'a mut [f64],
+}
+
+impl pulp::WithSimd for RowsDot1<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
+        rows_dot_f32::<S>(simd, self.a, self.lda, self.m, self.k, self.x, self.y);
+    }
+}
+
+impl RowsDot1<'_> {
+    /// The product, on this thread alone without `pair`.
+    #[inline(always)]
+    fn split<S: pulp::Simd>(self, simd: S, pair: Option<&mut Pair>) {
+        let Some(p) = pair else {
+            return self.with_simd(simd);
+        };
+        let (h, lda, k, x) = (split_rows(self.m), self.lda, self.k, self.x);
+        let (a_lo, a_hi) = (self.a, &self.a[h * lda..]);
+        let (y_lo, y_hi) = self.y.split_at_mut(h);
+        let rest = self.m - h;
+        p.join(
+            || {
+                simd.vectorize(RowsDot1 {
+                    a: a_lo,
+                    lda,
+                    m: h,
+                    k,
+                    x,
+                    y: y_lo,
+                });
+            },
+            move || {
+                simd.vectorize(RowsDot1 {
+                    a: a_hi,
+                    lda,
+                    m: rest,
+                    k,
+                    x,
+                    y: y_hi,
+                });
+            },
+        );
     }
 }
