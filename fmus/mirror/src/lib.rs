@@ -410,6 +410,66 @@ mod tests {
         assert!(original.iter().any(|&x| x != 0.0));
     }
 
+    /// `solver_threads`: 2 gives the mirror's displacement and the cell's outputs of 1 to the
+    /// bit, 0 follows the retained modes, and any other value is refused at initialisation
+    /// with the variable named.
+    #[test]
+    fn solver_threads_change_no_value_and_bad_ones_are_refused() {
+        let (table, _) = VoiceCoil::new("keck").expect("table");
+        let guid = fmu::xml::guid(&VoiceCoil::INFO, &table);
+        let threads = table.by_name("solver_threads").expect("solver_threads").vr;
+        let start = |n: i32| {
+            let mut fmu =
+                Instance::<VoiceCoil>::new("test", &guid, None, None, false).expect("new");
+            fmu.setup_experiment(0.0, None).expect("setup");
+            fmu.enter_initialization_mode().expect("initialisation");
+            fmu.set_integer(&[threads], &[n])
+                .expect("set solver_threads");
+            fmu.exit_initialization_mode().map(|()| fmu)
+        };
+        let refs: Vec<u32> = ["z", "z_cell", "f_cell"]
+            .iter()
+            .flat_map(|name| {
+                let v = table.by_name(name).expect(name);
+                v.vr..v.vr + v.len as u32
+            })
+            .collect();
+        let f = table.by_name("f_wind").expect("f_wind").vr;
+        let run = |mut fmu: Instance<VoiceCoil>| {
+            let two = fmu
+                .running()
+                .expect("running")
+                .solver()
+                .expect("coupled")
+                .two_threads();
+            fmu.set_real(&[f, f + 5], &[10.0, -4.0])
+                .expect("set f_wind");
+            for _ in 0..20 {
+                let t = fmu.time();
+                fmu.do_step(t, 1e-3).expect("step");
+            }
+            let mut out = vec![f64::NAN; refs.len()];
+            fmu.get_real(&refs, &mut out).expect("get");
+            (two, out)
+        };
+        let (one_threads, one) = run(start(1).expect("1"));
+        let (two_threads, two) = run(start(2).expect("2"));
+        let (auto_threads, _) = run(start(0).expect("0"));
+        assert!(!one_threads && two_threads);
+        assert_eq!(
+            auto_threads,
+            DEFAULT_MODES as usize >= m1::plant::mirror::TWO_THREADS_MIN_MODES
+        );
+        assert!(one.iter().any(|&x| x != 0.0));
+        let same = one
+            .iter()
+            .zip(&two)
+            .all(|(a, b)| a.to_bits() == b.to_bits());
+        assert!(same, "two threads changed a value");
+        let e = start(3).err().expect("3 refused").to_string();
+        assert!(e.contains("solver_threads") && e.contains('3'), "{e}");
+    }
+
     /// The cell's outputs, computed when read: read after every step, only at the end, one
     /// at a time, or after a saved state taken between reads was restored, they are the same
     /// values bit for bit, and they are the coupled solver's own.
