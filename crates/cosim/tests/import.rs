@@ -275,6 +275,45 @@ fn chained_integrators_give_the_exact_sums() {
     }
 }
 
+/// In Gauss-Seidel order the outputs of a component that steps every base step and is not
+/// recorded (a) wait in its ports until a reader's turn: a slower reader before it in the order
+/// (c, every 3 steps: a's outputs after its previous step) and a reader after it (b, every
+/// step: a's outputs of this step) get the values of the sequential order, the exact sums.
+#[test]
+fn unrecorded_outputs_reach_readers_before_and_after_them() {
+    let path = tiny_fmu("lazy", &tiny_xml(), &[], true);
+    let (h, n, m) = (0.01, 30usize, 3usize);
+    let sys = System::new(n as f64 * h, h)
+        .component("c", &path)
+        .every(m)
+        .component("a", &path)
+        .parameter("a", "u", Value::Real(1.0))
+        .component("b", &path)
+        .connect("a.y", "c.u")
+        .connect("a.y", "b.u")
+        .order(Order::GaussSeidel);
+    for lookahead in [false, true] {
+        let sys = if lookahead {
+            sys.clone()
+        } else {
+            sys.clone().scheduler(cosim::SchedulerParams {
+                lookahead_min_seconds: f64::INFINITY,
+                ..cosim::SchedulerParams::default()
+            })
+        };
+        let r = run(&sys, &["c.y".into(), "b.y".into()], 1, &mut |_, _| {}).unwrap();
+        for (k, row) in r.rows().enumerate() {
+            // c's step j (from 3 j h) reads y_a = 3 j h and shows at its end, 3 (j + 1) h;
+            // b's step from k h reads y_a = (k + 1) h.
+            let done = k / m;
+            let c = (m as f64 * h).powi(2) * (done * done.saturating_sub(1)) as f64 / 2.0;
+            let b = h * h * (k * (k + 1)) as f64 / 2.0;
+            assert!((row[1] - c).abs() < 1e-12, "row {k}: c.y {} vs {c}", row[1]);
+            assert!((row[2] - b).abs() < 1e-12, "row {k}: b.y {} vs {b}", row[2]);
+        }
+    }
+}
+
 /// b steps every 4 base steps with a step of 4 h, on the value of y_a at its step start.
 #[test]
 fn multirate_components_step_at_their_own_multiple() {

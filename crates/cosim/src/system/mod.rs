@@ -78,7 +78,12 @@
 //!
 //! Values move in bulk: per component, step and kind of value (Real, Integer and enumeration,
 //! Boolean, String) one `fmi2Set*` over all its connected inputs and one `fmi2Get*` over all
-//! its connected or recorded outputs, through buffers allocated once (`ports.rs`).
+//! its connected or recorded outputs, through buffers allocated once (`ports.rs`). In
+//! Gauss-Seidel order the outputs of a component that steps every base step and has none
+//! recorded stay in its ports until a reader's turn comes (each step's replace the last's
+//! before anyone else could read those): the TMT edge sensors' 2772 readings, taken on the
+//! look-ahead thread, are copied into the shared buffer for the 20 Hz controller only, not at
+//! every step.
 //!
 //! # Set-up
 //!

@@ -6,7 +6,7 @@
 
 use std::time::Instant;
 
-use super::definition::{System, Value};
+use super::definition::{Order, System, Value};
 use super::init;
 use super::ports::{Port, Ports, Values};
 use super::simulation::{KeptSink, Late, Recorded, RecordedOf, Simulation};
@@ -286,7 +286,16 @@ impl Simulation {
                 })
             })
             .collect();
+        let lazy = comps
+            .iter()
+            .enumerate()
+            .map(|(i, r)| {
+                system.order == Order::GaussSeidel && r.every == 1 && recorded_of[i].is_empty()
+            })
+            .collect();
         Ok(Self {
+            lazy,
+            stale: vec![false; n],
             every: comps.iter().map(|r| r.every as u64).collect(),
             names: comps.iter().map(|r| r.name.clone()).collect(),
             comps: comps.into_iter().map(|r| Some(Box::new(r))).collect(),

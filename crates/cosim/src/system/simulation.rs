@@ -86,6 +86,14 @@ pub struct Simulation {
     /// Per component, the base step at which the outputs of its latest step become visible,
     /// while they are not yet (FMI timing: the end of that step).
     pub(super) pending: Vec<Option<u64>>,
+    /// Per component, whether its due outputs may wait in its ports until something reads
+    /// them ([`Self::publish_due`]): in Gauss-Seidel order, a component that steps every base
+    /// step and has no recorded outputs (its outputs in the shared buffer are read only as
+    /// another component's inputs, and each step's replace the last's at once).
+    pub(super) lazy: Vec<bool>,
+    /// Per lazy component, whether its ports hold due outputs not yet copied to `outputs`
+    /// (copied when a reader's turn comes, [`Self::fresh_sources`], or at [`Self::settle`]).
+    pub(super) stale: Vec<bool>,
     /// The latest base step whose outputs are visible now: the current one in Jacobi order,
     /// the next one during a Gauss-Seidel step (module docs).
     pub(super) visible: u64,

@@ -159,14 +159,45 @@ impl Simulation {
     /// Makes visible every output whose time has come: the components whose pending outputs
     /// are due at base step `limit` or before publish them (one still on the look-ahead thread
     /// publishes when it comes back, [`Self::settle`]).
+    /// A lazy component's due outputs stay in its ports, marked stale, until a reader's turn
+    /// ([`Self::fresh_sources`]): the edge sensors' outputs, read by the controller at every
+    /// 50th step, are then copied once per 50 steps, not at every step.
     fn publish_due(&mut self, limit: u64) {
         self.visible = limit;
         for (i, p) in self.pending.iter_mut().enumerate() {
             if p.is_some_and(|at| at <= limit)
                 && let Some(r) = self.comps[i].as_deref()
             {
-                r.publish(&mut self.outputs);
+                if self.lazy[i] {
+                    self.stale[i] = true;
+                } else {
+                    r.publish(&mut self.outputs);
+                }
                 *p = None;
+            }
+        }
+    }
+
+    /// Copies the stale outputs of component `i`'s sources into the shared buffer, before `i`
+    /// reads them. (A source on the look-ahead thread has been waited for before any reader's
+    /// turn: its outputs are in its ports by then.)
+    fn fresh_sources(&mut self, i: usize) {
+        for &s in &self.sources[i] {
+            if self.stale[s]
+                && let Some(r) = self.comps[s].as_deref()
+            {
+                r.publish(&mut self.outputs);
+                self.stale[s] = false;
+            }
+        }
+    }
+
+    /// Copies every stale output into the shared buffer.
+    pub(super) fn fresh_all(&mut self) {
+        for (s, stale) in self.stale.iter_mut().enumerate() {
+            if *stale && let Some(r) = self.comps[s].as_deref() {
+                r.publish(&mut self.outputs);
+                *stale = false;
             }
         }
     }
@@ -264,6 +295,7 @@ impl Simulation {
             });
         }
         self.pending[i] = Some(at);
+        self.fresh_sources(i);
         if defer
             && let Some(la) = self.lookahead.as_mut()
             && let Some(mut comp) = self.comps[i].take()
@@ -374,6 +406,9 @@ impl Simulation {
                 }
             }
         }
+        if !from_snapshot {
+            self.fresh_sources(i);
+        }
         let shared = if from_snapshot {
             &self.snapshot.real
         } else {
@@ -422,6 +457,7 @@ impl Simulation {
             r.publish(&mut self.outputs);
         }
         self.pending[c] = None;
+        self.stale[c] = false;
         Ok(())
     }
 
@@ -471,6 +507,7 @@ impl Simulation {
                 "the look-ahead thread stopped with components on it".into(),
             ));
         }
+        self.fresh_all();
         first
     }
 
