@@ -100,7 +100,7 @@ impl CoupledMirror {
             }
             self.gpsi.fill(0.0);
             self.gjump.fill(0.0);
-            RowsDot2 {
+            RowsDot {
                 a: &self.gg32,
                 lda: 2 * r,
                 m: r,
@@ -168,13 +168,13 @@ impl CoupledMirror {
             for (d, s) in self.psi32.iter_mut().zip(&self.psi) {
                 *d = *s as f32;
             }
-            RowsDot1 {
+            RowsDot {
                 a: &self.wg32,
                 lda: 2 * r,
                 m: r,
                 k: 2 * r,
-                x: &self.psi32,
-                y: &mut self.u_new,
+                x: [&self.psi32],
+                y: [&mut self.u_new],
             }
             .split(simd, pair(&mut self.pair, self.two_threads));
         } else {
@@ -475,27 +475,33 @@ fn split_rows(m: usize) -> usize {
     (m / 2) & !3
 }
 
-/// `y_l += A x_l` for two right-hand sides ([`rows_dot2_f32`]) as a SIMD operation, split by
-/// rows between a [`Pair`]'s threads.
-struct RowsDot2<'a> {
+/// `y_l += A x_l` for `C` (1 or 2) right-hand sides ([`rows_dot_f32`], [`rows_dot2_f32`]) as a
+/// SIMD operation, split by rows between a [`Pair`]'s threads ([`Self::split`]).
+struct RowsDot<'a, const C: usize> {
     a: &'a [f32],
     lda: usize,
     m: usize,
     k: usize,
-    x: [&'a [f32]; 2],
-    y: [&'a mut [f64]; 2],
+    x: [&'a [f32]; C],
+    y: [&'a mut [f64]; C],
 }
 
-impl pulp::WithSimd for RowsDot2<'_> {
+impl<const C: usize> pulp::WithSimd for RowsDot<'_, C> {
     type Output = ();
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, simd: S) {
-        rows_dot2_f32::<S>(simd, self.a, self.lda, self.m, self.k, self.x, self.y);
+        let (a, lda, m, k) = (self.a, self.lda, self.m, self.k);
+        let mut y = self.y;
+        match (&self.x[..], &mut y[..]) {
+            ([x], [y]) => rows_dot_f32::<S>(simd, a, lda, m, k, x, y),
+            ([x0, x1], [y0, y1]) => rows_dot2_f32::<S>(simd, a, lda, m, k, [x0, x1], [y0, y1]),
+            _ => unreachable!("RowsDot: 1 or 2 right-hand sides"),
+        }
     }
 }
 
-impl RowsDot2<'_> {
+impl<const C: usize> RowsDot<'_, C> {
     /// The product, on this thread alone without `pair`.
     #[inline(always)]
     fn split<S: pulp::Simd>(self, simd: S, pair: Option<&mut Pair>) {
@@ -503,86 +509,34 @@ impl RowsDot2<'_> {
             return self.with_simd(simd);
         };
         let (h, lda, k, x) = (split_rows(self.m), self.lda, self.k, self.x);
-        let (a_lo, a_hi) = (self.a, &self.a[h * lda..]);
-        let [y0, y1] = self.y;
-        let (y0_lo, y0_hi) = y0.split_at_mut(h);
-        let (y1_lo, y1_hi) = y1.split_at_mut(h);
-        let rest = self.m - h;
-        p.join(
-            || {
-                simd.vectorize(RowsDot2 {
-                    a: a_lo,
-                    lda,
-                    m: h,
-                    k,
-                    x,
-                    y: [y0_lo, y1_lo],
-                });
-            },
-            move || {
-                simd.vectorize(RowsDot2 {
-                    a: a_hi,
-                    lda,
-                    m: rest,
-                    k,
-                    x,
-                    y: [y0_hi, y1_hi],
-                });
-            },
+        let (mut lo, mut hi): ([&mut [f64]; C], [&mut [f64]; C]) = (
+            std::array::from_fn(|_| Default::default()),
+            std::array::from_fn(|_| Default::default()),
         );
-    }
-}
-
-/// `y += A x` ([`rows_dot_f32`]) as a SIMD operation, split by rows between a [`Pair`]'s
-/// threads.
-struct RowsDot1<'a> {
-    a: &'a [f32],
-    lda: usize,
-    m: usize,
-    k: usize,
-    x: &'a [f32],
-    y: &'a mut [f64],
-}
-
-impl pulp::WithSimd for RowsDot1<'_> {
-    type Output = ();
-
-    #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, simd: S) {
-        rows_dot_f32::<S>(simd, self.a, self.lda, self.m, self.k, self.x, self.y);
-    }
-}
-
-impl RowsDot1<'_> {
-    /// The product, on this thread alone without `pair`.
-    #[inline(always)]
-    fn split<S: pulp::Simd>(self, simd: S, pair: Option<&mut Pair>) {
-        let Some(p) = pair else {
-            return self.with_simd(simd);
-        };
-        let (h, lda, k, x) = (split_rows(self.m), self.lda, self.k, self.x);
-        let (a_lo, a_hi) = (self.a, &self.a[h * lda..]);
-        let (y_lo, y_hi) = self.y.split_at_mut(h);
-        let rest = self.m - h;
+        for (l, y) in self.y.into_iter().enumerate() {
+            (lo[l], hi[l]) = y.split_at_mut(h);
+        }
+        let (a_hi, rest) = (&self.a[h * lda..], self.m - h);
+        let a = self.a;
         p.join(
             || {
-                simd.vectorize(RowsDot1 {
-                    a: a_lo,
+                simd.vectorize(RowsDot {
+                    a,
                     lda,
                     m: h,
                     k,
                     x,
-                    y: y_lo,
+                    y: lo,
                 });
             },
             move || {
-                simd.vectorize(RowsDot1 {
+                simd.vectorize(RowsDot {
                     a: a_hi,
                     lda,
                     m: rest,
                     k,
                     x,
-                    y: y_hi,
+                    y: hi,
                 });
             },
         );
