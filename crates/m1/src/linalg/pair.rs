@@ -7,8 +7,8 @@
 //! around a product of 50-130 us. Rayon's workers sleep between them, and waking one costs
 //! 50-150 us on the project's 2-core machine (a `rayon::join` per product made the step six
 //! times slower: BENCHMARKS.md, second round). Here the helper polls for its next job for
-//! [`SPIN`] after each one (yielding the core at every poll, so that another thread with work
-//! on it, such as a co-simulation master's look-ahead thread, runs first), then sleeps; a join
+//! [`SPIN`] after each one (yielding the core now and then, so that another thread with work on
+//! it, such as a co-simulation master's look-ahead thread, runs), then sleeps; a join
 //! then costs well under a microsecond when the helper is awake.
 //!
 //! When the helper has not started its half by the time the caller's is done (the cores busy
@@ -179,9 +179,11 @@ fn helper(s: &Shared) {
                 }
                 s.sleeping.store(false, Ordering::SeqCst);
                 start = Instant::now();
-            } else {
-                // Another thread with work on this core runs first.
+            } else if polls.is_multiple_of(16) {
+                // Now and then another thread with work on this core runs first.
                 std::thread::yield_now();
+            } else {
+                std::hint::spin_loop();
             }
         }
         // The latest post (the caller ran the earlier ones itself if they were missed).

@@ -93,38 +93,6 @@ const ROWS: usize = 4;
 /// If a slice is shorter than that (a programming error).
 #[inline(always)]
 pub fn sym_dot_f32<S: Simd>(simd: S, a: &SymPacked32, x: &[f32], y: &mut [f64], t: &mut [f32]) {
-    let nb = a.n / BLOCK;
-    sym_dot_rows_f32(simd, a, x, &mut y[..a.m], t, 0..nb);
-    add_columns(&mut y[..a.m], t, 0);
-}
-
-/// Block row at which [`sym_dot_rows_f32`] splits a product into two parts of about the
-/// same number of stored entries (block row `b` stores `n / BLOCK - b` blocks).
-pub fn balanced_split(a: &SymPacked32) -> usize {
-    let nb = a.n / BLOCK;
-    // sum_{b < s} (nb - b) = nb (nb + 1) / 4: s = nb + 1/2 - sqrt((nb + 1/2)^2 - nb (nb + 1) / 2).
-    let h = nb as f64 + 0.5;
-    let s = h - (h * h - (nb * (nb + 1)) as f64 / 2.0).max(0.0).sqrt();
-    (s.round() as usize).min(nb)
-}
-
-/// The block rows `blocks` of `y += A x` ([`sym_dot_f32`]) without their columns' part: each
-/// row's dot product with `x` goes into `y` (whose first entry is row `BLOCK * blocks.start`;
-/// rows past the order are not written), and the transposed contributions into `t` (all `n`
-/// columns, set to zero first); [`add_columns`] adds those to `y`. Two calls on disjoint block
-/// ranges write disjoint parts of `y` and their own `t`: they may run at once.
-///
-/// # Panics
-/// If a slice is shorter than that (a programming error).
-#[inline(always)]
-pub fn sym_dot_rows_f32<S: Simd>(
-    simd: S,
-    a: &SymPacked32,
-    x: &[f32],
-    y: &mut [f64],
-    t: &mut [f32],
-    blocks: std::ops::Range<usize>,
-) {
     const { assert!(BLOCK.is_multiple_of(ROWS)) };
     let (m, n) = (a.m, a.n);
     let xh = S::as_simd_f32s(&x[..n]).0;
@@ -133,9 +101,8 @@ pub fn sym_dot_rows_f32<S: Simd>(
     th.fill(zero);
     // Vectors per block (the scalar fallback has one lane).
     let vpb = BLOCK / S::F32_LANES;
-    let row0 = BLOCK * blocks.start;
-    let mut off = SymPacked32::offset_in(n, row0);
-    for b in blocks {
+    let mut off = 0;
+    for b in 0..n / BLOCK {
         let len = n - BLOCK * b;
         let c0 = b * vpb;
         for i in (BLOCK * b..BLOCK * (b + 1)).step_by(ROWS) {
@@ -164,19 +131,14 @@ pub fn sym_dot_rows_f32<S: Simd>(
             }
             for (k, acck) in acc.into_iter().enumerate() {
                 if i + k < m {
-                    y[i + k - row0] += f64::from(simd.reduce_sum_f32s(acck));
+                    y[i + k] += f64::from(simd.reduce_sum_f32s(acck));
                 }
             }
             off += ROWS * len;
         }
     }
-}
-
-/// `y[j] += t[j]` for the columns `j >= from` of [`sym_dot_rows_f32`] (`y` from row 0).
-#[inline(always)]
-pub fn add_columns(y: &mut [f64], t: &[f32], from: usize) {
-    let m = y.len();
-    for (yj, tj) in y[from.min(m)..].iter_mut().zip(&t[from.min(m)..]) {
+    let tl: &[f32] = pulp::bytemuck::cast_slice(&*th);
+    for (yj, tj) in y[..m].iter_mut().zip(tl) {
         *yj += f64::from(*tj);
     }
 }
@@ -197,63 +159,6 @@ mod tests {
             let mut t = vec![f32::NAN; self.a.padded_order()];
             let mut y = self.y;
             sym_dot_f32::<S>(simd, self.a, &self.x, &mut y, &mut t);
-            y
-        }
-    }
-
-    /// The product in two parts at every block row (the columns' part added after both), against
-    /// the whole product: the same to single-precision rounding; and the balanced split halves
-    /// the stored entries.
-    #[test]
-    fn products_in_two_parts_match_the_whole() {
-        for m in [17, 48, 70, 150, 300] {
-            let a = SymPacked32::from_fn(m, entry);
-            let n = a.padded_order();
-            let nb = n / BLOCK;
-            let x: Vec<f32> = (0..n).map(|j| ((j * 3) as f32 * 0.61).cos()).collect();
-            let whole = Run {
-                a: &a,
-                x: x.clone(),
-                y: vec![0.25; m],
-            };
-            let want = pulp::Arch::new().dispatch(whole);
-            let scale: f64 = (0..m).map(|j| entry(0, j).abs()).sum::<f64>() + 1.0;
-            for s in 0..=nb {
-                let got = pulp::Arch::new().dispatch(Parts {
-                    a: &a,
-                    x: &x,
-                    split: s,
-                });
-                for (g, w) in got.iter().zip(&want) {
-                    assert!((g - w).abs() <= 1e-6 * scale, "{m} {s}: {g} {w}");
-                }
-            }
-            let s = balanced_split(&a);
-            let stored = |b: std::ops::Range<usize>| b.map(|b| nb - b).sum::<usize>() as f64;
-            let (lo, hi) = (stored(0..s), stored(s..nb));
-            assert!((lo - hi).abs() <= nb as f64, "{m}: {lo} {hi}");
-        }
-    }
-
-    struct Parts<'a> {
-        a: &'a SymPacked32,
-        x: &'a [f32],
-        split: usize,
-    }
-
-    impl pulp::WithSimd for Parts<'_> {
-        type Output = Vec<f64>;
-        fn with_simd<S: Simd>(self, simd: S) -> Vec<f64> {
-            let (a, n) = (self.a, self.a.padded_order());
-            let m = a.m;
-            let mut y = vec![0.25; m];
-            let (mut t0, mut t1) = (vec![f32::NAN; n], vec![f32::NAN; n]);
-            let cut = (BLOCK * self.split).min(m);
-            let (y0, y1) = y.split_at_mut(cut);
-            sym_dot_rows_f32::<S>(simd, a, self.x, y0, &mut t0, 0..self.split);
-            sym_dot_rows_f32::<S>(simd, a, self.x, y1, &mut t1, self.split..n / BLOCK);
-            add_columns(&mut y, &t0, 0);
-            add_columns(&mut y, &t1, BLOCK * self.split);
             y
         }
     }

@@ -146,10 +146,6 @@ pub struct CoupledMirror {
     pub(super) win32: Vec<f32>,
     pub(super) corr: Vec<f64>,
     pub(super) corr_t: Vec<f32>,
-    /// The column sums of the correction's second part of block rows (`corr_t` holds the
-    /// first's), so that the two parts may run on two threads.
-    #[serde(default)]
-    pub(super) corr_t2: Vec<f32>,
     /// Feedthrough of the drive into the cell force.
     pub(super) drive_d: f64,
     /// The pier displacement held over the last tick.
@@ -347,7 +343,6 @@ impl CoupledMirror {
             win32: vec![0.0f32; padded_len(r)],
             corr: vec![0.0; r],
             corr_t: vec![0.0f32; padded_len(r)],
-            corr_t2: vec![0.0f32; padded_len(r)],
             drive_d,
             pier: 0.0,
             proj: [vec![0.0; r * N_STATE], vec![0.0; r * N_STATE]],

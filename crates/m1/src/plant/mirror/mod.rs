@@ -90,20 +90,15 @@
 //! against double precision ([`CoupledMirror::set_coupling_single`]) the mirror's response
 //! moves by about 2e-9 of its largest value (TMT, 300 modes).
 //!
-//! **Two threads from 500 modes.** A tick's work is split between the calling thread and a
+//! **Two threads from 500 modes.** The tick's pass over the Gram matrices (or `W G`) and the
+//! shapes' pass back to the actuators are split by rows between the calling thread and a
 //! helper thread ([`crate::linalg::pair`], [`CoupledMirror::set_two_threads`], default from
-//! [`TWO_THREADS_MIN_MODES`]): the pass over the Gram matrices (or `W G`) and the shapes' pass
-//! back to the actuators by rows, the channels' maps on the modes and the free part by kind
-//! (piston on one thread, tilt on the other), and the correction `W - I` by block rows, in two
-//! parts of about the same size whose column sums are added after both
-//! ([`crate::linalg::symmetric::sym_dot_rows_f32`]; on one thread the same two parts, one after
-//! the other). Every sum is made in the same order either way, so the outputs are the same to
-//! the bit (tested). The mirror alone (TMT voice coil, 1 ms steps): 1000 modes 1.5-2.3 ms ->
-//! 0.79-0.95 ms per step, 600 modes 1.65-1.75 times faster, 300 modes 1.4-1.5 times; in the
-//! TMT wind system (`m1cs run --solver-threads 1|2`) 1000 modes from 0.64-0.72x to about 1.1-1.3x
-//! real time, 600 modes 2.1x to 2.6x, and at 300 modes a loss (5.4-5.6x to 4.5-4.9x: the
-//! master's look-ahead thread shares the second core, and the products fit the caches). See
-//! BENCHMARKS.md, tenth round.
+//! [`TWO_THREADS_MIN_MODES`]): each row is summed as on one thread, so the outputs are the same
+//! to the bit (tested). Measured in the TMT wind system (`m1cs run --solver-threads 1|2`): 1000
+//! modes 0.64-0.72x -> 1.06-1.12x real time, 800 modes 1.20-1.25x -> 1.76-1.78x, 600 modes
+//! 2.12-2.14x -> 2.29-2.47x, and at 300 modes a loss (5.4-5.6x -> 4.3-4.7x: the products fit
+//! the caches there, and the joins and the master's second thread cost more than the split
+//! saves).
 //!
 //! **No static correction.** The structure is its `n_modes` lowest modes. The static correction
 //! of the truncated modes (an instantaneous, dense compliance) cannot lag a tick: against the

@@ -9,9 +9,8 @@ use pulp::WithSimd;
 use super::projection::Reconstruct;
 use crate::linalg::kernels::{axpy, rows_dot, rows_dot_f32, rows_dot2_f32, rows_map, state_map};
 use crate::linalg::pair::{LazyPair, Pair};
-use crate::linalg::symmetric::{BLOCK, SymPacked32, add_columns, balanced_split, sym_dot_rows_f32};
-use crate::plant::segment::{Gamma, N_STATE, Phi, state};
-use nalgebra::{SMatrix, SVector};
+use crate::linalg::symmetric::sym_dot_f32;
+use crate::plant::segment::{N_STATE, state};
 
 impl CoupledMirror {
     /// One coupled tick, entirely on the modes: the segments' response to the cell motion is
@@ -37,7 +36,9 @@ impl CoupledMirror {
             *h = f0 + f1;
             *j = if sample { d0 + d1 } else { 0.0 };
         }
-        self.tick_channels(simd, sample);
+        for k in 0..2 {
+            self.tick_channels(simd, k, sample);
+        }
         // The drive jumps at the sample and is held over the tick: the modal force starts the
         // tick at the end value of the last one plus that jump, then ramps (the continuous
         // part of the cell force is what varies within the tick). The free part's jump is on
@@ -121,38 +122,14 @@ impl CoupledMirror {
                     u_new[j] += gpsi[j];
                 }
             }
-            // In two parts of block rows of about the same size, one per thread when the
-            // products are split (the same sums either way).
             self.corr.fill(0.0);
-            let (a, x) = (&self.corr32, &self.win32[..]);
-            let (nb, cut) = (a.padded_order() / BLOCK, balanced_split(a));
-            let (y0, y1) = self.corr[..r].split_at_mut((BLOCK * cut).min(r));
-            if self.corr_t2.len() < self.corr_t.len() {
-                self.corr_t2.resize(self.corr_t.len(), 0.0);
-            }
-            let first = SymRows {
-                a,
-                x,
-                y: y0,
-                t: &mut self.corr_t,
-                blocks: 0..cut,
-            };
-            let second = SymRows {
-                a,
-                x,
-                y: y1,
-                t: &mut self.corr_t2,
-                blocks: cut..nb,
-            };
-            match pair(&mut self.pair, self.two_threads) {
-                Some(p) => p.join(|| simd.vectorize(first), move || simd.vectorize(second)),
-                None => {
-                    first.with_simd(simd);
-                    second.with_simd(simd);
-                }
-            }
-            add_columns(&mut self.corr[..r], &self.corr_t, 0);
-            add_columns(&mut self.corr[..r], &self.corr_t2, BLOCK * cut);
+            sym_dot_f32::<S>(
+                simd,
+                &self.corr32,
+                &self.win32,
+                &mut self.corr,
+                &mut self.corr_t,
+            );
             let (corr, u_new) = (&self.corr[..r], &mut self.u_new[..r]);
             for j in 0..r {
                 u_new[j] += corr[j] / d_half[j];
@@ -221,55 +198,61 @@ impl CoupledMirror {
     pub(super) fn free_ticks<S: pulp::Simd>(&mut self, simd: S, chunk: usize) {
         let r = self.r;
         let c = &self.free_chunks[chunk];
-        let [p0, p1] = &mut self.proj;
-        let [o0, o1] = &mut self.free_out;
-        let [w0, w1] = &self.w_proj;
-        let kind = |k: usize, proj, out| FreeKind {
-            r,
-            a: &c.a[k],
-            b: &c.b[k],
-            w: if k == 0 { w0 } else { w1 },
-            proj,
-            out,
-        };
-        let (piston, tilt) = (kind(0, p0, o0), kind(1, p1, o1));
-        match pair(&mut self.pair, self.two_threads) {
-            Some(p) => p.join(|| simd.vectorize(piston), move || simd.vectorize(tilt)),
-            None => {
-                piston.with_simd(simd);
-                tilt.with_simd(simd);
-            }
+        for k in 0..2 {
+            let wp = &self.w_proj[k];
+            rows_map::<S, N_STATE, 2>(
+                simd,
+                &c.a[k],
+                &c.b[k],
+                &self.proj[k],
+                [&wp[..r], &wp[2 * r..3 * r]],
+                r,
+                &mut self.free_out[k],
+            );
+            self.proj[k].copy_from_slice(&self.free_out[k][..N_STATE * r]);
         }
     }
 
-    /// The cell-driven channels of both kinds over one tick of [`Self::tick`] ([`Channels`]),
-    /// one kind on each thread when the products are split.
+    /// The cell-driven channels of kind `k` (0 piston, 1 tilt) over one tick of
+    /// [`Self::tick`], on the modes, without this tick's ramp, with their terms of the
+    /// coupled solve's right-hand side (`psi`) and, at a servo sample (`sample`), the drive's
+    /// change (`drive_step`): one pass of [`state_map`] over the modes (the same
+    /// `N_STATE x N_STATE` map for every mode).
     #[inline(always)]
-    fn tick_channels<S: pulp::Simd>(&mut self, simd: S, sample: bool) {
-        let (r, set) = (self.r, usize::from(!sample));
-        let (psi_p, psi_t) = self.psi.split_at_mut(r);
-        let (step_p, step_t) = self.drive_step.split_at_mut(r);
-        let [s_p, s_t] = &mut self.scratch;
-        let q = &self.q[..];
-        let kind = |k: usize, scratch, psi, drive_step| Channels {
+    fn tick_channels<S: pulp::Simd>(&mut self, simd: S, k: usize, sample: bool) {
+        let r = self.r;
+        let dr = state::DRIVE;
+        let set = usize::from(!sample);
+        let (p, g, ramp, c) = (
+            &self.tick[set][k],
+            &self.tick_in[set][k],
+            &self.ramp[k],
+            &self.cell_c[k],
+        );
+        let pa: [[f64; N_STATE]; N_STATE] =
+            std::array::from_fn(|i| std::array::from_fn(|s| p[(i, s)]));
+        let ca: [f64; N_STATE] = std::array::from_fn(|i| c[i]);
+        // Cell-driven part without this tick's ramp: Y_i = sum_s p_is xi_s + (g_i1 - ramp_i) q;
+        // psi~_k = Y c^T.
+        let gc: [[f64; 1]; N_STATE] = std::array::from_fn(|i| [g[(i, 1)] - ramp[i]]);
+        let psi = &mut self.psi[k * r..(k + 1) * r];
+        psi.fill(0.0);
+        state_map::<S, N_STATE, 1>(
+            simd,
+            &pa,
+            &gc,
+            &self.xi[k],
+            [&self.q],
             r,
-            sample,
-            p: &self.tick[set][k],
-            g: &self.tick_in[set][k],
-            ramp: &self.ramp[k],
-            c: &self.cell_c[k],
-            xi: &self.xi[k],
-            q,
-            scratch,
-            psi,
-            drive_step,
-        };
-        let (piston, tilt) = (kind(0, s_p, psi_p, step_p), kind(1, s_t, psi_t, step_t));
-        match pair(&mut self.pair, self.two_threads) {
-            Some(p) => p.join(|| simd.vectorize(piston), move || simd.vectorize(tilt)),
-            None => {
-                piston.with_simd(simd);
-                tilt.with_simd(simd);
+            &mut self.scratch[k],
+            Some((&ca, psi)),
+        );
+        // The cell-driven part's drive change (the ramp does not reach the drive).
+        if sample {
+            let (new, old) = (&self.scratch[k][dr * r..], &self.xi[k][dr * r..]);
+            let out = &mut self.drive_step[k * r..(k + 1) * r];
+            for j in 0..r {
+                out[j] = new[j] - old[j];
             }
         }
     }
@@ -540,106 +523,5 @@ impl<const C: usize> RowsDot<'_, C> {
                 });
             },
         );
-    }
-}
-
-/// The cell-driven channels of one kind over one tick of [`CoupledMirror::tick`], on the modes,
-/// without this tick's ramp, with their terms of the coupled solve's right-hand side (`psi`)
-/// and, at a servo sample, the drive's change (`drive_step`): one pass of [`state_map`] over the
-/// modes (the same `N_STATE x N_STATE` map for every mode).
-struct Channels<'a> {
-    r: usize,
-    sample: bool,
-    p: &'a Phi,
-    g: &'a Gamma,
-    ramp: &'a SVector<f64, N_STATE>,
-    c: &'a SMatrix<f64, 1, N_STATE>,
-    xi: &'a [f64],
-    q: &'a [f64],
-    scratch: &'a mut [f64],
-    psi: &'a mut [f64],
-    drive_step: &'a mut [f64],
-}
-
-impl pulp::WithSimd for Channels<'_> {
-    type Output = ();
-
-    #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, simd: S) {
-        let (r, dr) = (self.r, state::DRIVE);
-        let (p, g, ramp, c) = (self.p, self.g, self.ramp, self.c);
-        let pa: [[f64; N_STATE]; N_STATE] =
-            std::array::from_fn(|i| std::array::from_fn(|s| p[(i, s)]));
-        let ca: [f64; N_STATE] = std::array::from_fn(|i| c[i]);
-        // Cell-driven part without this tick's ramp: Y_i = sum_s p_is xi_s + (g_i1 - ramp_i) q;
-        // psi~_k = Y c^T.
-        let gc: [[f64; 1]; N_STATE] = std::array::from_fn(|i| [g[(i, 1)] - ramp[i]]);
-        let psi = &mut self.psi[..r];
-        psi.fill(0.0);
-        state_map::<S, N_STATE, 1>(
-            simd,
-            &pa,
-            &gc,
-            self.xi,
-            [self.q],
-            r,
-            self.scratch,
-            Some((&ca, psi)),
-        );
-        // The cell-driven part's drive change (the ramp does not reach the drive).
-        if self.sample {
-            let (new, old) = (&self.scratch[dr * r..], &self.xi[dr * r..]);
-            let out = &mut self.drive_step[..r];
-            for j in 0..r {
-                out[j] = new[j] - old[j];
-            }
-        }
-    }
-}
-
-/// The free part of one kind's channels over a chunk of ticks ([`CoupledMirror::free_ticks`]).
-struct FreeKind<'a> {
-    r: usize,
-    a: &'a [[f64; N_STATE]],
-    b: &'a [[f64; 2]],
-    w: &'a [f64],
-    proj: &'a mut Vec<f64>,
-    out: &'a mut Vec<f64>,
-}
-
-impl pulp::WithSimd for FreeKind<'_> {
-    type Output = ();
-
-    #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, simd: S) {
-        let (r, w) = (self.r, self.w);
-        rows_map::<S, N_STATE, 2>(
-            simd,
-            self.a,
-            self.b,
-            self.proj,
-            [&w[..r], &w[2 * r..3 * r]],
-            r,
-            self.out,
-        );
-        self.proj.copy_from_slice(&self.out[..N_STATE * r]);
-    }
-}
-
-/// Block rows of the correction's symmetric product ([`sym_dot_rows_f32`]) as a SIMD operation.
-struct SymRows<'a> {
-    a: &'a SymPacked32,
-    x: &'a [f32],
-    y: &'a mut [f64],
-    t: &'a mut [f32],
-    blocks: std::ops::Range<usize>,
-}
-
-impl pulp::WithSimd for SymRows<'_> {
-    type Output = ();
-
-    #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, simd: S) {
-        sym_dot_rows_f32::<S>(simd, self.a, self.x, self.y, self.t, self.blocks);
     }
 }
