@@ -271,7 +271,7 @@ impl<V: MirrorVariant> Model for Mirror<V> {
             self.vars.cell.write_calculated(v, m.structure());
             Solver::QuasiStatic(Box::new(m))
         } else {
-            let m = CoupledMirror::new(
+            let mut m = CoupledMirror::new(
                 self.n_segments,
                 model.clone(),
                 cell,
@@ -280,7 +280,6 @@ impl<V: MirrorVariant> Model for Mirror<V> {
                 substeps,
             )
             .map_err(wiring::model_error)?;
-            let mut m = m;
             match v.integer(self.vars.solver_threads) {
                 0 => {}
                 1 => m.set_two_threads(false),

@@ -95,11 +95,10 @@
 //! helper thread ([`crate::linalg::pair`], [`CoupledMirror::set_two_threads`], default from
 //! [`TWO_THREADS_MIN_MODES`]): each row is summed as on one thread, so the outputs are the same
 //! to the bit (tested). Measured in the TMT wind system (`m1cs run --solver-threads 1|2`): 1000
-//! modes 0.55-0.64x -> 0.90-1.03x real time (1.06-1.12x in a faster window, when the master's
-//! polls yielded the core at every try), 800 modes 1.20-1.25x -> 1.76-1.78x, 600 modes
-//! 2.12-2.14x -> 2.29-2.47x, and at 300 modes a loss (5.4-5.6x -> 4.3-4.7x: the products fit
-//! the caches there, and the joins and the master's second thread cost more than the split
-//! saves). BENCHMARKS.md, tenth round.
+//! modes 0.55-0.64x -> 0.90-1.03x real time, 600 modes 2.14-2.16x -> 2.51-2.57x, and at 300
+//! modes a loss (5.51-5.55x -> 5.11-5.36x: the products fit the caches there, and the joins
+//! and the master's second thread on the same core cost more than the split saves).
+//! BENCHMARKS.md, tenth round.
 //!
 //! **No static correction.** The structure is its `n_modes` lowest modes. The static correction
 //! of the truncated modes (an instantaneous, dense compliance) cannot lag a tick: against the
