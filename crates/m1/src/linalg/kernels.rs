@@ -598,7 +598,7 @@ pub fn state_map<S: Simd, const NS: usize, const NI: usize>(
     if n == 0 {
         return;
     }
-    let (xs, us) = columns(x, u, n);
+    let (xs, us) = columns::<NS, NI>(x, u, n);
     let mut rows = out[..NS * n].chunks_exact_mut(n);
     let mut outs: [&mut [f64]; NS] = std::array::from_fn(|_| rows.next().unwrap_or_default());
     let m = S::as_simd_f64s(xs[0]).0.len();
@@ -640,18 +640,28 @@ pub fn state_map<S: Simd, const NS: usize, const NI: usize>(
             }
         }
     }
-    // The columns after the last whole vector.
-    for c in tail..n {
-        let mut dacc = 0.0;
-        for (i, o) in outs.iter_mut().enumerate() {
-            let acc = row_sum(&a[i], &b[i], &xs, &us, c);
-            o[c] = acc;
-            if let Some(w) = w {
-                dacc += w[i] * acc;
+    // The columns after the last whole vector: one vector loaded with zeros past `n`, summed
+    // as the others.
+    if tail < n {
+        let xv: [S::f64s; NS] = std::array::from_fn(|j| simd.partial_load_f64s(&xs[j][tail..]));
+        let uv: [S::f64s; NI] = std::array::from_fn(|l| simd.partial_load_f64s(&us[l][tail..]));
+        let mut dacc = simd.splat_f64s(0.0);
+        for g in 0..groups {
+            let acc = group_sums(simd, a, b, g, (&use_x[g], &use_u[g]), &xv, &uv);
+            for (r, acc) in acc.into_iter().enumerate() {
+                let i = G * g + r;
+                if i < NS {
+                    simd.partial_store_f64s(&mut outs[i][tail..], acc);
+                    if let Some(w) = w {
+                        dacc = simd.mul_add_e_f64s(simd.splat_f64s(w[i]), acc, dacc);
+                    }
+                }
             }
         }
-        if let Some(d) = d.as_deref_mut() {
-            d[c] += dacc;
+        if let Some(d) = d {
+            let dt = &mut d[tail..n];
+            let sum = simd.add_f64s(simd.partial_load_f64s(dt), dacc);
+            simd.partial_store_f64s(dt, sum);
         }
     }
 }
@@ -728,25 +738,6 @@ fn group_sums<S: Simd, const NS: usize, const NI: usize>(
     acc
 }
 
-/// One row of `[a b]` at column `c`, in the order of `a`'s columns, then `b`'s.
-#[inline(always)]
-fn row_sum<const NS: usize, const NI: usize>(
-    a: &[f64; NS],
-    b: &[f64; NI],
-    xs: &[&[f64]; NS],
-    us: &[&[f64]; NI],
-    c: usize,
-) -> f64 {
-    let mut acc = a[0] * xs[0][c];
-    for (j, x) in xs.iter().enumerate().skip(1) {
-        acc += a[j] * x[c];
-    }
-    for (l, u) in us.iter().enumerate() {
-        acc += b[l] * u[c];
-    }
-    acc
-}
-
 /// Most rows [`rows_map`] takes (its per-group masks live in fixed arrays).
 pub const ROWS_MAP_MAX: usize = 64;
 
@@ -779,7 +770,7 @@ pub fn rows_map<S: Simd, const NS: usize, const NI: usize>(
     if n == 0 || rows == 0 {
         return;
     }
-    let (xs, us) = columns(x, u, n);
+    let (xs, us) = columns::<NS, NI>(x, u, n);
     let out = &mut out[..rows * n];
     let m = S::as_simd_f64s(xs[0]).0.len();
     let tail = n - S::as_simd_f64s(xs[0]).1.len();
@@ -803,10 +794,19 @@ pub fn rows_map<S: Simd, const NS: usize, const NI: usize>(
             }
         }
     }
-    // The columns after the last whole vector.
-    for c in tail..n {
-        for i in 0..rows {
-            out[i * n + c] = row_sum(&a[i], &b[i], &xs, &us, c);
+    // The columns after the last whole vector: one vector loaded with zeros past `n`, summed
+    // as the others.
+    if tail < n {
+        let xv: [S::f64s; NS] = std::array::from_fn(|j| simd.partial_load_f64s(&xs[j][tail..]));
+        let uv: [S::f64s; NI] = std::array::from_fn(|l| simd.partial_load_f64s(&us[l][tail..]));
+        for g in 0..rows.div_ceil(G) {
+            let acc = group_sums(simd, a, b, g, (&use_x[g], &use_u[g]), &xv, &uv);
+            for (r, acc) in acc.into_iter().enumerate() {
+                let i = G * g + r;
+                if i < rows {
+                    simd.partial_store_f64s(&mut out[i * n + tail..(i + 1) * n], acc);
+                }
+            }
         }
     }
 }

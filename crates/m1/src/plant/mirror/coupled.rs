@@ -12,7 +12,7 @@ use super::tick::{CellOutputs, Step};
 use crate::M1Error;
 use crate::linalg::kernels::padded_len;
 use crate::linalg::pair::LazyPair;
-use crate::linalg::symmetric::SymPacked32;
+use crate::linalg::symmetric::{SymPacked32, balanced_split, padded_order};
 use crate::plant::segment::{
     Channel, Gamma, N_IN, N_STATE, Phi, SegmentArray, SegmentModel, modal_basis, propagate, state,
 };
@@ -27,6 +27,11 @@ pub const SINGLE_COUPLING_MIN_MODES: usize = 150;
 /// Retained modes from which [`CoupledMirror`] splits its large streaming products between two
 /// threads by default ([`CoupledMirror::set_two_threads`]).
 pub const TWO_THREADS_MIN_MODES: usize = 500;
+
+/// Retained modes from which [`CoupledMirror`] streams the Gram matrices by their upper block
+/// triangles ([`CoupledMirror::set_gram_packed`]): TMT at 800 modes 21-27 % faster per step on
+/// one thread, at 600 modes 6 % slower (BENCHMARKS.md, eleventh round).
+pub const PACKED_GRAM_MIN_MODES: usize = 700;
 
 /// Most coupled ticks whose free part [`CoupledMirror`] composes into one map (a chunk): the
 /// default 1 ms TMT step (five ticks) is one chunk; the composed map's rows grow with the
@@ -50,6 +55,24 @@ pub(super) struct FreeChunk {
     pub(super) len: usize,
     pub(super) a: [Vec<[f64; N_STATE]>; 2],
     pub(super) b: [Vec<[f64; 2]>; 2],
+}
+
+/// `m` (r x 2r row-major, the two kinds' r columns side by side) in single precision, each
+/// kind's columns zero-padded to [`padded_len`]`(r)`.
+fn kinds_padded_f32(m: &[f64], r: usize) -> Vec<f32> {
+    let ld = padded_len(r);
+    let mut out = vec![0.0f32; r * 2 * ld];
+    for (row, src) in out.chunks_exact_mut(2 * ld).zip(m.chunks_exact(2 * r)) {
+        for k in 0..2 {
+            for (d, s) in row[k * ld..k * ld + r]
+                .iter_mut()
+                .zip(&src[k * r..(k + 1) * r])
+            {
+                *d = *s as f32;
+            }
+        }
+    }
+    out
 }
 
 /// Every segment on its actuators, coupled without delay to a modal model of the cell.
@@ -110,7 +133,8 @@ pub struct CoupledMirror {
     /// (`wg32`), read instead when [`Self::coupling_single`].
     pub(super) wg: Vec<f64>,
     pub(super) wg32: Vec<f32>,
-    /// `[G_p, G_t]`, r x 2r row-major, in single precision: the modal force of the drive's
+    /// `[G_p, G_t]`, r x 2r row-major, in single precision (as `wg32`: each kind's columns
+    /// zero-padded to `ld32`, so that a row is whole vectors): the modal force of the drive's
     /// jump at a servo sample, and in single precision the whole solve of a sample's tick
     /// (below).
     pub(super) gg32: Vec<f32>,
@@ -121,8 +145,19 @@ pub struct CoupledMirror {
     /// before the jump and the jump) and one over this small correction, instead of a pass
     /// over `G` for the jump and one over `W G`.
     pub(super) corr32: SymPacked32,
+    /// `G_p` and `G_t` by their upper block triangles (half the traffic of `gg32`), read
+    /// instead of `gg32` when present ([`CoupledMirror::set_gram_packed`]); the products'
+    /// results per kind (`G_k psi_k`, `G_k drive_k`) and their column sums' scratch.
+    #[serde(default)]
+    pub(super) gram_packed: Option<Box<[SymPacked32; 2]>>,
+    #[serde(default)]
+    pub(super) gram_y: [[Vec<f64>; 2]; 2],
+    #[serde(default)]
+    pub(super) gram_t: [[Vec<f32>; 2]; 2],
     /// `D = B1^(1/2)` per mode (every first-order-hold gain `b1` is positive).
     pub(super) d_half: Vec<f64>,
+    /// The solve's right-hand sides in single precision, each kind's `r` values zero-padded
+    /// to `ld32` (the columns of `gg32` and `wg32`).
     pub(super) psi32: Vec<f32>,
     pub(super) drive32: Vec<f32>,
     /// Whether the coupled solve's products stream the single-precision copies.
@@ -146,6 +181,12 @@ pub struct CoupledMirror {
     pub(super) win32: Vec<f32>,
     pub(super) corr: Vec<f64>,
     pub(super) corr_t: Vec<f32>,
+    #[serde(default)]
+    pub(super) corr_t2: Vec<f32>,
+    /// The block row at which the correction's product is cut in two parts (which two
+    /// threads may run at once), from [`TWO_THREADS_MIN_MODES`] modes; 0: one part.
+    #[serde(default)]
+    pub(super) corr_split: usize,
     /// Feedthrough of the drive into the cell force.
     pub(super) drive_d: f64,
     /// The pier displacement held over the last tick.
@@ -295,12 +336,17 @@ impl CoupledMirror {
             f64::from(u8::from(i == j)) + k_sym[(i, j)] * d_half[j] / d_half[i]
         });
         let corr32 = SymPacked32::from_fn(r, |i, j| k_sym[(i, j)]);
+        let corr_split = if r >= TWO_THREADS_MIN_MODES {
+            balanced_split(&corr32)
+        } else {
+            0
+        };
         let mut gg = DMatrix::<f64>::zeros(r, 2 * r);
         gg.columns_mut(0, r).copy_from(&gram[0]);
         gg.columns_mut(r, r).copy_from(&gram[1]);
         let wg = row_major(&(&w_inv * &gg));
         let gg = row_major(&gg);
-        Ok(Self {
+        let mut mirror = Self {
             n_segments,
             ts,
             substeps,
@@ -326,23 +372,28 @@ impl CoupledMirror {
             w32: [vec![0.0f32; 2 * n], vec![0.0f32; 4 * n]],
             acc32: [vec![0.0f32; padded_len(r)], vec![0.0f32; padded_len(r)]],
             cols32: vec![0.0f32; 4 * padded_len(r)],
-            wg32: wg.iter().map(|&x| x as f32).collect(),
+            wg32: kinds_padded_f32(&wg, r),
             wg,
-            gg32: gg.iter().map(|&x| x as f32).collect(),
+            gg32: kinds_padded_f32(&gg, r),
             corr32,
             d_half,
-            psi32: vec![0.0f32; 2 * r],
-            drive32: vec![0.0f32; 2 * r],
+            psi32: vec![0.0f32; 2 * padded_len(r)],
+            drive32: vec![0.0f32; 2 * padded_len(r)],
             coupling_single: r >= SINGLE_COUPLING_MIN_MODES,
             two_threads: r >= TWO_THREADS_MIN_MODES,
             pair: LazyPair::default(),
+            gram_packed: None,
+            gram_y: Default::default(),
+            gram_t: Default::default(),
             alpha,
             beta,
             gpsi: vec![0.0; r],
             gjump: vec![0.0; r],
             win32: vec![0.0f32; padded_len(r)],
             corr: vec![0.0; r],
-            corr_t: vec![0.0f32; padded_len(r)],
+            corr_t: vec![0.0f32; padded_order(r)],
+            corr_t2: vec![0.0f32; padded_order(r)],
+            corr_split,
             drive_d,
             pier: 0.0,
             proj: [vec![0.0; r * N_STATE], vec![0.0; r * N_STATE]],
@@ -369,7 +420,9 @@ impl CoupledMirror {
             out: vec![0.0; 3 * na],
             cols: vec![0.0; r],
             free_force: vec![0.0; na],
-        })
+        };
+        mirror.set_gram_packed(r >= PACKED_GRAM_MIN_MODES);
+        Ok(mirror)
     }
 
     /// Streams the coupled solve's matrices in single precision (`true`, the default from
@@ -383,19 +436,50 @@ impl CoupledMirror {
         self.coupling_single = single;
     }
 
-    /// Splits the step's large streaming products (the coupled solve's pass over the Gram
-    /// matrices or `W G` at every tick, the shapes' pass back to the actuators) between this
-    /// thread and a helper thread (`true`), or keeps them on the calling thread (`false`).
-    /// Every row of a split product is summed as on one thread, so the results are the same
-    /// to the bit. The default is `true` from [`TWO_THREADS_MIN_MODES`] modes, where the
-    /// products are bound by one core's share of the cache bandwidth; the helper polls for
-    /// work for 0.3 ms after each product and sleeps after that
-    /// ([`crate::linalg::pair`]).
+    /// Splits the step's large parts (the coupled solve's passes over the Gram matrices or
+    /// `W G` and over the correction `W - I`, the channels' maps on the modes and the free
+    /// part by kind, the shapes' pass back to the actuators) between this thread and a helper
+    /// thread (`true`), or keeps them on the calling thread (`false`). Every value is summed as
+    /// on one thread, so the results are the same to the bit. The default is `true` from
+    /// [`TWO_THREADS_MIN_MODES`] modes, where the products are bound by one core's share of the
+    /// cache bandwidth; the helper polls for work for 0.3 ms after each part and sleeps after
+    /// that ([`crate::linalg::pair`]).
     pub fn set_two_threads(&mut self, two: bool) {
         self.two_threads = two;
         if !two {
             self.pair.stop();
         }
+    }
+
+    /// Streams the Gram matrices `G_p`, `G_t` of a servo sample's tick by their upper block
+    /// triangles (`true`, the default from [`PACKED_GRAM_MIN_MODES`] modes) or whole
+    /// (`false`). Stored so, each entry read serves its row's and its column's products: half
+    /// the traffic, the same multiply-adds; the results agree to single-precision rounding.
+    /// Only the single-precision one-pass solve reads them ([`Self::set_coupling_single`]).
+    pub fn set_gram_packed(&mut self, packed: bool) {
+        let r = self.r;
+        if packed && self.gram_packed.is_none() {
+            let (gg, ld) = (&self.gg32, self.ld32);
+            let kind =
+                |k: usize| SymPacked32::from_fn(r, |i, j| f64::from(gg[i * 2 * ld + k * ld + j]));
+            self.gram_packed = Some(Box::new([kind(0), kind(1)]));
+            self.gram_y = std::array::from_fn(|_| std::array::from_fn(|_| vec![0.0; r]));
+            let n = padded_order(r);
+            self.gram_t = std::array::from_fn(|_| std::array::from_fn(|_| vec![0.0f32; n]));
+        } else if !packed {
+            self.gram_packed = None;
+        }
+    }
+
+    /// Whether the Gram matrices are streamed by their upper block triangles.
+    pub fn gram_packed(&self) -> bool {
+        self.gram_packed.is_some()
+    }
+
+    /// Whether a step takes any of the large models' forms (two threads, the Gram matrices by
+    /// half, the correction in two parts).
+    pub(super) fn large_forms(&self) -> bool {
+        self.two_threads || self.gram_packed.is_some() || self.corr_split > 0
     }
 
     /// Whether the large products are split between two threads.

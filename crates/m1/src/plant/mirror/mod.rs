@@ -90,15 +90,29 @@
 //! against double precision ([`CoupledMirror::set_coupling_single`]) the mirror's response
 //! moves by about 2e-9 of its largest value (TMT, 300 modes).
 //!
-//! **Two threads from 500 modes.** The tick's pass over the Gram matrices (or `W G`) and the
-//! shapes' pass back to the actuators are split by rows between the calling thread and a
-//! helper thread ([`crate::linalg::pair`], [`CoupledMirror::set_two_threads`], default from
-//! [`TWO_THREADS_MIN_MODES`]): each row is summed as on one thread, so the outputs are the same
-//! to the bit (tested). Measured in the TMT wind system (`m1cs run --solver-threads 1|2`): 1000
-//! modes 0.55-0.64x -> 0.90-1.03x real time, 600 modes 2.14-2.16x -> 2.51-2.57x, and at 300
-//! modes a loss (5.51-5.55x -> 5.11-5.36x: the products fit the caches there, and the joins
-//! and the master's second thread on the same core cost more than the split saves).
-//! BENCHMARKS.md, tenth round.
+//! **The Gram matrices by half from 700 modes.** Each of $G_p$, $G_t$ is symmetric, so from
+//! [`PACKED_GRAM_MIN_MODES`] modes a sample's tick streams them by their upper block triangles
+//! too ([`CoupledMirror::set_gram_packed`]): the same multiply-adds, half the traffic (4 MB
+//! instead of 8 MB per sample at 1000 modes, where the pass is bound by the caches'
+//! bandwidth; below, where the matrices fit the caches, the pass is bound by its arithmetic
+//! and the packed form's extra loads make it slower: 600 modes 6 % on one thread).
+//! BENCHMARKS.md, eleventh round.
+//!
+//! **Two threads from 500 modes.** The tick's pass over the Gram matrices (or `W G`; by kind
+//! when they are stored by half), the correction `W - I` (in two parts of block rows with
+//! about the same stored entries, each with its own column sums), the channels' maps on the
+//! modes and the free part (by kind), and the shapes' pass back to the actuators are split
+//! between the calling thread and a helper thread ([`crate::linalg::pair`],
+//! [`CoupledMirror::set_two_threads`], default from [`TWO_THREADS_MIN_MODES`]). Every value is
+//! summed as on one thread (from 500 modes the correction is taken in the same two parts on one
+//! thread), so the outputs are the same to the bit (tested). The step of a model without any of
+//! these large models' forms is compiled without their code (a separate instance of the step),
+//! which keeps the one-thread step of the default models as fast as before. Measured in the TMT
+//! wind system (`m1cs run --solver-threads 1|2`, tenth round): 1000 modes 0.55-0.64x ->
+//! 0.90-1.03x real time, 600 modes 2.14-2.16x -> 2.51-2.57x, and at 300 modes a loss
+//! (5.51-5.55x -> 5.11-5.36x: the products fit the caches there, and the joins and the master's
+//! second thread on the same core cost more than the split saves); with the eleventh round's
+//! forms and AVX-512, 1000 modes 1.1-1.55x (BENCHMARKS.md).
 //!
 //! **No static correction.** The structure is its `n_modes` lowest modes. The static correction
 //! of the truncated modes (an instantaneous, dense compliance) cannot lag a tick: against the
@@ -123,5 +137,7 @@ mod projection;
 mod tests;
 mod tick;
 
-pub use coupled::{CoupledMirror, SINGLE_COUPLING_MIN_MODES, TWO_THREADS_MIN_MODES};
+pub use coupled::{
+    CoupledMirror, PACKED_GRAM_MIN_MODES, SINGLE_COUPLING_MIN_MODES, TWO_THREADS_MIN_MODES,
+};
 pub use maps::foh_mode;

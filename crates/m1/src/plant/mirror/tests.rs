@@ -253,8 +253,9 @@ fn substeps_give_the_same_results_for_any_chunk_of_ticks() {
 
 /// The coupled solve's matrix streamed in single precision changes the mirror's response to
 /// wind, a command and a pier input by less than 1e-6 of its largest value over 400 ms, and
-/// the cell's force likewise: TMT with 300 modes and the voice coil (the case it is the
-/// default for), and Keck's piezo at 60 modes with two coupled sub-steps per servo period.
+/// the cell's force likewise, with the Gram matrices whole and by half: TMT with 300 modes and
+/// the voice coil (the case it is the default for), and Keck's piezo at 60 modes with two
+/// coupled sub-steps per servo period.
 #[test]
 fn coupling_precision_single_matches_double() {
     let tmt = Layout::tmt();
@@ -283,39 +284,59 @@ fn coupling_precision_single_matches_double() {
             m.set_coupling_single(single);
             m
         };
-        let (mut a, mut b) = (build(false), build(true));
-        assert!(!a.coupling_single() && b.coupling_single());
+        // Double precision; single precision with the Gram matrices whole and by half.
+        let (mut a, mut b, mut c) = (build(false), build(true), build(true));
+        b.set_gram_packed(false);
+        c.set_gram_packed(true);
+        assert!(!a.coupling_single() && b.coupling_single() && c.gram_packed());
         let na = a.n_actuators();
         let fw = wind(na);
-        let (mut worst_z, mut worst_f, mut max_z, mut max_f) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+        // Per single-precision form: the worst difference from double precision in z and in
+        // the cell force; the largest z and force.
+        let mut worst = [[0.0f64; 2]; 2];
+        let (mut max_z, mut max_f) = (0.0f64, 0.0f64);
         for k in 0..400 {
             let s = (k as f64 * 0.05).sin();
             let u: Vec<f64> = (0..na).map(|i| 1e-8 * s * ((i % 5) as f64 - 2.0)).collect();
             let f: Vec<f64> = fw.iter().map(|x| x * (1.0 + 0.3 * s)).collect();
-            for m in [&mut a, &mut b] {
+            for m in [&mut a, &mut b, &mut c] {
                 m.advance(1e-3, &u, &f, 1e-9 * s).expect("step");
             }
-            let (mut za, mut zb) = (vec![0.0; na], vec![0.0; na]);
+            let mut za = vec![0.0; na];
             a.mirror(&mut za);
-            b.mirror(&mut zb);
-            for (x, y) in za.iter().zip(&zb) {
-                worst_z = worst_z.max((x - y).abs());
-                max_z = max_z.max(x.abs());
-            }
-            for (x, y) in a.cell_force().iter().zip(b.cell_force()) {
-                worst_f = worst_f.max((x - y).abs());
-                max_f = max_f.max(x.abs());
+            let fa = a.cell_force().to_vec();
+            max_z = za.iter().fold(max_z, |m, x| m.max(x.abs()));
+            max_f = fa.iter().fold(max_f, |m, x| m.max(x.abs()));
+            for (w, m) in worst.iter_mut().zip([&mut b, &mut c]) {
+                let mut z = vec![0.0; na];
+                m.mirror(&mut z);
+                for (x, y) in za.iter().zip(&z) {
+                    w[0] = w[0].max((x - y).abs());
+                }
+                for (x, y) in fa.iter().zip(m.cell_force()) {
+                    w[1] = w[1].max((x - y).abs());
+                }
             }
         }
         assert!(max_z > 0.0 && max_f > 0.0);
-        eprintln!(
-            "{} {modes} modes: single against double: z {:.2e}, force {:.2e} (of the largest)",
-            layout.name,
-            worst_z / max_z,
-            worst_f / max_f
-        );
-        assert!(worst_z <= 1e-6 * max_z, "z: {worst_z:e} of {max_z:e}");
-        assert!(worst_f <= 1e-6 * max_f, "force: {worst_f:e} of {max_f:e}");
+        for (w, form) in worst
+            .iter()
+            .zip(["Gram matrices whole", "Gram matrices by half"])
+        {
+            eprintln!(
+                "{} {modes} modes: single ({form}) against double: z {:.2e}, force {:.2e} \
+                 (of the largest)",
+                layout.name,
+                w[0] / max_z,
+                w[1] / max_f
+            );
+            assert!(w[0] <= 1e-6 * max_z, "{form}, z: {:e} of {max_z:e}", w[0]);
+            assert!(
+                w[1] <= 1e-6 * max_f,
+                "{form}, force: {:e} of {max_f:e}",
+                w[1]
+            );
+        }
     }
 }
 
@@ -411,16 +432,19 @@ fn held_inputs_keep_their_projection() {
 
 /// The large products split between two threads give the same mirror and cell outputs to the
 /// bit as on one thread, at every tick kind: TMT's voice coil at 300 modes (a servo sample per
-/// tick), Keck's piezo at 60 modes with two sub-steps per servo period (ticks between samples
-/// too), both with the coupled solve in single precision (the split products); and a clone
+/// tick) with the Gram matrices whole and by half, at 520 modes (the correction in two parts
+/// too), Keck's piezo at 60 modes with two sub-steps per servo period (ticks between samples
+/// too), all with the coupled solve in single precision (the split products); and a clone
 /// taken during the run (with its own helper thread) goes on with the same values.
 #[test]
 fn two_threads_give_the_same_values_to_the_bit() {
     let tmt = Layout::tmt();
     let keck = Layout::keck();
-    for (layout, model, modes, substeps) in [
-        (&tmt, SegmentModel::voice_coil(), 300, 1),
-        (&keck, SegmentModel::piezo(), 60, 2),
+    for (layout, model, modes, substeps, packed) in [
+        (&tmt, SegmentModel::voice_coil(), 300, 1, false),
+        (&tmt, SegmentModel::voice_coil(), 300, 1, true),
+        (&tmt, SegmentModel::voice_coil(), 520, 1, true),
+        (&keck, SegmentModel::piezo(), 60, 2, true),
     ] {
         let cell = CellModel::new(layout, &CellParams::default())
             .expect("cell")
@@ -437,8 +461,12 @@ fn two_threads_give_the_same_values_to_the_bit() {
         .expect("mirror");
         // The default follows the retained modes.
         assert_eq!(one.two_threads(), modes >= TWO_THREADS_MIN_MODES);
+        assert_eq!(one.gram_packed(), modes >= PACKED_GRAM_MIN_MODES);
+        // From TWO_THREADS_MIN_MODES the correction's product is in two parts.
+        assert_eq!(one.corr_split > 0, modes >= TWO_THREADS_MIN_MODES);
         one.set_coupling_single(true);
         one.set_two_threads(false);
+        one.set_gram_packed(packed);
         let mut two = one.clone();
         two.set_two_threads(true);
         assert!(two.two_threads() && !one.two_threads());

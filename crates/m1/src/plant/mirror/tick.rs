@@ -9,15 +9,22 @@ use pulp::WithSimd;
 use super::projection::Reconstruct;
 use crate::linalg::kernels::{axpy, rows_dot, rows_dot_f32, rows_dot2_f32, rows_map, state_map};
 use crate::linalg::pair::{LazyPair, Pair};
-use crate::linalg::symmetric::sym_dot_f32;
-use crate::plant::segment::{N_STATE, state};
+use crate::linalg::symmetric::{BLOCK, SymPacked32, add_columns, sym_dot_f32, sym_dot_rows_f32};
+use crate::plant::segment::{Gamma, N_STATE, Phi, state};
+use nalgebra::{SMatrix, SVector};
 
 impl CoupledMirror {
     /// One coupled tick, entirely on the modes: the segments' response to the cell motion is
     /// carried per mode (identical segments: the channel dynamics commute with the mode shapes).
     /// Modal arrays are state-major (`[s * r + j]`), so every update is a run of axpys.
     #[inline(always)]
-    fn tick<S: pulp::Simd>(&mut self, simd: S, pier_z: f64, sample: bool, at: (usize, usize)) {
+    fn tick<S: pulp::Simd, const LARGE: bool>(
+        &mut self,
+        simd: S,
+        pier_z: f64,
+        sample: bool,
+        at: (usize, usize),
+    ) {
         let r = self.r;
         const S: usize = N_STATE;
         // The free part's modal force and drive change over this tick, from the chunk's
@@ -36,9 +43,7 @@ impl CoupledMirror {
             *h = f0 + f1;
             *j = if sample { d0 + d1 } else { 0.0 };
         }
-        for k in 0..2 {
-            self.tick_channels(simd, k, sample);
-        }
+        self.tick_channels::<S, LARGE>(simd, sample);
         // The drive jumps at the sample and is held over the tick: the modal force starts the
         // tick at the end value of the last one plus that jump, then ramps (the continuous
         // part of the cell force is what varies within the tick). The free part's jump is on
@@ -46,18 +51,17 @@ impl CoupledMirror {
         // In single precision a sample's tick takes g from the solve's own pass over the Gram
         // matrices (`split`, below) and adds it after the solve; otherwise it comes first.
         let split = sample && self.coupling_single;
+        let ld = self.ld32;
         if sample {
-            for (d, s) in self.drive32.iter_mut().zip(&self.drive_step) {
-                *d = *s as f32;
-            }
+            kinds_to_f32(&mut self.drive32, &self.drive_step, r, ld);
         }
         if sample && !split {
             rows_dot_f32::<S>(
                 simd,
                 &self.gg32,
-                2 * r,
+                2 * ld,
                 r,
-                2 * r,
+                2 * ld,
                 &self.drive32,
                 &mut self.jump,
             );
@@ -96,20 +100,53 @@ impl CoupledMirror {
             // u+ = h' + y + (W - I) (y + beta g). One pass over [G_p, G_t] gives y and g
             // together, one over the small correction W - I (stored by half) gives u+ (the
             // traffic of 1.25 r x 2r passes instead of 2).
-            for (d, s) in self.psi32.iter_mut().zip(&self.psi) {
-                *d = *s as f32;
+            kinds_to_f32(&mut self.psi32, &self.psi, r, ld);
+            if let Some(gs) = self.gram_packed.as_deref().filter(|_| LARGE) {
+                // By kind, each with its own results and column sums (on one thread in the
+                // same order as on two, so the same bits), then summed.
+                let n = gs[0].padded_order();
+                let (ps, dr) = (&self.psi32, &self.drive32);
+                let [[y0, y1], [y2, y3]] = &mut self.gram_y;
+                let [[t0, t1], [t2, t3]] = &mut self.gram_t;
+                let piston = GramKind {
+                    a: &gs[0],
+                    x: [&ps[..n], &dr[..n]],
+                    y: [y0, y1],
+                    t: [t0, t1],
+                };
+                let tilt = GramKind {
+                    a: &gs[1],
+                    x: [&ps[ld..ld + n], &dr[ld..ld + n]],
+                    y: [y2, y3],
+                    t: [t2, t3],
+                };
+                match pair::<LARGE>(&mut self.pair, self.two_threads) {
+                    Some(p) => p.join(|| simd.vectorize(piston), move || simd.vectorize(tilt)),
+                    None => {
+                        piston.with_simd(simd);
+                        tilt.with_simd(simd);
+                    }
+                }
+                let [[y0, y1], [y2, y3]] = &self.gram_y;
+                let (gpsi, gjump) = (&mut self.gpsi[..r], &mut self.gjump[..r]);
+                let (y0, y1, y2, y3) = (&y0[..r], &y1[..r], &y2[..r], &y3[..r]);
+                for j in 0..r {
+                    gpsi[j] = y0[j] + y2[j];
+                    gjump[j] = y1[j] + y3[j];
+                }
+            } else {
+                self.gpsi.fill(0.0);
+                self.gjump.fill(0.0);
+                RowsDot {
+                    a: &self.gg32,
+                    lda: 2 * ld,
+                    m: r,
+                    k: 2 * ld,
+                    x: [&self.psi32, &self.drive32],
+                    y: [&mut self.gpsi, &mut self.gjump],
+                }
+                .split(simd, pair::<LARGE>(&mut self.pair, self.two_threads));
             }
-            self.gpsi.fill(0.0);
-            self.gjump.fill(0.0);
-            RowsDot {
-                a: &self.gg32,
-                lda: 2 * r,
-                m: r,
-                k: 2 * r,
-                x: [&self.psi32, &self.drive32],
-                y: [&mut self.gpsi, &mut self.gjump],
-            }
-            .split(simd, pair(&mut self.pair, self.two_threads));
             // W - I = D^-1 K D, K symmetric (stored by its upper block triangle). The per-mode
             // loops run over slices cut to r, so that they vectorise.
             let (gpsi, gjump, d_half) = (&self.gpsi[..r], &self.gjump[..r], &self.d_half[..r]);
@@ -122,14 +159,41 @@ impl CoupledMirror {
                     u_new[j] += gpsi[j];
                 }
             }
+            // From [`TWO_THREADS_MIN_MODES`] in two parts of block rows with about the same
+            // stored entries, each with its own column sums (on one thread the same two parts,
+            // so the same bits); below, whole.
             self.corr.fill(0.0);
-            sym_dot_f32::<S>(
-                simd,
-                &self.corr32,
-                &self.win32,
-                &mut self.corr,
-                &mut self.corr_t,
-            );
+            let (a, s) = (&self.corr32, self.corr_split);
+            if !LARGE || s == 0 {
+                sym_dot_f32::<S, 1>(simd, a, [&self.win32], [&mut self.corr], [&mut self.corr_t]);
+            } else {
+                let cut = (BLOCK * s).min(r);
+                let (y0, y1) = self.corr[..r].split_at_mut(cut);
+                let x = [&self.win32[..]];
+                let lo = SymRows {
+                    a,
+                    x,
+                    y: [y0],
+                    t: [&mut self.corr_t],
+                    blocks: 0..s,
+                };
+                let hi = SymRows {
+                    a,
+                    x,
+                    y: [y1],
+                    t: [&mut self.corr_t2],
+                    blocks: s..a.padded_order() / BLOCK,
+                };
+                match pair::<LARGE>(&mut self.pair, self.two_threads) {
+                    Some(p) => p.join(|| simd.vectorize(lo), move || simd.vectorize(hi)),
+                    None => {
+                        lo.with_simd(simd);
+                        hi.with_simd(simd);
+                    }
+                }
+                add_columns(&mut self.corr[..r], &self.corr_t, 0);
+                add_columns(&mut self.corr[..r], &self.corr_t2, cut);
+            }
             let (corr, u_new) = (&self.corr[..r], &mut self.u_new[..r]);
             for j in 0..r {
                 u_new[j] += corr[j] / d_half[j];
@@ -142,18 +206,16 @@ impl CoupledMirror {
                 cols[j] += alpha[j] * gjump[j];
             }
         } else if self.coupling_single {
-            for (d, s) in self.psi32.iter_mut().zip(&self.psi) {
-                *d = *s as f32;
-            }
+            kinds_to_f32(&mut self.psi32, &self.psi, r, ld);
             RowsDot {
                 a: &self.wg32,
-                lda: 2 * r,
+                lda: 2 * ld,
                 m: r,
-                k: 2 * r,
+                k: 2 * ld,
                 x: [&self.psi32],
                 y: [&mut self.u_new],
             }
-            .split(simd, pair(&mut self.pair, self.two_threads));
+            .split(simd, pair::<LARGE>(&mut self.pair, self.two_threads));
         } else {
             rows_dot::<S, 1>(
                 simd,
@@ -195,64 +257,61 @@ impl CoupledMirror {
     /// states and held inputs, giving each tick's modal force and drive change and the states at
     /// the chunk's end (the same values as stepping the per-tick maps, to rounding).
     #[inline(always)]
-    pub(super) fn free_ticks<S: pulp::Simd>(&mut self, simd: S, chunk: usize) {
+    pub(super) fn free_ticks<S: pulp::Simd, const LARGE: bool>(&mut self, simd: S, chunk: usize) {
         let r = self.r;
         let c = &self.free_chunks[chunk];
-        for k in 0..2 {
-            let wp = &self.w_proj[k];
-            rows_map::<S, N_STATE, 2>(
-                simd,
-                &c.a[k],
-                &c.b[k],
-                &self.proj[k],
-                [&wp[..r], &wp[2 * r..3 * r]],
-                r,
-                &mut self.free_out[k],
-            );
-            self.proj[k].copy_from_slice(&self.free_out[k][..N_STATE * r]);
+        let [pp, pt] = &mut self.proj;
+        let [op, ot] = &mut self.free_out;
+        let kind = |k: usize, proj, out| FreeKind {
+            a: &c.a[k],
+            b: &c.b[k],
+            w: &self.w_proj[k],
+            r,
+            proj,
+            out,
+        };
+        let piston = kind(0, pp, op);
+        let tilt = kind(1, pt, ot);
+        match pair::<LARGE>(&mut self.pair, self.two_threads) {
+            Some(p) => p.join(|| simd.vectorize(piston), move || simd.vectorize(tilt)),
+            None => {
+                piston.with_simd(simd);
+                tilt.with_simd(simd);
+            }
         }
     }
 
-    /// The cell-driven channels of kind `k` (0 piston, 1 tilt) over one tick of
+    /// The cell-driven channels of both kinds (0 piston, 1 tilt) over one tick of
     /// [`Self::tick`], on the modes, without this tick's ramp, with their terms of the
     /// coupled solve's right-hand side (`psi`) and, at a servo sample (`sample`), the drive's
     /// change (`drive_step`): one pass of [`state_map`] over the modes (the same
     /// `N_STATE x N_STATE` map for every mode).
     #[inline(always)]
-    fn tick_channels<S: pulp::Simd>(&mut self, simd: S, k: usize, sample: bool) {
+    fn tick_channels<S: pulp::Simd, const LARGE: bool>(&mut self, simd: S, sample: bool) {
         let r = self.r;
-        let dr = state::DRIVE;
         let set = usize::from(!sample);
-        let (p, g, ramp, c) = (
-            &self.tick[set][k],
-            &self.tick_in[set][k],
-            &self.ramp[k],
-            &self.cell_c[k],
-        );
-        let pa: [[f64; N_STATE]; N_STATE] =
-            std::array::from_fn(|i| std::array::from_fn(|s| p[(i, s)]));
-        let ca: [f64; N_STATE] = std::array::from_fn(|i| c[i]);
-        // Cell-driven part without this tick's ramp: Y_i = sum_s p_is xi_s + (g_i1 - ramp_i) q;
-        // psi~_k = Y c^T.
-        let gc: [[f64; 1]; N_STATE] = std::array::from_fn(|i| [g[(i, 1)] - ramp[i]]);
-        let psi = &mut self.psi[k * r..(k + 1) * r];
-        psi.fill(0.0);
-        state_map::<S, N_STATE, 1>(
-            simd,
-            &pa,
-            &gc,
-            &self.xi[k],
-            [&self.q],
-            r,
-            &mut self.scratch[k],
-            Some((&ca, psi)),
-        );
-        // The cell-driven part's drive change (the ramp does not reach the drive).
-        if sample {
-            let (new, old) = (&self.scratch[k][dr * r..], &self.xi[k][dr * r..]);
-            let out = &mut self.drive_step[k * r..(k + 1) * r];
-            for j in 0..r {
-                out[j] = new[j] - old[j];
+        let (psi_p, psi_t) = self.psi.split_at_mut(r);
+        let (step_p, step_t) = self.drive_step.split_at_mut(r);
+        let [xi_p, xi_t] = &self.xi;
+        let [sc_p, sc_t] = &mut self.scratch;
+        let kind = |k: usize, xi, scratch, psi, drive_step| ChannelKind {
+            p: &self.tick[set][k],
+            g: &self.tick_in[set][k],
+            ramp: &self.ramp[k],
+            c: &self.cell_c[k],
+            q: &self.q,
+            xi,
+            scratch,
+            psi,
+            drive_step: sample.then_some(drive_step),
+        };
+        let piston = kind(0, xi_p, sc_p, psi_p, step_p);
+        let tilt = kind(1, xi_t, sc_t, psi_t, step_t);
+        match pair::<LARGE>(&mut self.pair, self.two_threads) {
+            Some(p) => p.join(|| simd.vectorize(piston), move || simd.vectorize(tilt)),
+            None => {
+                piston.with_simd(simd);
+                tilt.with_simd(simd);
             }
         }
     }
@@ -261,7 +320,7 @@ impl CoupledMirror {
     /// part, per kind: one single-column pass over the mode shapes. The cell's displacement and
     /// force are left to [`Self::update_cell_outputs`] (computed when read).
     #[inline(always)]
-    pub(super) fn write_outputs<S: pulp::Simd>(&mut self, simd: S) {
+    pub(super) fn write_outputs<S: pulp::Simd, const LARGE: bool>(&mut self, simd: S) {
         let (r, n, na, ld) = (self.r, self.n_segments, self.na, self.ld32);
         let mp = state::MIRROR_POS;
         for k in 0..2 {
@@ -272,7 +331,7 @@ impl CoupledMirror {
         }
         let mut outs = std::mem::take(&mut self.out);
         let (phic, cols) = (&self.phic32[..], &self.cols32[..2 * ld]);
-        match pair(&mut self.pair, self.two_threads) {
+        match pair::<LARGE>(&mut self.pair, self.two_threads) {
             Some(p) => {
                 let h = split_rows(na);
                 let (lo, hi) = outs[..na].split_at_mut(h);
@@ -429,26 +488,166 @@ impl pulp::WithSimd for Step<'_> {
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, simd: S) {
-        let m = self.mirror;
+        // The large models' forms (two threads, the Gram matrices by half, the correction in
+        // two parts) in a function of their own: the step of a model without them compiles
+        // without their code.
+        if self.mirror.large_forms() {
+            simd.vectorize(StepAs::<true>(self));
+        } else {
+            simd.vectorize(StepAs::<false>(self));
+        }
+    }
+}
+
+/// The free part of one kind's channels over a chunk of ticks ([`CoupledMirror::free_ticks`]):
+/// the chunk's composed map (`a`, `b`) from the projected free states `proj` and held inputs
+/// `w` into `out`, whose first rows (the states at the chunk's end) become `proj`.
+struct FreeKind<'a> {
+    a: &'a [[f64; N_STATE]],
+    b: &'a [[f64; 2]],
+    w: &'a [f64],
+    r: usize,
+    proj: &'a mut [f64],
+    out: &'a mut [f64],
+}
+
+impl pulp::WithSimd for FreeKind<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
+        let (r, w) = (self.r, self.w);
+        rows_map::<S, N_STATE, 2>(
+            simd,
+            self.a,
+            self.b,
+            self.proj,
+            [&w[..r], &w[2 * r..3 * r]],
+            r,
+            self.out,
+        );
+        self.proj.copy_from_slice(&self.out[..N_STATE * r]);
+    }
+}
+
+/// The cell-driven channels of one kind over a tick ([`CoupledMirror::tick_channels`]), from
+/// the tick's maps (`p`, `g`), the ramp's response, the cell force's row `c`, the modes `q` and
+/// the states `xi`: the states without the ramp into `scratch`, the kind's part of the solve's
+/// right-hand side into `psi` and, at a servo sample, the drive's change into `drive_step`.
+struct ChannelKind<'a> {
+    p: &'a Phi,
+    g: &'a Gamma,
+    ramp: &'a SVector<f64, N_STATE>,
+    c: &'a SMatrix<f64, 1, N_STATE>,
+    q: &'a [f64],
+    xi: &'a [f64],
+    scratch: &'a mut [f64],
+    psi: &'a mut [f64],
+    drive_step: Option<&'a mut [f64]>,
+}
+
+impl pulp::WithSimd for ChannelKind<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
+        let r = self.psi.len();
+        let (p, g, ramp, c) = (self.p, self.g, self.ramp, self.c);
+        let pa: [[f64; N_STATE]; N_STATE] =
+            std::array::from_fn(|i| std::array::from_fn(|s| p[(i, s)]));
+        let ca: [f64; N_STATE] = std::array::from_fn(|i| c[i]);
+        // Cell-driven part without this tick's ramp: Y_i = sum_s p_is xi_s + (g_i1 - ramp_i) q;
+        // psi~_k = Y c^T.
+        let gc: [[f64; 1]; N_STATE] = std::array::from_fn(|i| [g[(i, 1)] - ramp[i]]);
+        self.psi.fill(0.0);
+        state_map::<S, N_STATE, 1>(
+            simd,
+            &pa,
+            &gc,
+            self.xi,
+            [self.q],
+            r,
+            self.scratch,
+            Some((&ca, self.psi)),
+        );
+        // The cell-driven part's drive change (the ramp does not reach the drive).
+        if let Some(out) = self.drive_step {
+            let dr = state::DRIVE;
+            let (new, old) = (&self.scratch[dr * r..], &self.xi[dr * r..]);
+            for j in 0..r {
+                out[j] = new[j] - old[j];
+            }
+        }
+    }
+}
+
+/// One tick ([`CoupledMirror::tick`]) as a function of its own.
+struct Tick<'a, const LARGE: bool> {
+    mirror: &'a mut CoupledMirror,
+    pier_z: f64,
+    sample: bool,
+    at: (usize, usize),
+}
+
+impl<const LARGE: bool> pulp::WithSimd for Tick<'_, LARGE> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
+        self.mirror
+            .tick::<S, LARGE>(simd, self.pier_z, self.sample, self.at);
+    }
+}
+
+/// [`Step`] with or without the large models' forms.
+struct StepAs<'a, const LARGE: bool>(Step<'a>);
+
+impl<const LARGE: bool> pulp::WithSimd for StepAs<'_, LARGE> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
+        let Step {
+            mirror: m,
+            ticks,
+            pier_z,
+        } = self.0;
         m.project_inputs(simd);
         // The ticks in chunks of at most FREE_CHUNK_TICKS, each with its free part composed.
         let sub = m.substeps as usize;
         let mut t = 0;
-        for (phase, len) in m.chunks(self.ticks as usize * sub) {
+        for (phase, len) in m.chunks(ticks as usize * sub) {
             let chunk = m.free_chunk(phase, len);
-            m.free_ticks(simd, chunk);
+            m.free_ticks::<S, LARGE>(simd, chunk);
             for i in 0..len {
-                m.tick(simd, self.pier_z, (t + i).is_multiple_of(sub), (i, len));
+                simd.vectorize(Tick::<LARGE> {
+                    mirror: &mut *m,
+                    pier_z,
+                    sample: (t + i).is_multiple_of(sub),
+                    at: (i, len),
+                });
             }
             t += len;
         }
-        m.write_outputs(simd);
+        m.write_outputs::<S, LARGE>(simd);
     }
 }
 
-/// The helper pair when a model splits its products (started on first use).
-fn pair(lazy: &mut LazyPair, two: bool) -> Option<&mut Pair> {
-    if two { lazy.get() } else { None }
+/// `dst` (two kinds of `ld` entries) from `src` (two kinds of `r`) in single precision; the
+/// padding past each kind's `r` stays as it is (zero).
+#[inline(always)]
+fn kinds_to_f32(dst: &mut [f32], src: &[f64], r: usize, ld: usize) {
+    for (d, s) in dst.chunks_exact_mut(ld).zip(src.chunks_exact(r)) {
+        for (d, s) in d.iter_mut().zip(s) {
+            *d = *s as f32;
+        }
+    }
+}
+
+/// The helper pair when a model splits its products (started on first use; never in the
+/// instance without the large models' forms).
+fn pair<const LARGE: bool>(lazy: &mut LazyPair, two: bool) -> Option<&mut Pair> {
+    if LARGE && two { lazy.get() } else { None }
 }
 
 /// Where a product of `m` rows is split between the two threads: half, rounded down to whole
@@ -456,6 +655,46 @@ fn pair(lazy: &mut LazyPair, two: bool) -> Option<&mut Pair> {
 /// kernels' four-row groups as they are on one thread).
 fn split_rows(m: usize) -> usize {
     (m / 2) & !3
+}
+
+/// `y = G_k [psi_k, drive_k]` for one kind's Gram matrix stored by its upper block triangle
+/// ([`sym_dot_f32`]), as a SIMD operation.
+struct GramKind<'a> {
+    a: &'a SymPacked32,
+    x: [&'a [f32]; 2],
+    y: [&'a mut [f64]; 2],
+    t: [&'a mut [f32]; 2],
+}
+
+impl pulp::WithSimd for GramKind<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
+        let mut y = self.y;
+        for yl in y.iter_mut() {
+            yl.fill(0.0);
+        }
+        sym_dot_f32::<S, 2>(simd, self.a, self.x, y, self.t);
+    }
+}
+
+/// Block rows of a symmetric product ([`sym_dot_rows_f32`]) as a SIMD operation.
+struct SymRows<'a, const L: usize> {
+    a: &'a SymPacked32,
+    x: [&'a [f32]; L],
+    y: [&'a mut [f64]; L],
+    t: [&'a mut [f32]; L],
+    blocks: std::ops::Range<usize>,
+}
+
+impl<const L: usize> pulp::WithSimd for SymRows<'_, L> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
+        sym_dot_rows_f32::<S, L>(simd, self.a, self.x, self.y, self.t, self.blocks);
+    }
 }
 
 /// `y_l += A x_l` for `C` (1 or 2) right-hand sides ([`rows_dot_f32`], [`rows_dot2_f32`]) as a

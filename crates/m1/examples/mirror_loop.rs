@@ -1,0 +1,78 @@
+//! The coupled mirror's 1 ms step alone, in variants run side by side: TMT's voice coil on the
+//! built-in cell with `MODES` retained modes, the wind forces changing every tenth step (as the
+//! 100 Hz wind does in the standard system) and the mirror's displacement read after every
+//! step. Used for the figures of BENCHMARKS.md (issue 18, eleventh round).
+//!
+//! ```text
+//! cargo run --release -p m1 --example mirror_loop -- [MODES] [VARIANTS]
+//! ```
+//!
+//! `VARIANTS` is a comma-separated list (default `1,2`): `1` or `2` threads
+//! (`CoupledMirror::set_two_threads`), with a `p` suffix for the Gram matrices stored by half
+//! (`CoupledMirror::set_gram_packed`), without it whole. Three rounds of the variants in turn;
+//! each prints the median and the fastest of five blocks (microseconds per step) and the sum
+//! of the last step's |z|, which must agree between thread counts to every digit.
+
+use m1::aperture::layout::Layout;
+use m1::plant::mirror::CoupledMirror;
+use m1::plant::segment::SegmentModel;
+use m1::plant::structure::{CellModel, CellParams};
+use std::time::Instant;
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let args: Vec<String> = std::env::args().collect();
+    let modes: usize = match args.get(1) {
+        Some(s) => s.parse().map_err(|e| format!("MODES {s:?}: {e}"))?,
+        None => 1000,
+    };
+    let variants: Vec<&str> = args
+        .get(2)
+        .map_or(vec!["1", "2"], |s| s.split(',').collect());
+    for v in &variants {
+        if !matches!(*v, "1" | "2" | "1p" | "2p") {
+            return Err(format!("variant {v:?}: expected 1, 2, 1p or 2p").into());
+        }
+    }
+    let layout = Layout::tmt();
+    let cell = CellModel::new(&layout, &CellParams::default())?.modes()?;
+    let na = layout.n_actuators();
+    let base = CoupledMirror::new(
+        layout.n_segments(),
+        SegmentModel::voice_coil(),
+        cell,
+        modes,
+        0.02,
+        1,
+    )?;
+    let steps_per_block = if modes >= 800 { 200 } else { 800 };
+    for round in 0..3 {
+        for v in &variants {
+            let mut m = base.clone();
+            m.set_two_threads(v.starts_with('2'));
+            m.set_gram_packed(v.ends_with('p'));
+            let u = vec![0.0; na];
+            let mut f: Vec<f64> = (0..na).map(|i| (i % 7) as f64).collect();
+            let mut z = vec![0.0; na];
+            let mut blocks = Vec::new();
+            for b in 0..5 {
+                let t = Instant::now();
+                for k in b * steps_per_block..(b + 1) * steps_per_block {
+                    if k % 10 == 0 {
+                        f[k % na] += 0.1;
+                    }
+                    m.advance(1e-3, &u, &f, 1e-9 * (k as f64).sin())?;
+                    m.mirror(&mut z);
+                }
+                blocks.push(t.elapsed().as_secs_f64() * 1e6 / steps_per_block as f64);
+            }
+            blocks.sort_by(f64::total_cmp);
+            let zsum: f64 = z.iter().map(|x| x.abs()).sum();
+            println!(
+                "round {round}, {modes} modes, {v}: median {:.1} us, fastest {:.1} us per step, \
+                 sum |z| = {zsum:e}",
+                blocks[2], blocks[0]
+            );
+        }
+    }
+    Ok(())
+}
