@@ -108,11 +108,14 @@
 //! thread), so the outputs are the same to the bit (tested). The step of a model without any of
 //! these large models' forms is compiled without their code (a separate instance of the step),
 //! which keeps the one-thread step of the default models as fast as before. Measured in the TMT
-//! wind system (`m1cs run --solver-threads 1|2`, tenth round): 1000 modes 0.55-0.64x ->
-//! 0.90-1.03x real time, 600 modes 2.14-2.16x -> 2.51-2.57x, and at 300 modes a loss
-//! (5.51-5.55x -> 5.11-5.36x: the products fit the caches there, and the joins and the master's
-//! second thread on the same core cost more than the split saves); with the eleventh round's
-//! forms and AVX-512, 1000 modes 1.1-1.55x (BENCHMARKS.md).
+//! wind system (`m1cs run --solver-threads 1|2`, eleventh round, with AVX-512): at 1000 modes
+//! the mirror alone takes 0.97-1.0 ms per step on one thread and 0.51-0.53 ms on two, and the
+//! system runs at 1.5-1.6x on two in most runs; 600 modes 1.85-2.09x -> 2.79x; 300 modes
+//! 5.59-5.63x -> 5.95-6.27x in most runs, but 4.4-5.3x in some invocations (the
+//! helper thread then seems to get no core of its own beside the master's look-ahead thread;
+//! at 1000 modes such runs fall back to about the one-thread speed, at 300 modes below it),
+//! so the default stays at two threads from 500 modes (BENCHMARKS.md, tenth and eleventh
+//! rounds).
 //!
 //! **No static correction.** The structure is its `n_modes` lowest modes. The static correction
 //! of the truncated modes (an instantaneous, dense compliance) cannot lag a tick: against the
