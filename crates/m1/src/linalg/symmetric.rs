@@ -69,7 +69,8 @@ impl SymPacked32 {
     }
 
     /// Entry `(i, j)` as stored (either triangle), in single precision.
-    pub fn get(&self, i: usize, j: usize) -> f32 {
+    #[cfg(test)]
+    fn get(&self, i: usize, j: usize) -> f32 {
         let (i, j) = if j / BLOCK < i / BLOCK {
             (j, i)
         } else {
@@ -151,29 +152,9 @@ pub fn sym_dot_rows_f32<S: Simd, const L: usize>(
     blocks: std::ops::Range<usize>,
 ) {
     assert!(L == 1 || L == 2, "one or two right-hand sides");
-    sym_rows::<S, L, 4>(simd, a, x, y, t, blocks);
-}
-
-/// `y[j] += t[j]` for the columns `j >= from` of [`sym_dot_rows_f32`] (`y` from row 0, as
-/// long as the order).
-#[inline(always)]
-pub fn add_columns(y: &mut [f64], t: &[f32], from: usize) {
-    let from = from.min(y.len());
-    for (yj, tj) in y[from..].iter_mut().zip(&t[from..]) {
-        *yj += f64::from(*tj);
-    }
-}
-
-/// [`sym_dot_rows_f32`] with `R` rows at a time (`R` divides [`BLOCK`]).
-#[inline(always)]
-fn sym_rows<S: Simd, const L: usize, const R: usize>(
-    simd: S,
-    a: &SymPacked32,
-    x: [&[f32]; L],
-    y: [&mut [f64]; L],
-    t: [&mut [f32]; L],
-    blocks: std::ops::Range<usize>,
-) {
+    // Four rows at a time: with two right-hand sides their accumulators and broadcast values
+    // take sixteen vector registers (of AVX-512's 32).
+    const R: usize = 4;
     const { assert!(BLOCK.is_multiple_of(R)) };
     let (m, n) = (a.m, a.n);
     let xh: [&[S::f32s]; L] = std::array::from_fn(|l| S::as_simd_f32s(&x[l][..n]).0);
@@ -229,6 +210,16 @@ fn sym_rows<S: Simd, const L: usize, const R: usize>(
             off += R * len;
             i += R;
         }
+    }
+}
+
+/// `y[j] += t[j]` for the columns `j >= from` of [`sym_dot_rows_f32`] (`y` from row 0, as
+/// long as the order).
+#[inline(always)]
+pub fn add_columns(y: &mut [f64], t: &[f32], from: usize) {
+    let from = from.min(y.len());
+    for (yj, tj) in y[from..].iter_mut().zip(&t[from..]) {
+        *yj += f64::from(*tj);
     }
 }
 

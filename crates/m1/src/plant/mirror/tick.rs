@@ -120,13 +120,12 @@ impl CoupledMirror {
                     y: [y2, y3],
                     t: [t2, t3],
                 };
-                match pair::<LARGE>(&mut self.pair, self.two_threads) {
-                    Some(p) => p.join(|| simd.vectorize(piston), move || simd.vectorize(tilt)),
-                    None => {
-                        piston.with_simd(simd);
-                        tilt.with_simd(simd);
-                    }
-                }
+                both(
+                    simd,
+                    pair::<LARGE>(&mut self.pair, self.two_threads),
+                    piston,
+                    tilt,
+                );
                 let [[y0, y1], [y2, y3]] = &self.gram_y;
                 let (gpsi, gjump) = (&mut self.gpsi[..r], &mut self.gjump[..r]);
                 let (y0, y1, y2, y3) = (&y0[..r], &y1[..r], &y2[..r], &y3[..r]);
@@ -184,13 +183,12 @@ impl CoupledMirror {
                     t: [&mut self.corr_t2],
                     blocks: s..a.padded_order() / BLOCK,
                 };
-                match pair::<LARGE>(&mut self.pair, self.two_threads) {
-                    Some(p) => p.join(|| simd.vectorize(lo), move || simd.vectorize(hi)),
-                    None => {
-                        lo.with_simd(simd);
-                        hi.with_simd(simd);
-                    }
-                }
+                both(
+                    simd,
+                    pair::<LARGE>(&mut self.pair, self.two_threads),
+                    lo,
+                    hi,
+                );
                 add_columns(&mut self.corr[..r], &self.corr_t, 0);
                 add_columns(&mut self.corr[..r], &self.corr_t2, cut);
             }
@@ -272,13 +270,12 @@ impl CoupledMirror {
         };
         let piston = kind(0, pp, op);
         let tilt = kind(1, pt, ot);
-        match pair::<LARGE>(&mut self.pair, self.two_threads) {
-            Some(p) => p.join(|| simd.vectorize(piston), move || simd.vectorize(tilt)),
-            None => {
-                piston.with_simd(simd);
-                tilt.with_simd(simd);
-            }
-        }
+        both(
+            simd,
+            pair::<LARGE>(&mut self.pair, self.two_threads),
+            piston,
+            tilt,
+        );
     }
 
     /// The cell-driven channels of both kinds (0 piston, 1 tilt) over one tick of
@@ -307,13 +304,12 @@ impl CoupledMirror {
         };
         let piston = kind(0, xi_p, sc_p, psi_p, step_p);
         let tilt = kind(1, xi_t, sc_t, psi_t, step_t);
-        match pair::<LARGE>(&mut self.pair, self.two_threads) {
-            Some(p) => p.join(|| simd.vectorize(piston), move || simd.vectorize(tilt)),
-            None => {
-                piston.with_simd(simd);
-                tilt.with_simd(simd);
-            }
-        }
+        both(
+            simd,
+            pair::<LARGE>(&mut self.pair, self.two_threads),
+            piston,
+            tilt,
+        );
     }
 
     /// The mirror's displacement back in actuator space, `Phi_k xi_k mirror` plus the free
@@ -640,6 +636,24 @@ fn kinds_to_f32(dst: &mut [f32], src: &[f64], r: usize, ld: usize) {
     for (d, s) in dst.chunks_exact_mut(ld).zip(src.chunks_exact(r)) {
         for (d, s) in d.iter_mut().zip(s) {
             *d = *s as f32;
+        }
+    }
+}
+
+/// `here` and `there` as SIMD operations: at once on the two threads of `pair`, or one after the
+/// other on this thread without it.
+#[inline(always)]
+fn both<S, A, B>(simd: S, pair: Option<&mut Pair>, here: A, there: B)
+where
+    S: pulp::Simd,
+    A: pulp::WithSimd<Output = ()>,
+    B: pulp::WithSimd<Output = ()> + Send,
+{
+    match pair {
+        Some(p) => p.join(|| simd.vectorize(here), move || simd.vectorize(there)),
+        None => {
+            here.with_simd(simd);
+            there.with_simd(simd);
         }
     }
 }
