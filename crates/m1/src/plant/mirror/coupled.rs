@@ -560,11 +560,18 @@ impl CoupledMirror {
                     ticks
                 },
             ),
-            (
-                "Gram matrices [G_p, G_t], one per servo sample",
-                std::mem::size_of_val(self.gg32.as_slice()),
-                samples,
-            ),
+            match (self.gram_packed.as_deref(), self.coupling_single) {
+                (Some([p, t]), true) => (
+                    "Gram matrices G_p, G_t by their upper block triangles, one per servo sample",
+                    std::mem::size_of_val(p.as_slice()) + std::mem::size_of_val(t.as_slice()),
+                    samples,
+                ),
+                _ => (
+                    "Gram matrices [G_p, G_t], one per servo sample",
+                    std::mem::size_of_val(self.gg32.as_slice()),
+                    samples,
+                ),
+            },
             (
                 "the solve's correction W - I in symmetric form by its upper block triangle, \
                  one per servo sample (single precision)",

@@ -505,3 +505,29 @@ fn two_threads_give_the_same_values_to_the_bit() {
         assert!(third.is_some_and(|m| m.two_threads()));
     }
 }
+
+/// The traffic a step counts (the benchmarks' memory floor) follows the Gram matrices' storage:
+/// by half they stream a little over half of the whole matrices (the diagonal blocks whole,
+/// the kinds' padding gone), and only the single-precision solve reads them so.
+#[test]
+fn streamed_bytes_follow_the_gram_storage() {
+    let (mut m, _) = keck(SegmentModel::voice_coil(), 96);
+    m.set_coupling_single(true);
+    let gram = |m: &CoupledMirror| {
+        let s = m.streamed_per_step(m.tick_period()).expect("one tick");
+        let (name, bytes, reads) = s[2];
+        assert!(name.starts_with("Gram matrices"), "{name}");
+        assert_eq!(reads, 1);
+        bytes as f64
+    };
+    m.set_gram_packed(false);
+    let whole = gram(&m);
+    m.set_gram_packed(true);
+    let half = gram(&m);
+    assert!(
+        half > 0.45 * whole && half < 0.65 * whole,
+        "{half} of {whole}"
+    );
+    m.set_coupling_single(false);
+    assert_eq!(gram(&m), whole);
+}
