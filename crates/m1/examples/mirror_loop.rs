@@ -12,6 +12,11 @@
 //! (`CoupledMirror::set_gram_packed`), without it whole. Three rounds of the variants in turn;
 //! each prints the median and the fastest of five blocks (microseconds per step) and the sum
 //! of the last step's |z|, which must agree between thread counts to every digit.
+//!
+//! Each line also gives the round trip of a cache line between two threads measured just
+//! before the variant ran: on the project's 2-core VM it is about 60 ns when the two virtual
+//! cores share an L3 cache and about 300 ns when the host has put them on two (BENCHMARKS.md,
+//! twelfth round), which changes the two-thread figures at 1000 modes.
 
 use m1::aperture::layout::Layout;
 use m1::plant::mirror::CoupledMirror;
@@ -45,8 +50,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         1,
     )?;
     let steps_per_block = if modes >= 800 { 200 } else { 800 };
+    println!("cores' round trip: {:.0} ns", round_trip_ns());
     for round in 0..3 {
         for v in &variants {
+            let trip = round_trip_ns();
             let mut m = base.clone();
             m.set_two_threads(v.starts_with('2'));
             m.set_gram_packed(v.ends_with('p'));
@@ -69,10 +76,45 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let zsum: f64 = z.iter().map(|x| x.abs()).sum();
             println!(
                 "round {round}, {modes} modes, {v}: median {:.1} us, fastest {:.1} us per step, \
-                 sum |z| = {zsum:e}",
+                 sum |z| = {zsum:e} (cores' round trip {trip:.0} ns)",
                 blocks[2], blocks[0]
             );
         }
     }
     Ok(())
+}
+
+/// The median time (ns) for a value to go from this thread to another spinning thread and back
+/// (a cache line's round trip between the two cores they run on), over 20 rounds of 2000.
+fn round_trip_ns() -> f64 {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicU64, Ordering};
+    const ROUNDS: usize = 20;
+    const TRIPS: u64 = 2000;
+    let ping = Arc::new([AtomicU64::new(0), AtomicU64::new(0)]);
+    let other = Arc::clone(&ping);
+    let echo = std::thread::spawn(move || {
+        for i in 1..=ROUNDS as u64 * TRIPS {
+            while other[0].load(Ordering::Acquire) != i {
+                std::hint::spin_loop();
+            }
+            other[1].store(i, Ordering::Release);
+        }
+    });
+    let mut times = Vec::with_capacity(ROUNDS);
+    let mut i = 0;
+    for _ in 0..ROUNDS {
+        let t = Instant::now();
+        for _ in 0..TRIPS {
+            i += 1;
+            ping[0].store(i, Ordering::Release);
+            while ping[1].load(Ordering::Acquire) != i {
+                std::hint::spin_loop();
+            }
+        }
+        times.push(t.elapsed().as_secs_f64() * 1e9 / TRIPS as f64);
+    }
+    let _ = echo.join();
+    times.sort_by(f64::total_cmp);
+    times[ROUNDS / 2]
 }

@@ -195,6 +195,10 @@ pub struct CoupledMirror {
     /// `[s * r + j]`), by kind.
     pub(super) proj: [Vec<f64>; 2],
     pub(super) xi: [Vec<f64>; 2],
+    /// Within a step, whether `xi` lacks the last tick's ramp part ([`Self::flush_ramp`]);
+    /// false between steps.
+    #[serde(skip)]
+    pub(super) ramp_pending: bool,
     /// Projected inputs `Phi_k^T w_k` (r x 3 column-major), by kind.
     pub(super) w_proj: [Vec<f64>; 2],
     pub(super) q: Vec<f64>,
@@ -398,6 +402,7 @@ impl CoupledMirror {
             pier: 0.0,
             proj: [vec![0.0; r * N_STATE], vec![0.0; r * N_STATE]],
             xi: [vec![0.0; r * N_STATE], vec![0.0; r * N_STATE]],
+            ramp_pending: false,
             w_proj: [vec![0.0; r * N_IN], vec![0.0; r * N_IN]],
             q: vec![0.0; r],
             v: vec![0.0; r],

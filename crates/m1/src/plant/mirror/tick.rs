@@ -26,7 +26,6 @@ impl CoupledMirror {
         at: (usize, usize),
     ) {
         let r = self.r;
-        const S: usize = N_STATE;
         // The free part's modal force and drive change over this tick, from the chunk's
         // composed map ([`Self::free_ticks`]): tick `i` of `len`.
         let (i, len) = at;
@@ -43,55 +42,36 @@ impl CoupledMirror {
             *h = f0 + f1;
             *j = if sample { d0 + d1 } else { 0.0 };
         }
-        self.tick_channels::<S, LARGE>(simd, sample);
         // The drive jumps at the sample and is held over the tick: the modal force starts the
         // tick at the end value of the last one plus that jump, then ramps (the continuous
         // part of the cell force is what varies within the tick). The free part's jump is on
         // the modes already (`jump`); the cell-driven part's is `g = [G_p, G_t] drive_step`.
         // In single precision a sample's tick takes g from the solve's own pass over the Gram
         // matrices (`split`, below) and adds it after the solve; otherwise it comes first.
-        let split = sample && self.coupling_single;
-        let ld = self.ld32;
-        if sample {
-            kinds_to_f32(&mut self.drive32, &self.drive_step, r, ld);
-        }
-        if sample && !split {
-            rows_dot_f32::<S>(
-                simd,
-                &self.gg32,
-                2 * ld,
-                r,
-                2 * ld,
-                &self.drive32,
-                &mut self.jump,
-            );
-        }
-        // The pier input is held too: a new value loads the modes from the tick's start.
-        let dp = pier_z - self.pier;
-        self.pier = pier_z;
-        let bp = self.structure.pier_gains();
-        for ((u, jump), b) in self.u.iter_mut().zip(&self.jump).zip(bp) {
-            *u += self.drive_d * jump + dp * b;
-        }
-        // a = free q+ (held and ramp parts of the old modal force): q+ = a + b1_q u+.
-        axpy(&mut self.rhs, pier_z, self.structure.pier_gains());
-        // u+ = W (h + b_p p) + W G_p (psi_p + e_p a) + W G_t (psi_t + e_t a), with
-        // W = (I - M B1)^-1 = I + W M B1 and W M = e_p W G_p + e_t W G_t, so that
-        // u+ = h' + W G_p (psi_p + e_p a + e_p B1 h') + W G_t (psi_t + e_t a + e_t B1 h'):
-        // one r x 2r product.
-        {
-            let ([a0, a1, ..], b0, b1) = (&self.a_mode, &self.b0[0][..r], &self.b1[0][..r]);
-            let (a0, a1, q, v, u) = (&a0[..r], &a1[..r], &self.q[..r], &self.v[..r], &self.u[..r]);
-            let (rhs, cols) = (&self.rhs[..r], &mut self.cols[..r]);
-            let (psi_p, psi_t) = self.psi.split_at_mut(r);
-            let (psi_t, [ep, et]) = (&mut psi_t[..r], self.e);
-            for j in 0..r {
-                let abar = a0[j] * q[j] + a1[j] * v[j] + (b0[j] - b1[j]) * u[j];
-                let x = abar + b1[j] * rhs[j];
-                psi_p[j] += ep * x;
-                psi_t[j] += et * x;
-                cols[j] = abar;
+        let (split, ld) = (sample && self.coupling_single, self.ld32);
+        if split {
+            // The modal terms first (they do not wait for g here), so that each kind's pass
+            // finishes its own right-hand side, in single precision too, on the thread that
+            // then reads it in the pass over its Gram matrix.
+            self.hold_inputs(pier_z);
+            self.modal_terms(false);
+            self.tick_channels::<S, LARGE>(simd, sample, true);
+        } else {
+            self.tick_channels::<S, LARGE>(simd, sample, false);
+            if sample {
+                kinds_to_f32(&mut self.drive32, &self.drive_step, r, ld);
+                rows_dot_f32::<S>(
+                    simd,
+                    &self.gg32,
+                    2 * ld,
+                    r,
+                    2 * ld,
+                    &self.drive32,
+                    &mut self.jump,
+                );
             }
+            self.hold_inputs(pier_z);
+            self.modal_terms(true);
         }
         self.u_new.copy_from_slice(&self.rhs);
         if split {
@@ -99,8 +79,8 @@ impl CoupledMirror {
             // y = G psi_0 and W M alpha = (W - I) beta, beta = alpha / b1:
             // u+ = h' + y + (W - I) (y + beta g). One pass over [G_p, G_t] gives y and g
             // together, one over the small correction W - I (stored by half) gives u+ (the
-            // traffic of 1.25 r x 2r passes instead of 2).
-            kinds_to_f32(&mut self.psi32, &self.psi, r, ld);
+            // traffic of 1.25 r x 2r passes instead of 2). `psi32` and `drive32` are the
+            // channel passes' (`tick_channels`).
             if let Some(gs) = self.gram_packed.as_deref().filter(|_| LARGE) {
                 // By kind, each with its own results and column sums (on one thread in the
                 // same order as on two, so the same bits), then summed.
@@ -238,16 +218,37 @@ impl CoupledMirror {
                 u[j] = u1;
             }
         }
-        // Cell-driven states with this tick's ramp: xi+_i = Y_i + ramp_i q+.
+        // Cell-driven states: xi+ = Y + ramp q+. The ramp's part is left pending, for the
+        // thread that owns each kind to add at its next pass ([`ChannelKind`]) or at the end of
+        // the step ([`Self::flush_ramp`]): added here, by the calling thread, the tilt kind's
+        // states crossed between the two threads' caches twice per tick (BENCHMARKS.md,
+        // twelfth round: 20-27 us per tick when the two cores do not share their L3).
         for k in 0..2 {
-            let ramp = &self.ramp[k];
-            for i in 0..S {
-                if ramp[i] != 0.0 {
-                    axpy(&mut self.scratch[k][i * r..(i + 1) * r], ramp[i], &self.q);
-                }
-            }
             std::mem::swap(&mut self.xi[k], &mut self.scratch[k]);
         }
+        self.ramp_pending = true;
+    }
+
+    /// Adds the last tick's pending ramp part to the cell-driven states of both kinds, each on
+    /// the thread that steps it ([`Self::tick`]); between steps, the states hold it.
+    #[inline(always)]
+    pub(super) fn flush_ramp<S: pulp::Simd, const LARGE: bool>(&mut self, simd: S) {
+        if !std::mem::take(&mut self.ramp_pending) {
+            return;
+        }
+        let [xi_p, xi_t] = &mut self.xi;
+        let kind = |k: usize, xi| RampKind {
+            ramp: &self.ramp[k],
+            q: &self.q,
+            xi,
+        };
+        let (piston, tilt) = (kind(0, xi_p), kind(1, xi_t));
+        both(
+            simd,
+            pair::<LARGE>(&mut self.pair, self.two_threads),
+            piston,
+            tilt,
+        );
     }
 
     /// The free part of the channels over a chunk of ticks, on the modes: one pass of the
@@ -278,32 +279,112 @@ impl CoupledMirror {
         );
     }
 
+    /// The held inputs into the tick's start: the drive's jump (`jump`) and the pier's change
+    /// into the modal force `u`, the pier into the right-hand side's `h`.
+    #[inline(always)]
+    fn hold_inputs(&mut self, pier_z: f64) {
+        // The pier input is held too: a new value loads the modes from the tick's start.
+        let dp = pier_z - self.pier;
+        self.pier = pier_z;
+        let bp = self.structure.pier_gains();
+        for ((u, jump), b) in self.u.iter_mut().zip(&self.jump).zip(bp) {
+            *u += self.drive_d * jump + dp * b;
+        }
+        // a = free q+ (held and ramp parts of the old modal force): q+ = a + b1_q u+.
+        axpy(&mut self.rhs, pier_z, self.structure.pier_gains());
+    }
+
+    /// The modes' terms of the coupled solve: per mode the free response `abar` (into `cols`)
+    /// and `x = abar + b1 h'`, added to the right-hand side as `psi_k += e_k x` (`add`), or
+    /// else kept in `gpsi` (free until the solve's products) for the channel passes to add.
+    #[inline(always)]
+    fn modal_terms(&mut self, add: bool) {
+        let r = self.r;
+        // u+ = W (h + b_p p) + W G_p (psi_p + e_p a) + W G_t (psi_t + e_t a), with
+        // W = (I - M B1)^-1 = I + W M B1 and W M = e_p W G_p + e_t W G_t, so that
+        // u+ = h' + W G_p (psi_p + e_p a + e_p B1 h') + W G_t (psi_t + e_t a + e_t B1 h'):
+        // one r x 2r product.
+        let ([a0, a1, ..], b0, b1) = (&self.a_mode, &self.b0[0][..r], &self.b1[0][..r]);
+        let (a0, a1, q, v, u) = (&a0[..r], &a1[..r], &self.q[..r], &self.v[..r], &self.u[..r]);
+        let (rhs, cols) = (&self.rhs[..r], &mut self.cols[..r]);
+        if add {
+            let (psi_p, psi_t) = self.psi.split_at_mut(r);
+            let (psi_t, [ep, et]) = (&mut psi_t[..r], self.e);
+            for j in 0..r {
+                let abar = a0[j] * q[j] + a1[j] * v[j] + (b0[j] - b1[j]) * u[j];
+                let x = abar + b1[j] * rhs[j];
+                psi_p[j] += ep * x;
+                psi_t[j] += et * x;
+                cols[j] = abar;
+            }
+        } else {
+            let xs = &mut self.gpsi[..r];
+            for j in 0..r {
+                let abar = a0[j] * q[j] + a1[j] * v[j] + (b0[j] - b1[j]) * u[j];
+                xs[j] = abar + b1[j] * rhs[j];
+                cols[j] = abar;
+            }
+        }
+    }
+
     /// The cell-driven channels of both kinds (0 piston, 1 tilt) over one tick of
     /// [`Self::tick`], on the modes, without this tick's ramp, with their terms of the
     /// coupled solve's right-hand side (`psi`) and, at a servo sample (`sample`), the drive's
     /// change (`drive_step`): one pass of [`state_map`] over the modes (the same
     /// `N_STATE x N_STATE` map for every mode).
     #[inline(always)]
-    fn tick_channels<S: pulp::Simd, const LARGE: bool>(&mut self, simd: S, sample: bool) {
-        let r = self.r;
+    fn tick_channels<S: pulp::Simd, const LARGE: bool>(
+        &mut self,
+        simd: S,
+        sample: bool,
+        terms: bool,
+    ) {
+        let (r, ld) = (self.r, self.ld32);
         let set = usize::from(!sample);
         let (psi_p, psi_t) = self.psi.split_at_mut(r);
         let (step_p, step_t) = self.drive_step.split_at_mut(r);
-        let [xi_p, xi_t] = &self.xi;
+        let (p32_p, p32_t) = self.psi32.split_at_mut(ld);
+        let (d32_p, d32_t) = self.drive32.split_at_mut(ld);
+        let (xs, e) = (&self.gpsi[..r], self.e);
+        let pending = std::mem::take(&mut self.ramp_pending);
+        let [xi_p, xi_t] = &mut self.xi;
         let [sc_p, sc_t] = &mut self.scratch;
-        let kind = |k: usize, xi, scratch, psi, drive_step| ChannelKind {
+        let kind = |k: usize, xi, scratch, psi, drive_step, psi32, drive32| ChannelKind {
             p: &self.tick[set][k],
             g: &self.tick_in[set][k],
             ramp: &self.ramp[k],
+            pending,
             c: &self.cell_c[k],
             q: &self.q,
             xi,
             scratch,
             psi,
             drive_step: sample.then_some(drive_step),
+            terms: terms.then(|| SolveTerms {
+                x: xs,
+                e: e[k],
+                psi32,
+                drive32: sample.then_some(drive32),
+            }),
         };
-        let piston = kind(0, xi_p, sc_p, psi_p, step_p);
-        let tilt = kind(1, xi_t, sc_t, psi_t, step_t);
+        let piston = kind(
+            0,
+            xi_p,
+            sc_p,
+            psi_p,
+            step_p,
+            &mut p32_p[..r],
+            &mut d32_p[..r],
+        );
+        let tilt = kind(
+            1,
+            xi_t,
+            sc_t,
+            psi_t,
+            step_t,
+            &mut p32_t[..r],
+            &mut d32_t[..r],
+        );
         both(
             simd,
             pair::<LARGE>(&mut self.pair, self.two_threads),
@@ -534,21 +615,43 @@ struct ChannelKind<'a> {
     p: &'a Phi,
     g: &'a Gamma,
     ramp: &'a SVector<f64, N_STATE>,
+    /// Whether `xi` still lacks the last tick's ramp part (`ramp q`, `q` the modes now).
+    pending: bool,
     c: &'a SMatrix<f64, 1, N_STATE>,
     q: &'a [f64],
-    xi: &'a [f64],
+    xi: &'a mut [f64],
     scratch: &'a mut [f64],
     psi: &'a mut [f64],
     drive_step: Option<&'a mut [f64]>,
+    /// With the modes' terms of the solve already known ([`CoupledMirror::modal_terms`]):
+    /// the kind's right-hand side finished here, and in single precision.
+    terms: Option<SolveTerms<'a>>,
+}
+
+/// A kind's share of the modes' terms of the coupled solve, `psi += e x`, and where its
+/// right-hand side and drive change go in single precision (each `r` long).
+struct SolveTerms<'a> {
+    x: &'a [f64],
+    e: f64,
+    psi32: &'a mut [f32],
+    drive32: Option<&'a mut [f32]>,
 }
 
 impl pulp::WithSimd for ChannelKind<'_> {
     type Output = ();
 
     #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, simd: S) {
+    fn with_simd<S: pulp::Simd>(mut self, simd: S) {
         let r = self.psi.len();
         let (p, g, ramp, c) = (self.p, self.g, self.ramp, self.c);
+        if self.pending {
+            RampKind {
+                ramp,
+                q: self.q,
+                xi: &mut *self.xi,
+            }
+            .with_simd(simd);
+        }
         let pa: [[f64; N_STATE]; N_STATE] =
             std::array::from_fn(|i| std::array::from_fn(|s| p[(i, s)]));
         let ca: [f64; N_STATE] = std::array::from_fn(|i| c[i]);
@@ -567,11 +670,45 @@ impl pulp::WithSimd for ChannelKind<'_> {
             Some((&ca, self.psi)),
         );
         // The cell-driven part's drive change (the ramp does not reach the drive).
-        if let Some(out) = self.drive_step {
+        if let Some(out) = self.drive_step.as_deref_mut() {
             let dr = state::DRIVE;
             let (new, old) = (&self.scratch[dr * r..], &self.xi[dr * r..]);
             for j in 0..r {
                 out[j] = new[j] - old[j];
+            }
+        }
+        if let Some(t) = self.terms {
+            let (psi, x, e) = (&mut self.psi[..r], &t.x[..r], t.e);
+            for ((p, p32), x) in psi.iter_mut().zip(t.psi32.iter_mut()).zip(x) {
+                *p += e * x;
+                *p32 = *p as f32;
+            }
+            if let (Some(d32), Some(d)) = (t.drive32, self.drive_step.as_deref()) {
+                for (d32, d) in d32.iter_mut().zip(d) {
+                    *d32 = *d as f32;
+                }
+            }
+        }
+    }
+}
+
+/// The ramp part of one kind's cell-driven states after a tick, `xi_s += ramp_s q` for each
+/// state the ramp reaches ([`CoupledMirror::tick`]).
+struct RampKind<'a> {
+    ramp: &'a SVector<f64, N_STATE>,
+    q: &'a [f64],
+    xi: &'a mut [f64],
+}
+
+impl pulp::WithSimd for RampKind<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        let r = self.q.len();
+        for (s, &c) in self.ramp.iter().enumerate() {
+            if c != 0.0 {
+                axpy(&mut self.xi[s * r..(s + 1) * r], c, self.q);
             }
         }
     }
@@ -625,6 +762,7 @@ impl<const LARGE: bool> pulp::WithSimd for StepAs<'_, LARGE> {
             }
             t += len;
         }
+        m.flush_ramp::<S, LARGE>(simd);
         m.write_outputs::<S, LARGE>(simd);
     }
 }
