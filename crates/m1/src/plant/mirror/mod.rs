@@ -111,11 +111,15 @@
 //! wind system (`m1cs run --solver-threads 1|2`, eleventh round, with AVX-512): at 1000 modes
 //! the mirror alone takes 0.97-1.0 ms per step on one thread and 0.51-0.53 ms on two, and the
 //! system runs at 1.5-1.6x on two in most runs; 600 modes 1.85-2.09x -> 2.79x; 300 modes
-//! 5.59-5.63x -> 5.95-6.27x in most runs, but 4.4-5.3x in some invocations (the
-//! helper thread then seems to get no core of its own beside the master's look-ahead thread;
-//! at 1000 modes such runs fall back to about the one-thread speed, at 300 modes below it),
-//! so the default stays at two threads from 500 modes (BENCHMARKS.md, tenth and eleventh
-//! rounds).
+//! 5.59-5.63x -> 5.95-6.27x in most runs, but 4.4-5.3x in some invocations, so the default
+//! stays at two threads from 500 modes (BENCHMARKS.md, tenth and eleventh rounds). The slow
+//! runs come when the host puts the VM's two cores on two L3 caches (twelfth round): each value
+//! one thread writes and the other reads then crosses between the caches. Each kind's states,
+//! right-hand side and single-precision inputs therefore stay on the thread that steps that
+//! kind (the tick's ramp part is added by that thread, also at the
+//! end of a step). What still crosses per tick is the Gram passes' results and the free
+//! part's rows: at 1000 modes 0.79-0.83 ms per step across two L3s against 0.50-0.61 ms on
+//! one.
 //!
 //! **No static correction.** The structure is its `n_modes` lowest modes. The static correction
 //! of the truncated modes (an instantaneous, dense compliance) cannot lag a tick: against the
