@@ -8,10 +8,11 @@
 //! ```
 //!
 //! `VARIANTS` is a comma-separated list (default `1,2`): `1` or `2` threads
-//! (`CoupledMirror::set_two_threads`), with a `p` suffix for the Gram matrices stored by half
-//! (`CoupledMirror::set_gram_packed`), without it whole. Three rounds of the variants in turn;
-//! each prints the median and the fastest of five blocks (microseconds per step) and the sum
-//! of the last step's |z|, which must agree between thread counts to every digit.
+//! (`CoupledMirror::set_two_threads`) or `a` for the automatic choice, with a `p` suffix for
+//! the Gram matrices stored by half (`CoupledMirror::set_gram_packed`), without it whole.
+//! Three rounds of the variants in turn; each prints the median and the fastest of five
+//! blocks (microseconds per step) and the sum of the last step's |z|, which must agree between
+//! thread counts to every digit.
 //!
 //! Each line also gives the round trip of a cache line between two threads measured just
 //! before the variant ran: on the project's 2-core VM it is about 60 ns when the two virtual
@@ -34,8 +35,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .get(2)
         .map_or(vec!["1", "2"], |s| s.split(',').collect());
     for v in &variants {
-        if !matches!(*v, "1" | "2" | "1p" | "2p") {
-            return Err(format!("variant {v:?}: expected 1, 2, 1p or 2p").into());
+        if !matches!(*v, "1" | "2" | "a" | "1p" | "2p" | "ap") {
+            return Err(
+                format!("variant {v:?}: expected 1, 2 or a, each with or without p").into(),
+            );
         }
     }
     let layout = Layout::tmt();
@@ -50,12 +53,20 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         1,
     )?;
     let steps_per_block = if modes >= 800 { 200 } else { 800 };
-    println!("cores' round trip: {:.0} ns", round_trip_ns());
+    let mut pair = m1::linalg::pair::Pair::start().ok_or("no helper thread")?;
+    println!(
+        "cores' round trip: {:.0} ns, the mirror's hand-over: {:.0} ns",
+        round_trip_ns(),
+        pair.handoff_ns(31)
+    );
     for round in 0..3 {
         for v in &variants {
             let trip = round_trip_ns();
+            let handoff = pair.handoff_ns(31);
             let mut m = base.clone();
-            m.set_two_threads(v.starts_with('2'));
+            if !v.starts_with('a') {
+                m.set_two_threads(v.starts_with('2'));
+            }
             m.set_gram_packed(v.ends_with('p'));
             let u = vec![0.0; na];
             let mut f: Vec<f64> = (0..na).map(|i| (i % 7) as f64).collect();
@@ -76,7 +87,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let zsum: f64 = z.iter().map(|x| x.abs()).sum();
             println!(
                 "round {round}, {modes} modes, {v}: median {:.1} us, fastest {:.1} us per step, \
-                 sum |z| = {zsum:e} (cores' round trip {trip:.0} ns)",
+                 sum |z| = {zsum:e} (cores' round trip {trip:.0} ns, hand-over {handoff:.0} ns)",
                 blocks[2], blocks[0]
             );
         }

@@ -150,7 +150,8 @@ fmu::variables! {
                 "Threads of the coupled solver's large products: 1 keeps them on the thread \
                  that calls fmi2DoStep, 2 splits them with a helper thread (the same results to \
                  the bit), 0 chooses 2 from 500 retained modes (where one core's cache \
-                 bandwidth bounds the step) and 1 below. Set 1 when other simulations already \
+                 bandwidth bounds the step), from 150 whichever of 1 and 2 a timed trial finds \
+                 faster (every 1000 steps), and 1 below. Set 1 when other simulations already \
                  occupy every core",
             ),
     }

@@ -113,7 +113,9 @@ pub struct SystemArgs {
     pub structure: String,
     /// Threads of the coupled mirror's large products (its `solver_threads` parameter): 1 on
     /// the thread that steps it, 2 split with a helper thread (the same results to the bit), 0
-    /// two from 500 retained modes. Use 1 when other runs already occupy every core.
+    /// two from 500 retained modes, and from 150 whichever of one and two a timed trial finds
+    /// faster (every 1000 steps: on a VM two pay only while its cores share a cache). Use 1
+    /// when other runs already occupy every core.
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(i32).range(0..=2))]
     pub solver_threads: i32,
     /// Step every component at the base step (no multi-rate), as fmpy.ssp does.

@@ -160,6 +160,34 @@ impl Pair {
             resume_unwind(p);
         }
     }
+
+    /// The shortest wall time (ns) of `rounds` joins whose halves only wait for each other (the
+    /// caller's for at most 200 us): the hand-over of a job to the helper and back, a few cache
+    /// lines' round trips between the two threads' cores. It tells whether splitting small
+    /// products pays: on the project's 2-core VM it is 0.24-0.33 us while the two cores share
+    /// an L3 cache and 1.0-1.3 us while they sit on two (BENCHMARKS.md, twelfth round). The
+    /// shortest, because other work on the cores (waking a sleeping helper, another thread
+    /// polling) only adds to it; 200 us means the helper got no core in any round.
+    pub fn handoff_ns(&mut self, rounds: usize) -> f64 {
+        const PATIENCE: Duration = Duration::from_micros(200);
+        let times: Vec<f64> = (0..rounds.max(1))
+            .map(|_| {
+                let started = AtomicBool::new(false);
+                let t = Instant::now();
+                self.join(
+                    || {
+                        let s = Instant::now();
+                        while !started.load(Ordering::Acquire) && s.elapsed() < PATIENCE {
+                            std::hint::spin_loop();
+                        }
+                    },
+                    || started.store(true, Ordering::Release),
+                );
+                t.elapsed().as_secs_f64() * 1e9
+            })
+            .collect();
+        times.into_iter().fold(f64::INFINITY, f64::min)
+    }
 }
 
 fn helper(s: &Shared) {

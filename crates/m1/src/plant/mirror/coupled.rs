@@ -28,6 +28,23 @@ pub const SINGLE_COUPLING_MIN_MODES: usize = 150;
 /// threads by default ([`CoupledMirror::set_two_threads`]).
 pub const TWO_THREADS_MIN_MODES: usize = 500;
 
+/// From this many modes (up to [`TWO_THREADS_MIN_MODES`]) the automatic choice of threads
+/// tries both now and then and keeps the faster ([`THREADS_CHECK_STEPS`]). On the project's
+/// 2-core VM two threads take 54 against 78 us per step at 150 modes and 107-112 against 160 us
+/// at 300 while the two cores share an L3 cache, but 70 against 56 us at 100 modes and 196
+/// against 165 us at 300 while they sit on two (BENCHMARKS.md, twelfth round); the host moves
+/// them between the two every few seconds to minutes.
+pub const SHARED_CACHE_MIN_MODES: usize = 150;
+
+/// The automatic choice of threads between [`SHARED_CACHE_MIN_MODES`] and
+/// [`TWO_THREADS_MIN_MODES`] modes is made again every this many steps: [`THREADS_TRIAL_STEPS`]
+/// steps on each side, alternately on one thread and on two, timed after one step of each,
+/// and two kept if they took at most 0.95 times as long.
+pub const THREADS_CHECK_STEPS: u32 = 1000;
+
+/// The steps of each side of a trial of [`THREADS_CHECK_STEPS`], the first untimed.
+pub const THREADS_TRIAL_STEPS: u32 = 41;
+
 /// Retained modes from which [`CoupledMirror`] streams the Gram matrices by their upper block
 /// triangles ([`CoupledMirror::set_gram_packed`]): TMT at 800 modes 21-27 % faster per step on
 /// one thread, at 600 modes 6 % slower (BENCHMARKS.md, eleventh round).
@@ -169,6 +186,13 @@ pub struct CoupledMirror {
     /// The helper thread of [`Self::two_threads`], started on the first step that uses it.
     #[serde(skip)]
     pub(super) pair: LazyPair,
+    /// Whether the threads are chosen automatically ([`CoupledMirror::set_two_threads`] not
+    /// called): between [`SHARED_CACHE_MIN_MODES`] and [`TWO_THREADS_MIN_MODES`] modes by a
+    /// timed trial of both every [`THREADS_CHECK_STEPS`] steps (`trial`).
+    #[serde(default)]
+    pub(super) threads_auto: bool,
+    #[serde(skip)]
+    pub(super) trial: ThreadsTrial,
     /// Per mode, the modal force's jump at a sample reaches the tick's start force through
     /// `alpha = (b0 - b1) d` (`d` the drive's feedthrough), and the solve through
     /// `beta = alpha / b1` (`W M alpha = (W - I) beta`).
@@ -233,6 +257,14 @@ pub struct CoupledMirror {
     pub(super) cols: Vec<f64>,
     /// The free part's cell force per channel (piston channels, then tilt), per step.
     pub(super) free_force: Vec<f64>,
+}
+
+/// Where the automatic choice of threads is ([`CoupledMirror::set_two_threads`]): steps since
+/// its last choice and the trial's timed seconds on one and two threads.
+#[derive(Debug, Clone, Default)]
+pub(super) struct ThreadsTrial {
+    step: u32,
+    seconds: [f64; 2],
 }
 
 impl CoupledMirror {
@@ -386,6 +418,8 @@ impl CoupledMirror {
             coupling_single: r >= SINGLE_COUPLING_MIN_MODES,
             two_threads: r >= TWO_THREADS_MIN_MODES,
             pair: LazyPair::default(),
+            threads_auto: true,
+            trial: ThreadsTrial::default(),
             gram_packed: None,
             gram_y: Default::default(),
             gram_t: Default::default(),
@@ -447,9 +481,12 @@ impl CoupledMirror {
     /// thread (`true`), or keeps them on the calling thread (`false`). Every value is summed as
     /// on one thread, so the results are the same to the bit. The default is `true` from
     /// [`TWO_THREADS_MIN_MODES`] modes, where the products are bound by one core's share of the
-    /// cache bandwidth; the helper polls for work for 0.3 ms after each part and sleeps after
-    /// that ([`crate::linalg::pair`]).
+    /// cache bandwidth, and from [`SHARED_CACHE_MIN_MODES`] whichever a timed trial of both
+    /// finds faster (every [`THREADS_CHECK_STEPS`] steps); this call ends that automatic
+    /// choice. The helper polls for work for 0.3 ms after each part
+    /// and sleeps after that ([`crate::linalg::pair`]).
     pub fn set_two_threads(&mut self, two: bool) {
+        self.threads_auto = false;
         self.two_threads = two;
         if !two {
             self.pair.stop();
@@ -690,6 +727,7 @@ impl CoupledMirror {
     ) -> Result<(), M1Error> {
         let ticks = self.ticks_in(h)?;
         crate::error::check_lengths(self.na, &[("u_cmd", u_cmd), ("f_wind", f_wind)])?;
+        let timed = self.choose_threads();
         // The free part over the whole step at once (its inputs, projected on the channels,
         // are then read back for the modes).
         self.free.advance(h, u_cmd, &self.zeros, f_wind)?;
@@ -700,7 +738,47 @@ impl CoupledMirror {
             ticks,
             pier_z,
         });
+        if let Some(t0) = timed {
+            self.trial.seconds[usize::from(self.two_threads)] += t0.elapsed().as_secs_f64();
+        }
         Ok(())
+    }
+
+    /// The automatic choice of threads between [`SHARED_CACHE_MIN_MODES`] and
+    /// [`TWO_THREADS_MIN_MODES`] modes ([`Self::set_two_threads`]), before a step: every
+    /// [`THREADS_CHECK_STEPS`] steps a trial of [`THREADS_TRIAL_STEPS`] steps on one thread
+    /// and as many on two, alternately, then the faster kept. Either gives the same values to the bit. The
+    /// time at which this step starts, when the trial times it.
+    fn choose_threads(&mut self) -> Option<std::time::Instant> {
+        if !self.threads_auto || !(SHARED_CACHE_MIN_MODES..TWO_THREADS_MIN_MODES).contains(&self.r)
+        {
+            return None;
+        }
+        let t = &mut self.trial;
+        let (trial, check) = (THREADS_TRIAL_STEPS, THREADS_CHECK_STEPS);
+        // Steps since the last choice: 0..2 trial alternately on one and two threads (so that
+        // both see the same mix of the other components' work; the order turns every ten
+        // steps, so that inputs changing every tenth step fall on both), then the choice, kept
+        // until `check`.
+        let k = t.step;
+        t.step = if k + 1 >= check.max(2 * trial + 1) {
+            0
+        } else {
+            k + 1
+        };
+        if k == 0 {
+            t.seconds = [0.0; 2];
+        }
+        if k < 2 * trial {
+            self.two_threads = (k + k / 10) % 2 == 1;
+            // The first step of each side wakes the helper or lets it go: not timed.
+            return (k >= 2).then(std::time::Instant::now);
+        }
+        if k == 2 * trial {
+            let [one, two] = t.seconds;
+            self.two_threads = two <= 0.95 * one;
+        }
+        None
     }
 
     /// The composed map of a chunk of `len` ticks starting at sub-step `phase` (built from the

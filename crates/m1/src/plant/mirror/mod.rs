@@ -98,12 +98,15 @@
 //! and the packed form's extra loads make it slower: 600 modes 6 % on one thread).
 //! BENCHMARKS.md, eleventh round.
 //!
-//! **Two threads from 500 modes.** The tick's pass over the Gram matrices (or `W G`; by kind
+//! **Two threads from 500 modes (from 150 when they pay).** The tick's pass over the Gram matrices (or `W G`; by kind
 //! when they are stored by half), the correction `W - I` (in two parts of block rows with
 //! about the same stored entries, each with its own column sums), the channels' maps on the
 //! modes and the free part (by kind), and the shapes' pass back to the actuators are split
 //! between the calling thread and a helper thread ([`crate::linalg::pair`],
-//! [`CoupledMirror::set_two_threads`], default from [`TWO_THREADS_MIN_MODES`]). Every value is
+//! [`CoupledMirror::set_two_threads`], default from [`TWO_THREADS_MIN_MODES`]; from
+//! [`SHARED_CACHE_MIN_MODES`] the default tries one and two threads alternately over
+//! [`THREADS_TRIAL_STEPS`] steps each, every [`THREADS_CHECK_STEPS`] steps, and keeps the
+//! faster). Every value is
 //! summed as on one thread (from 500 modes the correction is taken in the same two parts on one
 //! thread), so the outputs are the same to the bit (tested). The step of a model without any of
 //! these large models' forms is compiled without their code (a separate instance of the step),
@@ -119,7 +122,8 @@
 //! kind (the tick's ramp part is added by that thread, also at the
 //! end of a step). What still crosses per tick is the Gram passes' results and the free
 //! part's rows: at 1000 modes 0.79-0.83 ms per step across two L3s against 0.50-0.61 ms on
-//! one.
+//! one. Below 500 modes the two threads pay only on one L3 (at 300 modes 107-112 against
+//! 160 us per step there, 196 against 165 us across two), hence the timed trial.
 //!
 //! **No static correction.** The structure is its `n_modes` lowest modes. The static correction
 //! of the truncated modes (an instantaneous, dense compliance) cannot lag a tick: against the
@@ -145,6 +149,7 @@ mod tests;
 mod tick;
 
 pub use coupled::{
-    CoupledMirror, PACKED_GRAM_MIN_MODES, SINGLE_COUPLING_MIN_MODES, TWO_THREADS_MIN_MODES,
+    CoupledMirror, PACKED_GRAM_MIN_MODES, SHARED_CACHE_MIN_MODES, SINGLE_COUPLING_MIN_MODES,
+    THREADS_CHECK_STEPS, THREADS_TRIAL_STEPS, TWO_THREADS_MIN_MODES,
 };
 pub use maps::foh_mode;

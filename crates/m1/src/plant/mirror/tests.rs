@@ -531,3 +531,63 @@ fn streamed_bytes_follow_the_gram_storage() {
     m.set_coupling_single(false);
     assert_eq!(gram(&m), whole);
 }
+
+/// The automatic choice of threads: only between SHARED_CACHE_MIN_MODES and
+/// TWO_THREADS_MIN_MODES modes does it depend on the hand-over to the helper, whatever it
+/// chooses the values are those of one thread to the bit (over a re-check of the choice), and
+/// `set_two_threads` ends it.
+#[test]
+fn the_automatic_choice_of_threads_changes_no_value() {
+    let tmt = Layout::tmt();
+    let cell = CellModel::new(&tmt, &CellParams::default())
+        .expect("cell")
+        .modes()
+        .expect("modes");
+    let new = |modes: usize| {
+        CoupledMirror::new(
+            tmt.n_segments(),
+            SegmentModel::voice_coil(),
+            cell.clone(),
+            modes,
+            0.02,
+            1,
+        )
+        .expect("mirror")
+    };
+    let na = tmt.n_actuators();
+    let (u, f) = (vec![1e-9; na], wind(na));
+    // Outside the range the choice is the fixed one, before and after a check.
+    for (modes, two) in [
+        (SHARED_CACHE_MIN_MODES - 10, false),
+        (TWO_THREADS_MIN_MODES, true),
+    ] {
+        let mut m = new(modes);
+        assert!(m.threads_auto);
+        for _ in 0..2 {
+            m.advance(1e-3, &u, &f, 0.0).expect("step");
+            assert_eq!(m.two_threads(), two, "{modes} modes");
+        }
+    }
+    let mut auto = new(SHARED_CACHE_MIN_MODES);
+    let mut one = auto.clone();
+    one.set_two_threads(false);
+    assert!(auto.threads_auto && !one.threads_auto);
+    let (mut za, mut zo) = (vec![0.0; na], vec![0.0; na]);
+    for k in 0..=THREADS_CHECK_STEPS as usize {
+        let s = (k as f64 * 0.05).sin();
+        let fk: Vec<f64> = f.iter().map(|x| x * (1.0 + 0.3 * s)).collect();
+        auto.advance(1e-3, &u, &fk, 0.0).expect("step");
+        one.advance(1e-3, &u, &fk, 0.0).expect("step");
+        auto.mirror(&mut za);
+        one.mirror(&mut zo);
+        assert!(
+            za.iter().zip(&zo).all(|(a, b)| a.to_bits() == b.to_bits()),
+            "step {k}: the automatic choice ({} threads) moved a value",
+            if auto.two_threads() { 2 } else { 1 }
+        );
+        assert!(!one.two_threads());
+    }
+    // The hand-over itself is measured: positive, and bounded by the caller's patience.
+    let h = auto.pair.get().expect("a helper").handoff_ns(5);
+    assert!(h > 0.0 && h < 1e6, "hand-over {h} ns");
+}
