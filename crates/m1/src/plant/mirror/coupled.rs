@@ -483,8 +483,8 @@ impl CoupledMirror {
     /// [`TWO_THREADS_MIN_MODES`] modes, where the products are bound by one core's share of the
     /// cache bandwidth, and from [`SHARED_CACHE_MIN_MODES`] whichever a timed trial of both
     /// finds faster (every [`THREADS_CHECK_STEPS`] steps); this call ends that automatic
-    /// choice. The helper polls for work for 0.3 ms after each part
-    /// and sleeps after that ([`crate::linalg::pair`]).
+    /// choice. The helper polls for work for 0.3 ms after each part and sleeps after that
+    /// ([`crate::linalg::pair`]).
     pub fn set_two_threads(&mut self, two: bool) {
         self.threads_auto = false;
         self.two_threads = two;
@@ -747,8 +747,8 @@ impl CoupledMirror {
     /// The automatic choice of threads between [`SHARED_CACHE_MIN_MODES`] and
     /// [`TWO_THREADS_MIN_MODES`] modes ([`Self::set_two_threads`]), before a step: every
     /// [`THREADS_CHECK_STEPS`] steps a trial of [`THREADS_TRIAL_STEPS`] steps on one thread
-    /// and as many on two, alternately, then the faster kept. Either gives the same values to the bit. The
-    /// time at which this step starts, when the trial times it.
+    /// and as many on two, alternately, then the faster kept. Either gives the same values to
+    /// the bit. Returns the time at which this step starts when the trial times it.
     fn choose_threads(&mut self) -> Option<std::time::Instant> {
         if !self.threads_auto || !(SHARED_CACHE_MIN_MODES..TWO_THREADS_MIN_MODES).contains(&self.r)
         {

@@ -98,8 +98,9 @@
 //! and the packed form's extra loads make it slower: 600 modes 6 % on one thread).
 //! BENCHMARKS.md, eleventh round.
 //!
-//! **Two threads from 500 modes (from 150 when they pay).** The tick's pass over the Gram matrices (or `W G`; by kind
-//! when they are stored by half), the correction `W - I` (in two parts of block rows with
+//! **Two threads from 500 modes (from 150 when they pay).** The tick's pass over the Gram
+//! matrices (or `W G`; by kind when they are stored by half), the correction `W - I` (in two
+//! parts of block rows with
 //! about the same stored entries, each with its own column sums), the channels' maps on the
 //! modes and the free part (by kind), and the shapes' pass back to the actuators are split
 //! between the calling thread and a helper thread ([`crate::linalg::pair`],
@@ -119,9 +120,8 @@
 //! runs come when the host puts the VM's two cores on two L3 caches (twelfth round): each value
 //! one thread writes and the other reads then crosses between the caches. Each kind's states,
 //! right-hand side and single-precision inputs therefore stay on the thread that steps that
-//! kind (the tick's ramp part is added by that thread, also at the
-//! end of a step). What still crosses per tick is the Gram passes' results and the free
-//! part's rows: at 1000 modes 0.79-0.83 ms per step across two L3s against 0.50-0.61 ms on
+//! kind (the tick's ramp part is added by that thread, also at the end of a step). What still
+//! crosses per tick is the Gram passes' results and the free part's rows: at 1000 modes 0.79-0.83 ms per step across two L3s against 0.50-0.61 ms on
 //! one. Below 500 modes the two threads pay only on one L3 (at 300 modes 107-112 against
 //! 160 us per step there, 196 against 165 us across two), hence the timed trial.
 //!

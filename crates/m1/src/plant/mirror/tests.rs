@@ -533,9 +533,9 @@ fn streamed_bytes_follow_the_gram_storage() {
 }
 
 /// The automatic choice of threads: only between SHARED_CACHE_MIN_MODES and
-/// TWO_THREADS_MIN_MODES modes does it depend on the hand-over to the helper, whatever it
-/// chooses the values are those of one thread to the bit (over a re-check of the choice), and
-/// `set_two_threads` ends it.
+/// TWO_THREADS_MIN_MODES modes does it try both, whatever it chooses the values are those of
+/// one thread to the bit (over a trial and a re-check of the choice), and `set_two_threads`
+/// ends it.
 #[test]
 fn the_automatic_choice_of_threads_changes_no_value() {
     let tmt = Layout::tmt();
@@ -573,10 +573,12 @@ fn the_automatic_choice_of_threads_changes_no_value() {
     one.set_two_threads(false);
     assert!(auto.threads_auto && !one.threads_auto);
     let (mut za, mut zo) = (vec![0.0; na], vec![0.0; na]);
+    let mut used = [false; 2];
     for k in 0..=THREADS_CHECK_STEPS as usize {
         let s = (k as f64 * 0.05).sin();
         let fk: Vec<f64> = f.iter().map(|x| x * (1.0 + 0.3 * s)).collect();
         auto.advance(1e-3, &u, &fk, 0.0).expect("step");
+        used[usize::from(auto.two_threads())] = true;
         one.advance(1e-3, &u, &fk, 0.0).expect("step");
         auto.mirror(&mut za);
         one.mirror(&mut zo);
@@ -587,6 +589,8 @@ fn the_automatic_choice_of_threads_changes_no_value() {
         );
         assert!(!one.two_threads());
     }
+    // The trial stepped on both.
+    assert_eq!(used, [true, true]);
     // The hand-over itself is measured: positive, and bounded by the caller's patience.
     let h = auto.pair.get().expect("a helper").handoff_ns(5);
     assert!(h > 0.0 && h < 1e6, "hand-over {h} ns");

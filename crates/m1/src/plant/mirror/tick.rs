@@ -295,8 +295,8 @@ impl CoupledMirror {
     }
 
     /// The modes' terms of the coupled solve: per mode the free response `abar` (into `cols`)
-    /// and `x = abar + b1 h'`, added to the right-hand side as `psi_k += e_k x` (`add`), or
-    /// else kept in `gpsi` (free until the solve's products) for the channel passes to add.
+    /// and `x = abar + b1 h'` (into `gpsi`, free until the solve's products), added to the
+    /// right-hand side as `psi_k += e_k x` here (`add`) or else by the channel passes.
     #[inline(always)]
     fn modal_terms(&mut self, add: bool) {
         let r = self.r;
@@ -306,23 +306,18 @@ impl CoupledMirror {
         // one r x 2r product.
         let ([a0, a1, ..], b0, b1) = (&self.a_mode, &self.b0[0][..r], &self.b1[0][..r]);
         let (a0, a1, q, v, u) = (&a0[..r], &a1[..r], &self.q[..r], &self.v[..r], &self.u[..r]);
-        let (rhs, cols) = (&self.rhs[..r], &mut self.cols[..r]);
+        let (rhs, cols, xs) = (&self.rhs[..r], &mut self.cols[..r], &mut self.gpsi[..r]);
+        for j in 0..r {
+            let abar = a0[j] * q[j] + a1[j] * v[j] + (b0[j] - b1[j]) * u[j];
+            xs[j] = abar + b1[j] * rhs[j];
+            cols[j] = abar;
+        }
         if add {
             let (psi_p, psi_t) = self.psi.split_at_mut(r);
             let (psi_t, [ep, et]) = (&mut psi_t[..r], self.e);
-            for j in 0..r {
-                let abar = a0[j] * q[j] + a1[j] * v[j] + (b0[j] - b1[j]) * u[j];
-                let x = abar + b1[j] * rhs[j];
-                psi_p[j] += ep * x;
-                psi_t[j] += et * x;
-                cols[j] = abar;
-            }
-        } else {
-            let xs = &mut self.gpsi[..r];
-            for j in 0..r {
-                let abar = a0[j] * q[j] + a1[j] * v[j] + (b0[j] - b1[j]) * u[j];
-                xs[j] = abar + b1[j] * rhs[j];
-                cols[j] = abar;
+            for ((p, t), x) in psi_p.iter_mut().zip(psi_t.iter_mut()).zip(&*xs) {
+                *p += ep * x;
+                *t += et * x;
             }
         }
     }
