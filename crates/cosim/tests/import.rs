@@ -992,6 +992,20 @@ fn recorded_components_on_the_lookahead_thread_change_no_row() {
                 "{what}: {} steps went there",
                 la.timing.lookahead_steps
             );
+            // Gauss-Seidel with e kept: e reads a.y as b does, so at most of e's steps after b
+            // went there in the same base step its input is b's, kept there (the memo), not
+            // copied again; when b stayed on the master's thread (d next, or e's steps still
+            // under way), a.y has changed since b's last one went there, and e's input comes
+            // as it is. Never in Jacobi order, where nothing but e goes there.
+            let memo = la.timing.lookahead_memo_steps;
+            if order == Order::GaussSeidel && every_e == 1 && busy_e == 0.0 {
+                assert!(
+                    memo > 0,
+                    "{what}: no step of e took its input from the memo"
+                );
+            } else if order == Order::Jacobi {
+                assert_eq!(memo, 0, "{what}");
+            }
             assert_eq!(seq.n_rows(), steps as usize / decimation + 1, "{what}");
             assert!(seq.values().iter().all(|x| x.is_finite()));
             assert!(seq.column("e.y").unwrap().iter().any(|&x| x != 0.0));

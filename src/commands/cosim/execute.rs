@@ -345,6 +345,7 @@ pub(super) fn summary_row(o: &RunOutcome, duration: f64) -> serde_json::Value {
         "master_share": timing.master_share(),
         // Components' steps the master's second thread took (Gauss-Seidel's look-ahead).
         "lookahead_steps": timing.lookahead_steps,
+        "lookahead_memo_steps": timing.lookahead_memo_steps,
         "component_seconds": timing.components.iter()
             .map(|(n, t)| (n.clone(), json!(t)))
             .collect::<serde_json::Map<_, _>>(),

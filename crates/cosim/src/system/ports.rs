@@ -152,16 +152,19 @@ pub(super) struct Ports {
 }
 
 impl Ports {
-    /// Gathers every kind's inputs out of `shared` for a step on another thread: the Real
-    /// values past this core's caches ([`copy_past_cache`]).
-    pub(super) fn gather_for_other_thread(&mut self, shared: &Values) {
-        let real = &mut self.real;
-        for &(src, dst, n) in &real.in_runs {
-            copy_past_cache(&mut real.in_buf[dst..dst + n], &shared.real[src..src + n]);
-        }
+    /// Gathers its Integer, Boolean and String inputs out of `shared` (for a step on another
+    /// thread: the Real ones come through [`gather_real_past_cache`]).
+    pub(super) fn gather_other_kinds(&mut self, shared: &Values) {
         self.integer.gather(&shared.integer);
         self.boolean.gather(&shared.boolean);
         self.string.gather(&shared.string);
+    }
+
+    /// Whether it has inputs of a kind other than Real.
+    pub(super) fn has_other_inputs(&self) -> bool {
+        !(self.integer.in_vrs.is_empty()
+            && self.boolean.in_vrs.is_empty()
+            && self.string.in_vrs.is_empty())
     }
 
     /// Publishes every kind's outputs into `shared`.
@@ -240,6 +243,57 @@ impl Ports {
     }
 }
 
+/// A run of consecutive Real inputs that come from one component's consecutive outputs: the
+/// first source slot in the shared buffer, the source component and the first of its outputs,
+/// the first input, the length. A port's runs ([`Port::in_runs`]) cut where one component's
+/// outputs end and the next one's begin.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) struct SourcedRun {
+    pub(super) slot: usize,
+    pub(super) comp: usize,
+    pub(super) at: usize,
+    pub(super) dst: usize,
+    pub(super) n: usize,
+}
+
+/// `runs` (`(first source slot, first input, length)`) cut at the components' output regions:
+/// component `c`'s outputs are slots `offsets[c]..offsets[c + 1]` (`Wiring::offsets`).
+pub(super) fn sourced_runs(runs: &[(usize, usize, usize)], offsets: &[usize]) -> Vec<SourcedRun> {
+    let mut out = Vec::with_capacity(runs.len());
+    for &(mut slot, mut dst, mut n) in runs {
+        while n > 0 {
+            // The component whose region holds `slot`: the last whose region starts at or
+            // before it (empty regions share their start with the next one).
+            let comp = offsets.partition_point(|&o| o <= slot) - 1;
+            let len = n.min(offsets[comp + 1] - slot);
+            out.push(SourcedRun {
+                slot,
+                comp,
+                at: slot - offsets[comp],
+                dst,
+                n: len,
+            });
+            slot += len;
+            dst += len;
+            n -= len;
+        }
+    }
+    out
+}
+
+/// Copies Real inputs into `dst` for a step on another thread, past this core's caches
+/// ([`copy_past_cache`]): each run from `from(run)`, which gives the source's values (its
+/// ports' latest outputs while they are not yet published, the shared buffer otherwise).
+pub(super) fn gather_real_past_cache<'a>(
+    dst: &mut [f64],
+    runs: &[SourcedRun],
+    mut from: impl FnMut(&SourcedRun) -> &'a [f64],
+) {
+    for r in runs {
+        copy_past_cache(&mut dst[r.dst..r.dst + r.n], from(r));
+    }
+}
+
 /// Copies `src` into `dst` (of the same length) for another core to read: on x86-64 with
 /// non-temporal stores, which write the lines to memory without first taking them back from
 /// the core that read them last. A plain copy of the TMT mirror's 1476 displacements into a
@@ -278,7 +332,33 @@ pub(super) fn copy_past_cache(dst: &mut [f64], src: &[f64]) {
 
 #[cfg(test)]
 mod tests {
-    use super::copy_past_cache;
+    use super::{SourcedRun, copy_past_cache, sourced_runs};
+
+    /// Runs are cut where a component's outputs end, empty regions are skipped, and every
+    /// input keeps its source slot.
+    #[test]
+    fn runs_are_cut_at_the_components_outputs() {
+        // Components: 0 has slots 0..3, 1 none, 2 has 3..7, 3 has 7..8.
+        let offsets = [0, 3, 3, 7, 8];
+        let runs = [(1, 0, 5), (7, 5, 1), (0, 6, 1)];
+        let cut = sourced_runs(&runs, &offsets);
+        let run = |slot, comp, at, dst, n| SourcedRun {
+            slot,
+            comp,
+            at,
+            dst,
+            n,
+        };
+        assert_eq!(
+            cut,
+            [
+                run(1, 0, 1, 0, 2),
+                run(3, 2, 0, 2, 3),
+                run(7, 3, 0, 5, 1),
+                run(0, 0, 0, 6, 1),
+            ]
+        );
+    }
 
     /// Every length (below and above the streaming threshold, odd and even) at both alignments
     /// of source and destination is copied exactly, with nothing written outside.

@@ -57,6 +57,9 @@ pub struct Timing {
     /// Components' steps taken on the look-ahead thread (handed over in Gauss-Seidel order, or
     /// of sinks kept there in either order).
     pub lookahead_steps: u64,
+    /// Of those, the steps of kept sinks that took inputs from the memo there (values copied
+    /// once by the master for two components, [`Simulation::lookahead_memo_steps`]).
+    pub lookahead_memo_steps: u64,
 }
 
 impl Timing {
@@ -268,7 +271,8 @@ impl Sink for CsvSink {
         let out = self.out.as_mut().ok_or_else(|| {
             CosimError::Invalid(format!("{}: a row before the columns", path.display()))
         })?;
-        write_csv_row(out, row).map_err(crate::error::io(path))?;
+        // The error's path is made only on an error: no allocation per row.
+        write_csv_row(out, row).map_err(|e| crate::error::io(path)(e))?;
         self.rows += 1;
         Ok(())
     }
@@ -422,6 +426,7 @@ pub fn run_into(
         components: sim.component_seconds(),
         setup_components: sim.component_setup_seconds(),
         lookahead_steps: sim.lookahead_steps(),
+        lookahead_memo_steps: sim.lookahead_memo_steps(),
     };
     sim.terminate().map_err(|e| Box::new(Failure::from(e)))?;
     Ok(Report {

@@ -8,8 +8,8 @@ use std::time::Instant;
 
 use super::definition::{Order, System, Value};
 use super::init;
-use super::ports::{Port, Ports, Values};
-use super::simulation::{KeptSink, Late, Recorded, RecordedOf, Simulation};
+use super::ports::{Port, Ports, SourcedRun, Values, sourced_runs};
+use super::simulation::{KeptSink, Late, MemoPlan, Recorded, RecordedOf, Simulation};
 use super::step::Running;
 use super::threads::Lookahead;
 use super::wiring::{Kind, Recording, Wiring, var_of};
@@ -270,20 +270,34 @@ impl Simulation {
             None
         };
         let sources = wiring.sources();
-        let sinks = comps
+        let real_offsets = wiring.offsets(Kind::Real);
+        let real_runs: Vec<Vec<SourcedRun>> = comps
+            .iter()
+            .map(|r| sourced_runs(r.ports.real.in_runs(), &real_offsets))
+            .collect();
+        let sinks: Vec<Option<KeptSink>> = comps
             .iter()
             .enumerate()
             .map(|(i, r)| {
                 let read = sources.iter().any(|s| s.binary_search(&i).is_ok());
                 let p = &r.ports;
-                let only_real = p.integer.in_vrs.is_empty()
-                    && p.boolean.in_vrs.is_empty()
-                    && p.string.in_vrs.is_empty();
+                let only_real = !p.has_other_inputs();
                 (!read && !stay_on_master[i] && r.every == 1 && only_real).then(|| KeptSink {
-                    runs: p.real.in_runs().to_vec(),
                     inputs: p.real.in_vrs.len(),
+                    plans: (0..n)
+                        .filter(|&j| j != i)
+                        .filter_map(|j| MemoPlan::new(j, &real_runs[i], &real_runs[j]))
+                        .collect(),
                     ..KeptSink::default()
                 })
+            })
+            .collect();
+        let memo_for = (0..n)
+            .map(|j| {
+                sinks
+                    .iter()
+                    .flatten()
+                    .any(|k| k.plans.iter().any(|p| p.from == j))
             })
             .collect();
         let lazy = comps
@@ -295,6 +309,11 @@ impl Simulation {
             .collect();
         Ok(Self {
             lazy,
+            real_runs,
+            seen: vec![0; n],
+            memo_for,
+            memo: None,
+            memo_steps: 0,
             stale: vec![false; n],
             every: comps.iter().map(|r| r.every as u64).collect(),
             names: comps.iter().map(|r| r.name.clone()).collect(),

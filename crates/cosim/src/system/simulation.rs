@@ -4,7 +4,7 @@
 //! [`Simulation::step`] (`step.rs`).
 
 use super::definition::Order;
-use super::ports::Values;
+use super::ports::{SourcedRun, Values};
 use super::step::Running;
 use super::threads::{InFlight, Lookahead, SchedulerParams};
 use super::wiring::Kind;
@@ -34,14 +34,60 @@ pub(super) struct Late {
     values: Vec<(usize, f64)>,
 }
 
-/// How a sink kept on the look-ahead thread gets its inputs: its Real port's runs from the
-/// shared buffer, its number of inputs, and the buffers that come back from its steps.
+/// How a sink kept on the look-ahead thread gets its inputs: its number of Real inputs (they
+/// come as [`Simulation::real_runs`] says, or some from the memo: `plans`), and the buffers
+/// that come back from its steps.
 #[derive(Debug, Default)]
 pub(super) struct KeptSink {
-    pub(super) runs: Vec<(usize, usize, usize)>,
     pub(super) inputs: usize,
+    /// Per component whose Real inputs share source runs with this sink's: the plan of the
+    /// copies from the memo when that component's inputs are the memo.
+    pub(super) plans: Vec<MemoPlan>,
     pub(super) free_inputs: Vec<Vec<f64>>,
     pub(super) free_recorded: Vec<Vec<f64>>,
+}
+
+/// How a kept sink takes some of its Real inputs from the memo: the Real inputs the look-ahead
+/// thread keeps of the last component stepped there with [`Job::memo`](super::threads::Job)
+/// (component `from`), when the values those runs came from have not changed since.
+#[derive(Debug, Clone, Default)]
+pub(super) struct MemoPlan {
+    /// The component whose inputs the memo holds.
+    pub(super) from: usize,
+    /// Per run of the sink's [`Simulation::real_runs`], whether the memo holds it.
+    pub(super) covered: Vec<bool>,
+    /// The copies from the memo: `(first in the memo, first input, length)`.
+    pub(super) runs: Vec<(usize, usize, usize)>,
+}
+
+impl MemoPlan {
+    /// The plan for a sink reading `sink` (its sourced runs) from the memo of `from`'s inputs
+    /// (`memo`, its sourced runs): a run is covered when one of `from`'s runs holds the same
+    /// source outputs. None if none is.
+    pub(super) fn new(from: usize, sink: &[SourcedRun], memo: &[SourcedRun]) -> Option<Self> {
+        let mut plan = Self {
+            from,
+            ..Self::default()
+        };
+        for r in sink {
+            let held = memo
+                .iter()
+                .find(|q| q.comp == r.comp && q.at <= r.at && r.at + r.n <= q.at + q.n);
+            plan.covered.push(held.is_some());
+            if let Some(q) = held {
+                plan.runs.push((q.dst + (r.at - q.at), r.dst, r.n));
+            }
+        }
+        (!plan.runs.is_empty()).then_some(plan)
+    }
+}
+
+/// The memo's content as the master knows it: whose inputs, and the [`Simulation::seen`]
+/// counts of every component when they were gathered.
+#[derive(Debug, Clone, Default)]
+pub(super) struct Memo {
+    pub(super) from: usize,
+    pub(super) seen: Vec<u64>,
 }
 
 /// The system instantiated and initialised, ready to step.
@@ -91,6 +137,19 @@ pub struct Simulation {
     /// step and has no recorded outputs (its outputs in the shared buffer are read only as
     /// another component's inputs, and each step's replace the last's at once).
     pub(super) lazy: Vec<bool>,
+    /// Per component, where its Real inputs come from, run by run and source by source: a
+    /// step on the look-ahead thread takes a stale source's values straight from its ports.
+    pub(super) real_runs: Vec<Vec<SourcedRun>>,
+    /// Per component, how many times its visible outputs have changed (made visible, or
+    /// marked stale): equal counts, equal values.
+    pub(super) seen: Vec<u64>,
+    /// Per component, whether its steps on the look-ahead thread leave their Real inputs
+    /// there (the memo) for a kept sink that reads some of the same values.
+    pub(super) memo_for: Vec<bool>,
+    /// What the memo on the look-ahead thread holds (None: nothing usable).
+    pub(super) memo: Option<Memo>,
+    /// Kept sinks' steps that took inputs from the memo.
+    pub(super) memo_steps: u64,
     /// Per lazy component, whether its ports hold due outputs not yet copied to `outputs`
     /// (copied when a reader's turn comes, [`Self::fresh_sources`], or at [`Self::settle`]).
     pub(super) stale: Vec<bool>,
@@ -210,6 +269,13 @@ impl Simulation {
         self.lookahead_failed_at
     }
 
+    /// Steps of sinks kept on the look-ahead thread that took some of their inputs from the
+    /// memo there (the Real inputs of a component stepped there just before them, from the
+    /// same outputs): values the master copied once for two components.
+    pub fn lookahead_memo_steps(&self) -> u64 {
+        self.memo_steps
+    }
+
     /// Components' steps taken on the look-ahead thread so far.
     pub fn lookahead_steps(&self) -> u64 {
         self.lookahead.as_ref().map_or(0, |l| l.deferred)
@@ -283,5 +349,42 @@ impl Simulation {
     /// Component names in order.
     pub fn component_names(&self) -> Vec<&str> {
         self.names.iter().map(String::as_str).collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{MemoPlan, SourcedRun};
+
+    fn run(slot: usize, comp: usize, at: usize, dst: usize, n: usize) -> SourcedRun {
+        SourcedRun {
+            slot,
+            comp,
+            at,
+            dst,
+            n,
+        }
+    }
+
+    /// A sink's run is taken from the memo where one of the memo's runs holds all of the same
+    /// source outputs (at its place among the memo's inputs), and not where it holds only part
+    /// of them or those of another component.
+    #[test]
+    fn memo_plans_cover_whole_runs_of_the_same_outputs() {
+        // The memo's component reads outputs 2..10 of component 0 into inputs 4..12, and
+        // output 0 of component 1 into input 0.
+        let memo = [run(2, 0, 2, 4, 8), run(20, 1, 0, 0, 1)];
+        let sink = [
+            run(3, 0, 3, 0, 5),  // held: memo inputs 5..10
+            run(8, 0, 8, 5, 4),  // outputs 8..12: only part held
+            run(20, 1, 0, 9, 1), // held: memo input 0
+            run(21, 1, 1, 10, 1),
+        ];
+        let plan = MemoPlan::new(7, &sink, &memo).unwrap();
+        assert_eq!(plan.from, 7);
+        assert_eq!(plan.covered, [true, false, true, false]);
+        assert_eq!(plan.runs, [(5, 0, 5), (0, 9, 1)]);
+        // Nothing in common: no plan.
+        assert!(MemoPlan::new(7, &sink[3..], &memo).is_none());
     }
 }

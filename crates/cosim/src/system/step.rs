@@ -8,8 +8,7 @@
 use std::time::Instant;
 
 use super::definition::Order;
-use super::ports::copy_past_cache;
-use super::ports::{Ports, Values};
+use super::ports::{Ports, SourcedRun, Values, copy_past_cache, gather_real_past_cache};
 use super::simulation::Simulation;
 use super::threads::{self, Flight, InFlight, Job, Kept, KeptStep, LOOKAHEAD_SLOTS, Reply, Work};
 use crate::error::{CosimError, Result};
@@ -44,11 +43,6 @@ impl Running {
         self.step_with(t, h, left, |ports, inst| {
             ports.set_inputs_from(shared, inst)
         })
-    }
-
-    /// Copies its inputs out of `shared` for a step on another thread.
-    pub(super) fn gather_for_other_thread(&mut self, shared: &Values) {
-        self.ports.gather_for_other_thread(shared);
     }
 
     /// [`Self::advance`] on the inputs already gathered.
@@ -173,6 +167,7 @@ impl Simulation {
                 } else {
                     r.publish(&mut self.outputs);
                 }
+                self.seen[i] += 1;
                 *p = None;
             }
         }
@@ -295,31 +290,57 @@ impl Simulation {
             });
         }
         self.pending[i] = Some(at);
-        self.fresh_sources(i);
+        // Its inputs for a step on the look-ahead thread are copied now, the Real ones of
+        // stale sources straight from their ports (they stay stale); its other kinds, and its
+        // own outputs if it reads them, from the shared buffer.
         if defer
-            && let Some(la) = self.lookahead.as_mut()
+            && (self.sources[i].binary_search(&i).is_ok()
+                || self.comps[i]
+                    .as_deref()
+                    .is_some_and(|c| c.ports.has_other_inputs()))
+        {
+            self.fresh_sources(i);
+        }
+        if defer
+            && self.lookahead.is_some()
             && let Some(mut comp) = self.comps[i].take()
         {
-            // The thread steps it while the master moves on: its inputs are copied now.
-            comp.gather_for_other_thread(&self.outputs);
+            // The thread steps it while the master moves on.
+            comp.ports.gather_other_kinds(&self.outputs);
+            let (comps, stale, shared) = (&self.comps, &self.stale, &self.outputs.real);
+            gather_real_past_cache(&mut comp.ports.real.in_buf, &self.real_runs[i], |r| {
+                source_values(comps, stale, shared, r)
+            });
             let flight = InFlight {
                 index: i,
                 since: k,
                 due: at,
                 what: Flight::Step,
             };
-            let job = Work::Step(Job::new(i, comp, t, h, left));
-            match la.send(flight, job) {
-                Ok(()) => return Ok(()),
-                Err(work) => {
+            let memo = self.memo_for[i];
+            let job = Work::Step(Job::new(i, comp, (t, h, left), memo));
+            match self.lookahead.as_mut().map(|la| la.send(flight, job)) {
+                Some(Ok(())) => {
+                    if memo {
+                        // The memo now holds its inputs, gathered from these values.
+                        let mut m = self.memo.take().unwrap_or_default();
+                        m.from = i;
+                        m.seen.clone_from(&self.seen);
+                        self.memo = Some(m);
+                    }
+                    return Ok(());
+                }
+                Some(Err(work)) => {
                     // The thread is gone: step it here, and no more look-ahead.
                     if let Work::Step(job) = *work {
                         self.comps[i] = Some(job.comp);
                     }
                     self.lookahead = None;
                 }
+                None => {}
             }
         }
+        self.fresh_sources(i);
         if let Some(r) = self.comps[i].as_deref_mut() {
             r.advance(&self.outputs, t, h, left)?;
             self.fmu_critical += r.last;
@@ -392,6 +413,10 @@ impl Simulation {
                     Box::new(Kept {
                         comp,
                         recorded,
+                        memo_plans: self.sinks[i]
+                            .as_ref()
+                            .map(|k| k.plans.iter().map(|p| p.runs.clone()).collect())
+                            .unwrap_or_default(),
                         failed: false,
                     }),
                 ),
@@ -406,9 +431,8 @@ impl Simulation {
                 }
             }
         }
-        if !from_snapshot {
-            self.fresh_sources(i);
-        }
+        // A sink has Real inputs only: those of stale sources come straight from their ports
+        // (they stay stale; in Jacobi order none is).
         let shared = if from_snapshot {
             &self.snapshot.real
         } else {
@@ -419,11 +443,31 @@ impl Simulation {
         };
         let mut inputs = sink.free_inputs.pop().unwrap_or_default();
         inputs.resize(sink.inputs, 0.0);
-        for &(src, dst, n) in &sink.runs {
-            copy_past_cache(&mut inputs[dst..dst + n], &shared[src..src + n]);
+        // The runs the memo holds with the values of now are copied there, from the memo; the
+        // others here.
+        let (seen, runs) = (&self.seen, &self.real_runs[i]);
+        let plan = self.memo.as_ref().filter(|_| !from_snapshot).and_then(|m| {
+            sink.plans.iter().position(|p| {
+                p.from == m.from
+                    && runs
+                        .iter()
+                        .zip(&p.covered)
+                        .all(|(r, &c)| !c || m.seen[r.comp] == seen[r.comp])
+            })
+        });
+        self.memo_steps += u64::from(plan.is_some());
+        let covered = plan.map(|p| &sink.plans[p].covered[..]);
+        let (comps, stale) = (&self.comps, &self.stale);
+        for (k, r) in runs.iter().enumerate() {
+            if !covered.is_some_and(|c| c[k]) {
+                copy_past_cache(
+                    &mut inputs[r.dst..r.dst + r.n],
+                    source_values(comps, stale, shared, r),
+                );
+            }
         }
         let recorded = sink.free_recorded.pop().unwrap_or_default();
-        let step = KeptStep::new(i, t, h, left, inputs, recorded);
+        let step = KeptStep::new(i, t, h, left, inputs, recorded, plan);
         let flight = InFlight {
             index: i,
             since: k,
@@ -456,6 +500,7 @@ impl Simulation {
             r.ports.get_outputs(&mut r.instance)?;
             r.publish(&mut self.outputs);
         }
+        self.seen[c] += 1;
         self.pending[c] = None;
         self.stale[c] = false;
         Ok(())
@@ -588,7 +633,7 @@ impl Simulation {
             }
             Reply::Kept => Ok(()),
             Reply::KeptStepped(mut step) => {
-                let result = std::mem::replace(&mut step.result, Ok(()));
+                let result = std::mem::replace(&mut step.result, Ok(())).map_err(|e| *e);
                 let out = match result {
                     Ok(()) => {
                         // The sink's recorded outputs into the shared buffer (later rows read
@@ -639,20 +684,44 @@ impl Simulation {
     }
 }
 
+/// The values of Real run `r` as the step about to be taken should see them: from its source's
+/// ports while the source is stale (its due outputs not yet copied to `shared`), from `shared`
+/// otherwise.
+fn source_values<'a>(
+    comps: &'a [Option<Box<Running>>],
+    stale: &[bool],
+    shared: &'a [f64],
+    r: &SourcedRun,
+) -> &'a [f64] {
+    match comps[r.comp].as_deref() {
+        Some(c) if stale[r.comp] => &c.ports.real.out_buf[r.at..r.at + r.n],
+        _ => &shared[r.slot..r.slot + r.n],
+    }
+}
+
 /// Whether every value is finite: `0 * v` is 0 for a finite `v` and NaN otherwise, summed in
-/// eight independent lanes so that the loop vectorises (a mirror's outputs are thousands of
-/// values per step, checked on the master's thread).
+/// sixteen independent lanes so that the loop vectorises, compiled for the processor's widest
+/// vectors (`pulp`'s runtime dispatch: the TMT mirror's 1476 displacements are checked on the
+/// master's thread at every step; with the baseline's two-lane vectors that took 0.3 us).
 fn all_finite(x: &[f64]) -> bool {
-    let mut lanes = [0.0f64; 8];
-    let chunks = x.chunks_exact(8);
-    let tail = chunks.remainder();
-    for c in chunks {
-        for (l, v) in lanes.iter_mut().zip(c) {
-            *l += 0.0 * v;
+    struct Check<'a>(&'a [f64]);
+    impl pulp::WithSimd for Check<'_> {
+        type Output = bool;
+        #[inline(always)]
+        fn with_simd<S: pulp::Simd>(self, _simd: S) -> bool {
+            let mut lanes = [0.0f64; 16];
+            let chunks = self.0.chunks_exact(16);
+            let tail = chunks.remainder();
+            for c in chunks {
+                for (l, v) in lanes.iter_mut().zip(c) {
+                    *l += 0.0 * v;
+                }
+            }
+            let rest: f64 = tail.iter().map(|v| 0.0 * v).sum();
+            (lanes.iter().sum::<f64>() + rest) == 0.0
         }
     }
-    let rest: f64 = tail.iter().map(|v| 0.0 * v).sum();
-    (lanes.iter().sum::<f64>() + rest) == 0.0
+    pulp::Arch::new().dispatch(Check(x))
 }
 
 #[cfg(test)]

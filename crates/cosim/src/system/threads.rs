@@ -122,24 +122,34 @@ pub(super) struct Job {
     t: f64,
     h: f64,
     left: usize,
-    pub(super) result: Result<()>,
+    /// Whether the thread keeps a copy of its Real inputs (the memo) for the kept sinks' next
+    /// steps that read the same values ([`KeptStep::from_memo`]).
+    memo: bool,
+    /// The outcome, the error boxed: a message is then two cache lines, not three.
+    pub(super) result: std::result::Result<(), Box<CosimError>>,
 }
 
 impl Job {
-    pub(super) fn new(index: usize, comp: Box<Running>, t: f64, h: f64, left: usize) -> Self {
+    pub(super) fn new(
+        index: usize,
+        comp: Box<Running>,
+        (t, h, left): (f64, f64, usize),
+        memo: bool,
+    ) -> Self {
         Self {
             index,
             comp,
             t,
             h,
             left,
+            memo,
             result: Ok(()),
         }
     }
 
     /// The component, back, and the outcome of its step.
     pub(super) fn into_parts(self) -> (usize, Box<Running>, Result<()>) {
-        (self.index, self.comp, self.result)
+        (self.index, self.comp, self.result.map_err(|e| *e))
     }
 }
 
@@ -154,7 +164,11 @@ pub(super) struct KeptStep {
     pub(super) inputs: Vec<f64>,
     /// Its recorded outputs after the step, as numbers (in [`Kept::recorded`]'s order).
     pub(super) recorded: Vec<f64>,
-    pub(super) result: Result<()>,
+    /// Which of its [`Kept::memo_plans`] fills the rest of its inputs from the memo (the Real
+    /// inputs of the last component stepped there with [`Job::memo`]); None: all came with it.
+    from_memo: Option<usize>,
+    /// The outcome (boxed, as [`Job::result`]).
+    pub(super) result: std::result::Result<(), Box<CosimError>>,
 }
 
 impl KeptStep {
@@ -165,6 +179,7 @@ impl KeptStep {
         left: usize,
         inputs: Vec<f64>,
         recorded: Vec<f64>,
+        from_memo: Option<usize>,
     ) -> Self {
         Self {
             index,
@@ -173,6 +188,7 @@ impl KeptStep {
             left,
             inputs,
             recorded,
+            from_memo,
             result: Ok(()),
         }
     }
@@ -188,6 +204,9 @@ impl KeptStep {
 pub(super) struct Kept {
     pub(super) comp: Box<Running>,
     pub(super) recorded: Vec<(Kind, usize)>,
+    /// Per component whose inputs may be the memo, the runs `(first in the memo, first input,
+    /// length)` of its inputs that the memo then holds (`KeptSink::plans`, same order).
+    pub(super) memo_plans: Vec<Vec<(usize, usize, usize)>>,
     /// Whether one of its steps failed: it steps no more (the sequential order would not
     /// have stepped it again), and its later steps reply with no values.
     pub(super) failed: bool,
@@ -320,10 +339,19 @@ fn work(
     n: usize,
 ) {
     let mut kept: Vec<Option<Box<Kept>>> = (0..n).map(|_| None).collect();
+    let mut memo: Vec<f64> = Vec::new();
     while let Some(w) = receive(inbox, SPIN_WORKER) {
         let reply = match w {
             Work::Step(mut job) => {
-                job.result = job.comp.step_gathered(job.t, job.h, job.left);
+                if job.memo {
+                    // Copied before the step: the step reads them from this core's cache then.
+                    memo.clear();
+                    memo.extend_from_slice(&job.comp.ports.real.in_buf);
+                }
+                job.result = job
+                    .comp
+                    .step_gathered(job.t, job.h, job.left)
+                    .map_err(Box::new);
                 Reply::Stepped(job)
             }
             Work::Keep(i, k) => {
@@ -338,7 +366,26 @@ fn work(
                         s.recorded.clear();
                         Ok(())
                     }
+                    Some(k)
+                        if s.from_memo.is_some_and(|p| {
+                            !k.memo_plans.get(p).is_some_and(|plan| {
+                                plan.iter().all(|&(m, dst, len)| {
+                                    m + len <= memo.len() && dst + len <= s.inputs.len()
+                                })
+                            })
+                        }) =>
+                    {
+                        Err(CosimError::Invalid(format!(
+                            "component {}: its inputs are not in the memo (internal error)",
+                            s.index
+                        )))
+                    }
                     Some(k) => {
+                        if let Some(plan) = s.from_memo.and_then(|p| k.memo_plans.get(p)) {
+                            for &(m, dst, len) in plan {
+                                s.inputs[dst..dst + len].copy_from_slice(&memo[m..m + len]);
+                            }
+                        }
                         let r = &mut k.comp;
                         std::mem::swap(&mut r.ports.real.in_buf, &mut s.inputs);
                         let out = r.step_gathered(s.t, s.h, s.left);
@@ -355,7 +402,8 @@ fn work(
                         "component {} is not kept on the look-ahead thread (internal error)",
                         s.index
                     ))),
-                };
+                }
+                .map_err(Box::new);
                 Reply::KeptStepped(s)
             }
             Work::GiveBack(i) => {
