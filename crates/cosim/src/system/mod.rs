@@ -60,6 +60,15 @@
 //!   optics' PSSN at 10 Hz, about 1 ms) is caught up over the next ones instead of making the
 //!   master wait; the master waits only when 256 messages are in flight.
 //!
+//! The Real inputs of a step sent there are copied past the master's caches (non-temporal
+//! stores: the other core reads them from memory, and the master never waits for lines that
+//! core holds); those from a component whose outputs still wait in its ports (below) come
+//! straight from there. A kept sink reading some of the same outputs as the component sent
+//! there just before it takes those from that component's inputs, which the thread keeps
+//! (the memo), when the outputs have not changed since: in the TMT systems the mirror's 1476
+//! displacements cross once per step for both the edge sensors and the optics
+//! ([`Simulation::lookahead_memo_steps`] counts those steps).
+//!
 //! Its steps run in the order they were sent and their replies come back in that order. Only
 //! components taking at least [`SchedulerParams::lookahead_min_seconds`] per step (a running
 //! mean) go there, so that handing one over pays. A recorded component may go too when [`run`]

@@ -368,8 +368,8 @@ mod tests {
             .map(|k| (k as f64).sin() * 1e-7 + k as f64)
             .collect();
         for n in [0usize, 1, 2, 31, 32, 33, 64, 99, 257] {
-            for (so, d_off) in [(0, 0), (0, 1), (1, 0), (1, 1)] {
-                let mut dst = vec![f64::NAN; n + 3];
+            for (so, d_off) in (0..2).flat_map(|so| (0..9).map(move |d| (so, d))) {
+                let mut dst = vec![f64::NAN; n + 11];
                 copy_past_cache(&mut dst[d_off..d_off + n], &src[so..so + n]);
                 assert!(dst[..d_off].iter().all(|x| x.is_nan()), "{n} {so} {d_off}");
                 assert!(

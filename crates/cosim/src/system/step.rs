@@ -730,8 +730,23 @@ mod tests {
 
     #[test]
     fn all_finite_finds_any_non_finite_value_at_any_position() {
-        for n in [0usize, 1, 7, 8, 9, 17, 100] {
-            let x: Vec<f64> = (0..n).map(|k| (k as f64 - 3.5) * 1e300).collect();
+        // The extremes of the finite values among ordinary ones.
+        let edges = [
+            0.0,
+            -0.0,
+            f64::MAX,
+            f64::MIN,
+            5e-324,
+            -5e-324,
+            f64::MIN_POSITIVE,
+        ];
+        for n in [0usize, 1, 7, 8, 9, 15, 16, 17, 33, 100] {
+            let x: Vec<f64> = (0..n)
+                .map(|k| match k % 3 {
+                    0 => edges[(k / 3) % edges.len()],
+                    _ => (k as f64 - 3.5) * 1e300,
+                })
+                .collect();
             assert!(all_finite(&x), "{n}");
             for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
                 for at in 0..n {
