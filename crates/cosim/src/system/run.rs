@@ -468,6 +468,7 @@ impl HeldRows {
 
     /// Room for the row of base step `at`, to be filled.
     fn push(&mut self, at: u64) -> &mut [f64] {
+        debug_assert!(self.at.last().is_none_or(|&last| last < at), "rows out of order");
         let end = self.values.len();
         self.values.resize(end + self.width, 0.0);
         self.at.push(at);
@@ -475,15 +476,20 @@ impl HeldRows {
     }
 
     /// Writes `values` (`(column, value)`, columns counted without time) into the held rows
-    /// of base steps `due..=upto`.
+    /// of base steps `due..=upto`. The held rows' base steps ascend: only those rows are
+    /// visited (a kept sink's steps catching up after a long one patch a few rows each among
+    /// the many held meanwhile).
     fn patch(&mut self, due: u64, upto: u64, values: &[(usize, f64)]) {
         let w = self.width;
-        let rows = self.values[self.start * w..].chunks_exact_mut(w.max(1));
-        for (row, &at) in rows.zip(&self.at[self.start..]) {
-            if (due..=upto).contains(&at) {
-                for &(c, v) in values {
-                    row[1 + c] = v;
-                }
+        let at = &self.at[self.start..];
+        let first = self.start + at.partition_point(|&a| a < due);
+        let end = self.start + at.partition_point(|&a| a <= upto);
+        if first >= end {
+            return;
+        }
+        for row in self.values[first * w..end * w].chunks_exact_mut(w.max(1)) {
+            for &(c, v) in values {
+                row[1 + c] = v;
             }
         }
     }
