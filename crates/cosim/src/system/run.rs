@@ -468,7 +468,10 @@ impl HeldRows {
 
     /// Room for the row of base step `at`, to be filled.
     fn push(&mut self, at: u64) -> &mut [f64] {
-        debug_assert!(self.at.last().is_none_or(|&last| last < at), "rows out of order");
+        debug_assert!(
+            self.at.last().is_none_or(|&last| last < at),
+            "rows out of order"
+        );
         let end = self.values.len();
         self.values.resize(end + self.width, 0.0);
         self.at.push(at);

@@ -201,11 +201,11 @@ impl Simulation {
     /// snapshot), on the threads the policy picks; their outputs become visible at the end of
     /// their steps (this step's end for those stepping every base step).
     fn step_jacobi(&mut self, k: u64, t: f64, h: f64, left: usize) -> Result<()> {
-        let due = |r: &Running| k.is_multiple_of(r.every as u64);
+        let due = |r: &Running| due_at_step(k, r.every as u64);
         self.snapshot.copy_from(&self.outputs);
         // Sinks kept on the look-ahead thread get their inputs from the snapshot and step there.
         for i in 0..self.comps.len() {
-            if k.is_multiple_of(self.every[i]) {
+            if due_at_step(k, self.every[i]) {
                 self.kept_turn(i, k, t, h, left, true)?;
             }
         }
@@ -216,7 +216,7 @@ impl Simulation {
         }
         let critical = threads::advance_jacobi(plan, &mut self.comps, &due, snapshot, t, h, left)?;
         for i in 0..self.comps.len() {
-            if k.is_multiple_of(self.every[i]) {
+            if due_at_step(k, self.every[i]) {
                 self.pending[i] = Some(self.due_at(i, k, left));
             }
         }
@@ -232,7 +232,7 @@ impl Simulation {
         // Outputs of slower components whose steps end with this base step.
         self.publish_due(k + 1);
         for i in 0..self.comps.len() {
-            if !k.is_multiple_of(self.every[i]) {
+            if !due_at_step(k, self.every[i]) {
                 continue;
             }
             // Wait for the components in flight up to the last that is this one (its previous
@@ -270,8 +270,8 @@ impl Simulation {
         // must not read it, or it would be waited for at once.
         let next = || {
             (i + 1..n)
-                .find(|&j| k.is_multiple_of(self.every[j]))
-                .or_else(|| (0..=i).find(|&j| (k + 1).is_multiple_of(self.every[j])))
+                .find(|&j| due_at_step(k, self.every[j]))
+                .or_else(|| (0..=i).find(|&j| due_at_step(k + 1, self.every[j])))
         };
         let mut defer = room
             && !self.stay_on_master[i]
@@ -683,6 +683,14 @@ impl Simulation {
     fn failed_since(&mut self, since: u64) {
         self.lookahead_failed_at = Some(self.lookahead_failed_at.map_or(since, |f| f.min(since)));
     }
+}
+
+/// Whether a component stepping every `every` base steps steps at base step `k`: without a
+/// division for the usual `every` of 1 (a 64-bit division takes tens of cycles, and a base
+/// step asks this several times per component).
+#[inline]
+fn due_at_step(k: u64, every: u64) -> bool {
+    every == 1 || k.is_multiple_of(every)
 }
 
 /// The values of Real run `r` as the step about to be taken should see them: from its source's
