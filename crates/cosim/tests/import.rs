@@ -889,6 +889,78 @@ fn gauss_seidel_lookahead_changes_no_value() {
     );
 }
 
+/// The memo follows the look-ahead thread: a (every 3 base steps) feeds b (every 3, the only
+/// instance of its FMU, handed to the thread with its inputs kept there as the memo) and e
+/// (every step, a sink kept there), so that e's steps between a's take a.y from the memo. The
+/// thread stopped and started again mid-run has no memo: e's inputs then come with its step
+/// (a kept step asking the new thread for a memo it does not have fails the run). Whether b
+/// goes there at a turn depends on the timing (not while e's last step is under way there; a
+/// busy step of a before it leaves the thread the time), so the run goes on until the memo has
+/// been used, restarts the thread between two of a's
+/// steps, and goes on until it is used again; c (recorded, reading b) gets the values of the
+/// same steps without the thread.
+#[test]
+fn the_memo_follows_the_lookahead_thread() {
+    let path = tiny_fmu("memo", &tiny_xml(), &[], true);
+    let (own_b, own_e) = (
+        path.with_file_name("tiny_memo_b.fmu"),
+        path.with_file_name("tiny_memo_e.fmu"),
+    );
+    std::fs::copy(&path, &own_b).unwrap();
+    std::fs::copy(&path, &own_e).unwrap();
+    // Long enough never to end here.
+    let sys = System::new(1000.0, 0.001)
+        .component("a", &path)
+        .every(3)
+        .parameter("a", "u", Value::Real(1.5))
+        // 0.1 ms of the master's time at a's steps: e's last step is done there by b's turn,
+        // unless the thread gets no core meanwhile (other tests).
+        .parameter("a", "busy", Value::Real(1e-4))
+        .component("b", &own_b)
+        .every(3)
+        .component("e", &own_e)
+        .component("c", &path)
+        .every(3)
+        .connect("a.y", "b.u")
+        .connect("a.y", "e.u")
+        .connect("b.y", "c.u")
+        .order(Order::GaussSeidel);
+    let record = ["c.y".to_string()];
+    const MOST: usize = 30_000;
+    let mut sim = cosim::Simulation::new(&sys, &record).unwrap();
+    sim.set_lookahead(Some(0.0)).unwrap();
+    let (mut ahead, mut row) = (Vec::new(), [0.0]);
+    let mut step = |sim: &mut cosim::Simulation, out: &mut Vec<f64>| {
+        sim.step().unwrap();
+        sim.recorded_values(&mut row);
+        out.push(row[0]);
+    };
+    // Until the memo is used, then to a step between two of a's.
+    while sim.lookahead_memo_steps() == 0 || ahead.len() % 3 != 1 {
+        assert!(ahead.len() < MOST, "the memo was never used");
+        step(&mut sim, &mut ahead);
+    }
+    let before = sim.lookahead_memo_steps();
+    sim.set_lookahead(None).unwrap();
+    sim.set_lookahead(Some(0.0)).unwrap();
+    while sim.lookahead_memo_steps() == before || ahead.len() % 3 != 0 {
+        assert!(
+            ahead.len() < 2 * MOST,
+            "the memo was not used after the restart"
+        );
+        step(&mut sim, &mut ahead);
+    }
+    sim.settle().unwrap();
+    let mut plain_sim = cosim::Simulation::new(&sys, &record).unwrap();
+    plain_sim.set_lookahead(None).unwrap();
+    let mut plain = Vec::new();
+    while plain.len() < ahead.len() {
+        step(&mut plain_sim, &mut plain);
+    }
+    assert_eq!(plain, ahead, "the look-ahead changed a value");
+    assert!(plain.iter().any(|&x| x != 0.0));
+}
+
 /// Recorded components on the look-ahead thread (threshold 0): `run` gives the rows of the
 /// sequential order bit for bit, in both orders, at every decimation. In Gauss-Seidel order b
 /// (the only instance of its FMU, recorded, read only by d every third step) steps there while
@@ -992,19 +1064,14 @@ fn recorded_components_on_the_lookahead_thread_change_no_row() {
                 "{what}: {} steps went there",
                 la.timing.lookahead_steps
             );
-            // Gauss-Seidel with e kept: e reads a.y as b does, so at most of e's steps after b
-            // went there in the same base step its input is b's, kept there (the memo), not
-            // copied again; when b stayed on the master's thread (d next, or e's steps still
-            // under way), a.y has changed since b's last one went there, and e's input comes
-            // as it is. Never in Jacobi order, where nothing but e goes there.
-            let memo = la.timing.lookahead_memo_steps;
-            if order == Order::GaussSeidel && every_e == 1 && busy_e == 0.0 {
-                assert!(
-                    memo > 0,
-                    "{what}: no step of e took its input from the memo"
-                );
-            } else if order == Order::Jacobi {
-                assert_eq!(memo, 0, "{what}");
+            // Gauss-Seidel with e kept: e reads a.y as b does, so at e's steps after b went
+            // there in the same base step its input may be b's, kept there (the memo; how
+            // often depends on the timing: `the_memo_follows_the_lookahead_thread`); when b
+            // stayed on the master's thread (d next, or e's steps still under way), a.y has
+            // changed since b's last one went there, and e's input comes as it is. Never in
+            // Jacobi order, where nothing but e goes there.
+            if order == Order::Jacobi {
+                assert_eq!(la.timing.lookahead_memo_steps, 0, "{what}");
             }
             assert_eq!(seq.n_rows(), steps as usize / decimation + 1, "{what}");
             assert!(seq.values().iter().all(|x| x.is_finite()));

@@ -9,7 +9,7 @@ use std::time::Instant;
 use super::definition::{Order, System, Value};
 use super::init;
 use super::ports::{Port, Ports, SourcedRun, Values, sourced_runs};
-use super::simulation::{KeptSink, Late, MemoPlan, Recorded, RecordedOf, Simulation};
+use super::simulation::{KeptSink, Late, Memo, MemoPlan, Recorded, RecordedOf, Simulation};
 use super::step::Running;
 use super::threads::Lookahead;
 use super::wiring::{Kind, Recording, Wiring, var_of};
@@ -312,7 +312,10 @@ impl Simulation {
             real_runs,
             seen: vec![0; n],
             memo_for,
-            memo: None,
+            memo: Memo {
+                from: None,
+                seen: vec![0; n],
+            },
             memo_steps: 0,
             stale: vec![false; n],
             every: comps.iter().map(|r| r.every as u64).collect(),

@@ -82,11 +82,12 @@ impl MemoPlan {
     }
 }
 
-/// The memo's content as the master knows it: whose inputs, and the [`Simulation::seen`]
-/// counts of every component when they were gathered.
+/// The memo's content as the master knows it: whose inputs (None: nothing usable), and the
+/// [`Simulation::seen`] counts of every component when they were gathered (room for all made
+/// at the start: the step loop allocates nothing).
 #[derive(Debug, Clone, Default)]
 pub(super) struct Memo {
-    pub(super) from: usize,
+    pub(super) from: Option<usize>,
     pub(super) seen: Vec<u64>,
 }
 
@@ -146,8 +147,8 @@ pub struct Simulation {
     /// Per component, whether its steps on the look-ahead thread leave their Real inputs
     /// there (the memo) for a kept sink that reads some of the same values.
     pub(super) memo_for: Vec<bool>,
-    /// What the memo on the look-ahead thread holds (None: nothing usable).
-    pub(super) memo: Option<Memo>,
+    /// What the memo on the look-ahead thread holds.
+    pub(super) memo: Memo,
     /// Kept sinks' steps that took inputs from the memo.
     pub(super) memo_steps: u64,
     /// Per lazy component, whether its ports hold due outputs not yet copied to `outputs`
@@ -181,10 +182,15 @@ impl Simulation {
     pub fn set_lookahead(&mut self, min_seconds: Option<f64>) -> Result<()> {
         self.settle()?;
         match min_seconds {
-            None => self.lookahead = None,
+            None => {
+                self.lookahead = None;
+                self.memo.from = None;
+            }
             Some(m) => {
                 self.params.lookahead_min_seconds = m;
                 if self.lookahead.is_none() && self.comps.len() > 1 {
+                    // A new thread: nothing in its memo yet.
+                    self.memo.from = None;
                     self.lookahead = Some(Lookahead::start(self.comps.len())?);
                 }
             }

@@ -323,10 +323,8 @@ impl Simulation {
                 Some(Ok(())) => {
                     if memo {
                         // The memo now holds its inputs, gathered from these values.
-                        let mut m = self.memo.take().unwrap_or_default();
-                        m.from = i;
-                        m.seen.clone_from(&self.seen);
-                        self.memo = Some(m);
+                        self.memo.from = Some(i);
+                        self.memo.seen.copy_from_slice(&self.seen);
                     }
                     return Ok(());
                 }
@@ -446,9 +444,10 @@ impl Simulation {
         // The runs the memo holds with the values of now are copied there, from the memo; the
         // others here.
         let (seen, runs) = (&self.seen, &self.real_runs[i]);
-        let plan = self.memo.as_ref().filter(|_| !from_snapshot).and_then(|m| {
+        let m = &self.memo;
+        let plan = m.from.filter(|_| !from_snapshot).and_then(|from| {
             sink.plans.iter().position(|p| {
-                p.from == m.from
+                p.from == from
                     && runs
                         .iter()
                         .zip(&p.covered)
