@@ -274,6 +274,19 @@ fn dot4<S: Simd>(simd: S, rows: [&[f64]; 4], x: &[f64]) -> [f64; 4] {
     ]
 }
 
+/// Element `c` of each of the `N` slices. A loop, not `std::array::from_fn`: that closure over
+/// SIMD vectors was not always inlined into the dispatched kernel, and then ran once per
+/// column as a call compiled for baseline x86-64, copying the vectors through the stack (7 %
+/// of the Keck mirror's step in one such call, BENCHMARKS.md, thirteenth round).
+#[inline(always)]
+fn at_column<T: Copy, const N: usize>(slices: &[&[T]; N], c: usize, fill: T) -> [T; N] {
+    let mut out = [fill; N];
+    for (o, s) in out.iter_mut().zip(slices) {
+        *o = s[c];
+    }
+    out
+}
+
 /// Dot products of `R` rows with `L` vectors (`R L` independent accumulation chains), each
 /// summed by lane, across the lanes, then with the scalar tail.
 #[inline(always)]
@@ -289,7 +302,7 @@ fn dot_block_f64<S: Simd, const R: usize, const L: usize>(
     let zero = simd.splat_f64s(0.0);
     let mut acc = [[zero; L]; R];
     for c in 0..n {
-        let xv: [S::f64s; L] = std::array::from_fn(|l| xh[l][c]);
+        let xv: [S::f64s; L] = at_column(&xh, c, zero);
         for (accr, rr) in acc.iter_mut().zip(&rh) {
             let a = rr[c];
             for (acc, xv) in accr.iter_mut().zip(&xv) {
@@ -620,8 +633,8 @@ pub fn state_map<S: Simd, const NS: usize, const NI: usize>(
         let mut dh = d.as_deref_mut().map(|d| S::as_mut_simd_f64s(&mut d[..n]).0);
         let zero = simd.splat_f64s(0.0);
         for c in 0..m {
-            let xv: [S::f64s; NS] = std::array::from_fn(|j| xh[j][c]);
-            let uv: [S::f64s; NI] = std::array::from_fn(|l| uh[l][c]);
+            let xv: [S::f64s; NS] = at_column(&xh, c, zero);
+            let uv: [S::f64s; NI] = at_column(&uh, c, zero);
             let mut dacc = zero;
             for g in 0..groups {
                 let acc = group_sums(simd, a, b, g, (&use_x[g], &use_u[g]), &xv, &uv);
@@ -784,8 +797,9 @@ pub fn rows_map<S: Simd, const NS: usize, const NI: usize>(
             None => Default::default(),
         });
         for c in 0..m {
-            let xv: [S::f64s; NS] = std::array::from_fn(|j| xh[j][c]);
-            let uv: [S::f64s; NI] = std::array::from_fn(|l| uh[l][c]);
+            let zero = simd.splat_f64s(0.0);
+            let xv: [S::f64s; NS] = at_column(&xh, c, zero);
+            let uv: [S::f64s; NI] = at_column(&uh, c, zero);
             let acc = group_sums(simd, a, b, g, (&use_x[g], &use_u[g]), &xv, &uv);
             for (o, acc) in oh.iter_mut().zip(acc) {
                 if let Some(o) = o.get_mut(c) {
