@@ -69,6 +69,16 @@ fn number(real: &[f64], integer: &[i32], boolean: &[bool], kind: Kind, slot: usi
     }
 }
 
+/// The outputs a step reads: their values, and per component how many times its visible
+/// outputs have changed (`Simulation::seen`). A run of Real inputs set straight from the
+/// buffer whose source has not changed since it was last set is not set again
+/// ([`Ports::set_inputs_from`]): inputs keep their values until set (FMI 2.0).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Visible<'a> {
+    pub(super) values: &'a Values,
+    pub(super) seen: &'a [u64],
+}
+
 /// Most runs of consecutive input slots for which a port's Real inputs are set straight from
 /// the shared buffer, a set call per run ([`Port::direct`]): a mirror's command, wind and pier
 /// inputs are three runs, a scalar-wired component's inputs may be hundreds (there one copy
@@ -86,6 +96,11 @@ pub(super) struct Port<T> {
     /// source slot, first input, length)`: an array input connected to an array output is one
     /// copy instead of one per scalar.
     in_runs: Vec<(usize, usize, usize)>,
+    /// Per run, the component whose outputs it reads (None: it spans two), and that
+    /// component's change count when the run was last set straight from the shared buffer
+    /// (`u64::MAX`: not yet).
+    in_from: Vec<Option<usize>>,
+    in_seen: Vec<u64>,
     /// Value references of its outputs, the first of their consecutive slots, and their latest
     /// values (published after its step, when they are due).
     pub(super) out_vrs: Vec<u32>,
@@ -106,6 +121,8 @@ impl<T: Clone + Default> Port<T> {
             }
         }
         Self {
+            in_from: vec![None; in_runs.len()],
+            in_seen: vec![u64::MAX; in_runs.len()],
             in_runs,
             in_buf: vec![T::default(); in_vrs.len()],
             in_vrs,
@@ -128,6 +145,15 @@ impl<T: Clone + Default> Port<T> {
     /// than the calls added.
     pub(super) fn direct(&self) -> bool {
         !self.in_runs.is_empty() && self.in_runs.len() <= DIRECT_MAX_RUNS
+    }
+
+    /// Notes the component each run of inputs reads: component `c`'s outputs are slots
+    /// `offsets[c]..offsets[c + 1]` (`Wiring::offsets`).
+    pub(super) fn set_sources(&mut self, offsets: &[usize]) {
+        for (from, &(src, _, n)) in self.in_from.iter_mut().zip(&self.in_runs) {
+            let c = offsets.partition_point(|&o| o <= src) - 1;
+            *from = (src + n <= offsets[c + 1]).then_some(c);
+        }
     }
 
     /// Where its inputs come from: runs of `(first source slot, first input, length)`.
@@ -194,11 +220,19 @@ impl Ports {
     /// straight from the shared buffer, one call per run of consecutive slots, when the port
     /// allows it ([`Port::direct`]); otherwise (and for the other kinds) gathered first and set
     /// with one call per kind. The FMU receives the same values either way, Real first.
-    pub(super) fn set_inputs_from(&mut self, shared: &Values, inst: &mut Instance) -> Result<()> {
+    pub(super) fn set_inputs_from(&mut self, shared: Visible, inst: &mut Instance) -> Result<()> {
+        let (seen, shared) = (shared.seen, shared.values);
         let real = &mut self.real;
         if real.direct() {
-            for &(src, dst, n) in &real.in_runs {
+            for (k, &(src, dst, n)) in real.in_runs.iter().enumerate() {
+                // Unchanged since it was set: the FMU holds these values (a wind force
+                // changing every tenth step, a controller's command every fiftieth).
+                let now = real.in_from[k].map_or(u64::MAX, |c| seen[c]);
+                if now != u64::MAX && now == real.in_seen[k] {
+                    continue;
+                }
                 inst.set_real(&real.in_vrs[dst..dst + n], &shared.real[src..src + n])?;
+                real.in_seen[k] = now;
             }
         } else if !real.in_vrs.is_empty() {
             real.gather(&shared.real);

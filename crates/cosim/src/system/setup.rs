@@ -132,8 +132,10 @@ fn instantiate(
             .collect();
         Port::new(inputs, wiring.out_vars[k as usize][c].clone(), off[c])
     }
+    let mut real = port(Kind::Real, c, wiring, offsets);
+    real.set_sources(&offsets[Kind::Real as usize]);
     let ports = Ports {
-        real: port(Kind::Real, c, wiring, offsets),
+        real,
         integer: port(Kind::Integer, c, wiring, offsets),
         boolean: port(Kind::Boolean, c, wiring, offsets),
         string: port(Kind::String, c, wiring, offsets),

@@ -8,7 +8,7 @@
 use std::time::Instant;
 
 use super::definition::Order;
-use super::ports::{Ports, SourcedRun, Values, copy_past_cache, gather_real_past_cache};
+use super::ports::{Ports, SourcedRun, Values, Visible, copy_past_cache, gather_real_past_cache};
 use super::simulation::Simulation;
 use super::threads::{self, Flight, InFlight, Job, Kept, KeptStep, LOOKAHEAD_SLOTS, Reply, Work};
 use crate::error::{CosimError, Result};
@@ -39,7 +39,7 @@ impl Running {
     /// its outputs into its ports: one set call per kind (per array for Real inputs connected
     /// as a few arrays, [`Ports::set_inputs_from`]), one fmi2DoStep, one get call per kind, no
     /// allocation (for Real, Integer and Boolean values).
-    pub(super) fn advance(&mut self, shared: &Values, t: f64, h: f64, left: usize) -> Result<()> {
+    pub(super) fn advance(&mut self, shared: Visible, t: f64, h: f64, left: usize) -> Result<()> {
         self.step_with(t, h, left, |ports, inst| {
             ports.set_inputs_from(shared, inst)
         })
@@ -214,7 +214,11 @@ impl Simulation {
         if plan.is_parallel() {
             self.parallel_steps += 1;
         }
-        let critical = threads::advance_jacobi(plan, &mut self.comps, &due, snapshot, t, h, left)?;
+        let visible = Visible {
+            values: snapshot,
+            seen: &self.seen,
+        };
+        let critical = threads::advance_jacobi(plan, &mut self.comps, &due, visible, t, h, left)?;
         for i in 0..self.comps.len() {
             if due_at_step(k, self.every[i]) {
                 self.pending[i] = Some(self.due_at(i, k, left));
@@ -340,7 +344,11 @@ impl Simulation {
         }
         self.fresh_sources(i);
         if let Some(r) = self.comps[i].as_deref_mut() {
-            r.advance(&self.outputs, t, h, left)?;
+            let visible = Visible {
+                values: &self.outputs,
+                seen: &self.seen,
+            };
+            r.advance(visible, t, h, left)?;
             self.fmu_critical += r.last;
         }
         self.publish_due(self.visible);

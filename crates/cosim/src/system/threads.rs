@@ -13,7 +13,7 @@
 //! At most [`LOOKAHEAD_SLOTS`] messages are in flight to the look-ahead thread; they run there
 //! in the order sent.
 
-use super::ports::Values;
+use super::ports::Visible;
 use super::step::Running;
 use super::wiring::Kind;
 use crate::error::{CosimError, Result};
@@ -500,7 +500,7 @@ pub(super) fn advance_jacobi(
     plan: JacobiPlan,
     comps: &mut [Option<Box<Running>>],
     due: &(dyn Fn(&Running) -> bool + Sync),
-    outputs: &Values,
+    outputs: Visible<'_>,
     t: f64,
     h: f64,
     left: usize,
@@ -529,7 +529,7 @@ pub(super) fn advance_jacobi(
 pub(super) fn advance_split(
     comps: &mut [Option<Box<Running>>],
     due: &(dyn Fn(&Running) -> bool + Sync),
-    outputs: &Values,
+    outputs: Visible<'_>,
     t: f64,
     h: f64,
     left: usize,
@@ -556,7 +556,7 @@ pub(super) fn advance_split(
 pub(super) fn advance_in_turn<'a>(
     comps: impl Iterator<Item = &'a mut Option<Box<Running>>>,
     due: &dyn Fn(&Running) -> bool,
-    outputs: &Values,
+    outputs: Visible<'_>,
     t: f64,
     h: f64,
     left: usize,
