@@ -314,6 +314,39 @@ fn unrecorded_outputs_reach_readers_before_and_after_them() {
     }
 }
 
+/// An input set straight from the master's buffer is set again only when its source's outputs
+/// have changed: b reads a, which steps every third base step. An FMU that keeps its inputs (as
+/// FMI 2.0 requires) integrates the same values either way; one that forgets them after each step
+/// (built with -DFORGET_INPUTS) then misses a's value at two steps of three, unless the system
+/// sets unchanged inputs at every step ([`System::set_unchanged_inputs`]), with which it gets the
+/// same values as the first, in both orders.
+#[test]
+fn unchanged_inputs_are_not_set_again_unless_asked() {
+    let keeps = tiny_fmu("keeps", &tiny_xml(), &[], true);
+    let forgets = tiny_fmu("forgets", &tiny_xml(), &["FORGET_INPUTS"], true);
+    let (h, n) = (0.01, 30usize);
+    for order in [Order::Jacobi, Order::GaussSeidel] {
+        let last = |b: &Path, every_step: bool| {
+            let mut sys = System::new(n as f64 * h, h)
+                .component("a", &keeps)
+                .every(3)
+                .parameter("a", "u", Value::Real(1.0))
+                .component("b", b)
+                .connect("a.y", "b.u")
+                .order(order);
+            sys.set_unchanged_inputs = every_step;
+            let r = run(&sys, &["b.y".into()], 1, &mut |_, _| {}).unwrap();
+            r.last_row().unwrap()[1]
+        };
+        let exact = last(&keeps, false);
+        assert!(exact > 0.0, "{order:?}");
+        assert_eq!(last(&keeps, true).to_bits(), exact.to_bits(), "{order:?}");
+        assert_eq!(last(&forgets, true).to_bits(), exact.to_bits(), "{order:?}");
+        let missed = last(&forgets, false);
+        assert!(missed < 0.5 * exact, "{order:?}: {missed} against {exact}");
+    }
+}
+
 /// b steps every 4 base steps with a step of 4 h, on the value of y_a at its step start.
 #[test]
 fn multirate_components_step_at_their_own_multiple() {

@@ -225,6 +225,11 @@ pub struct RunCmd {
     /// values, for timing comparisons).
     #[arg(long)]
     pub no_lookahead: bool,
+    /// Set every connected input at every step, also while its source's outputs have not
+    /// changed (as fmpy's masters do), for FMUs that do not keep their inputs between steps as
+    /// FMI 2.0 requires. By default an unchanged input is not set again.
+    #[arg(long)]
+    pub set_unchanged_inputs: bool,
 }
 
 /// Format of the results file of `m1cs run`.
@@ -636,6 +641,7 @@ pub fn run_cmd(a: &RunCmd) -> Result<(), String> {
         let mut sys = ssp_system(a, path, &s, given)?;
         sys.zero_start = a.zero_start;
         sys.no_lookahead = a.no_lookahead;
+        sys.set_unchanged_inputs = a.set_unchanged_inputs;
         runs.push(("system".into(), sys));
         // Keep the unpacked archive alive during the run.
         // The optics metrics are recorded when the system has an `optics` component.
@@ -659,6 +665,7 @@ pub fn run_cmd(a: &RunCmd) -> Result<(), String> {
             s.order = order;
             s.zero_start = a.zero_start;
             s.no_lookahead = a.no_lookahead;
+            s.set_unchanged_inputs = a.set_unchanged_inputs;
             runs.push((label.into(), s));
         }
     } else {
@@ -667,6 +674,7 @@ pub fn run_cmd(a: &RunCmd) -> Result<(), String> {
             s.order = order;
             s.zero_start = a.zero_start;
             s.no_lookahead = a.no_lookahead;
+            s.set_unchanged_inputs = a.set_unchanged_inputs;
             runs.push((label.into(), s));
         }
     }

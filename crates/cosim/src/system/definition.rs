@@ -78,6 +78,11 @@ pub struct System {
     pub zero_start: bool,
     /// Without the look-ahead thread (module docs): the same values, without its thread.
     pub no_lookahead: bool,
+    /// Set every connected input at every step, as fmpy's masters do, also while its source's
+    /// outputs have not changed: for FMUs that do not keep their inputs between steps as
+    /// FMI 2.0 requires. Off by default: an input set straight from the master's buffer is
+    /// set again only when its source's outputs have changed (module docs).
+    pub set_unchanged_inputs: bool,
     /// The thresholds by which the master decides which steps go to other threads (the
     /// defaults unless set; they change the wall time only, never a value).
     pub scheduler: SchedulerParams,

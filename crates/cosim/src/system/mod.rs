@@ -94,6 +94,15 @@
 //! look-ahead thread, are copied into the shared buffer for the 20 Hz controller only, not at
 //! every step.
 //!
+//! **Unchanged inputs are not set again.** An FMU keeps an input's value until it is set
+//! (FMI 2.0), so a component's Real inputs that are set straight from the shared buffer (a
+//! few arrays of consecutive connections) are set again only when their source's visible
+//! outputs have changed since (each component counts those changes): the TMT mirror's wind
+//! forces, 1476 values from the 100 Hz wind, are set at every tenth step, the controller's
+//! command at every fiftieth. [`System::set_unchanged_inputs`] (`m1cs run
+//! --set-unchanged-inputs`) sets every input at every step, as fmpy's masters do, for FMUs
+//! that forget their inputs.
+//!
 //! # Set-up
 //!
 //! Components are instantiated and given their parameters in turn and enter initialisation

@@ -72,11 +72,12 @@ fn number(real: &[f64], integer: &[i32], boolean: &[bool], kind: Kind, slot: usi
 /// The outputs a step reads: their values, and per component how many times its visible
 /// outputs have changed (`Simulation::seen`). A run of Real inputs set straight from the
 /// buffer whose source has not changed since it was last set is not set again
-/// ([`Ports::set_inputs_from`]): inputs keep their values until set (FMI 2.0).
+/// ([`Ports::set_inputs_from`]): inputs keep their values until set (FMI 2.0). Without the
+/// counts (`System::set_unchanged_inputs`) every run is set.
 #[derive(Debug, Clone, Copy)]
 pub(super) struct Visible<'a> {
     pub(super) values: &'a Values,
-    pub(super) seen: &'a [u64],
+    pub(super) seen: Option<&'a [u64]>,
 }
 
 /// Most runs of consecutive input slots for which a port's Real inputs are set straight from
@@ -227,7 +228,9 @@ impl Ports {
             for (k, &(src, dst, n)) in real.in_runs.iter().enumerate() {
                 // Unchanged since it was set: the FMU holds these values (a wind force
                 // changing every tenth step, a controller's command every fiftieth).
-                let now = real.in_from[k].map_or(u64::MAX, |c| seen[c]);
+                let now = real.in_from[k]
+                    .zip(seen)
+                    .map_or(u64::MAX, |(c, seen)| seen[c]);
                 if now != u64::MAX && now == real.in_seen[k] {
                     continue;
                 }

@@ -319,6 +319,7 @@ impl Simulation {
                 seen: vec![0; n],
             },
             memo_steps: 0,
+            set_unchanged_inputs: system.set_unchanged_inputs,
             stale: vec![false; n],
             every: comps.iter().map(|r| r.every as u64).collect(),
             names: comps.iter().map(|r| r.name.clone()).collect(),

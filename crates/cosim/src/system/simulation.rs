@@ -151,6 +151,8 @@ pub struct Simulation {
     pub(super) memo: Memo,
     /// Kept sinks' steps that took inputs from the memo.
     pub(super) memo_steps: u64,
+    /// Whether unchanged inputs are set at every step too ([`super::System::set_unchanged_inputs`]).
+    pub(super) set_unchanged_inputs: bool,
     /// Per lazy component, whether its ports hold due outputs not yet copied to `outputs`
     /// (copied when a reader's turn comes, [`Self::fresh_sources`], or at [`Self::settle`]).
     pub(super) stale: Vec<bool>,

@@ -216,7 +216,7 @@ impl Simulation {
         }
         let visible = Visible {
             values: snapshot,
-            seen: &self.seen,
+            seen: (!self.set_unchanged_inputs).then_some(&self.seen[..]),
         };
         let critical = threads::advance_jacobi(plan, &mut self.comps, &due, visible, t, h, left)?;
         for i in 0..self.comps.len() {
@@ -346,7 +346,7 @@ impl Simulation {
         if let Some(r) = self.comps[i].as_deref_mut() {
             let visible = Visible {
                 values: &self.outputs,
-                seen: &self.seen,
+                seen: (!self.set_unchanged_inputs).then_some(&self.seen[..]),
             };
             r.advance(visible, t, h, left)?;
             self.fmu_critical += r.last;
