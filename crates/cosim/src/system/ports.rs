@@ -152,7 +152,7 @@ impl<T: Clone + Default> Port<T> {
     /// `offsets[c]..offsets[c + 1]` (`Wiring::offsets`).
     pub(super) fn set_sources(&mut self, offsets: &[usize]) {
         for (from, &(src, _, n)) in self.in_from.iter_mut().zip(&self.in_runs) {
-            let c = offsets.partition_point(|&o| o <= src) - 1;
+            let c = owner(offsets, src);
             *from = (src + n <= offsets[c + 1]).then_some(c);
         }
     }
@@ -293,15 +293,19 @@ pub(super) struct SourcedRun {
     pub(super) n: usize,
 }
 
+/// The component whose outputs hold slot `slot`: the last whose region (`offsets[c]..offsets[c +
+/// 1]`) starts at or before it (an empty region shares its start with the next one).
+fn owner(offsets: &[usize], slot: usize) -> usize {
+    offsets.partition_point(|&o| o <= slot) - 1
+}
+
 /// `runs` (`(first source slot, first input, length)`) cut at the components' output regions:
 /// component `c`'s outputs are slots `offsets[c]..offsets[c + 1]` (`Wiring::offsets`).
 pub(super) fn sourced_runs(runs: &[(usize, usize, usize)], offsets: &[usize]) -> Vec<SourcedRun> {
     let mut out = Vec::with_capacity(runs.len());
     for &(mut slot, mut dst, mut n) in runs {
         while n > 0 {
-            // The component whose region holds `slot`: the last whose region starts at or
-            // before it (empty regions share their start with the next one).
-            let comp = offsets.partition_point(|&o| o <= slot) - 1;
+            let comp = owner(offsets, slot);
             let len = n.min(offsets[comp + 1] - slot);
             out.push(SourcedRun {
                 slot,

@@ -791,13 +791,13 @@ pub fn rows_map<S: Simd, const NS: usize, const NI: usize>(
     let uh: [&[S::f64s]; NI] = std::array::from_fn(|l| &S::as_simd_f64s(us[l]).0[..m]);
     let (use_x, use_u) = group_masks(a, b);
     let mut it = out.chunks_exact_mut(n);
+    let zero = simd.splat_f64s(0.0);
     for g in 0..rows.div_ceil(G) {
         let mut oh: [&mut [S::f64s]; G] = std::array::from_fn(|_| match it.next() {
             Some(o) => S::as_mut_simd_f64s(o).0,
             None => Default::default(),
         });
         for c in 0..m {
-            let zero = simd.splat_f64s(0.0);
             let xv: [S::f64s; NS] = at_column(&xh, c, zero);
             let uv: [S::f64s; NI] = at_column(&uh, c, zero);
             let acc = group_sums(simd, a, b, g, (&use_x[g], &use_u[g]), &xv, &uv);
