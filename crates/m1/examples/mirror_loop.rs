@@ -4,9 +4,10 @@
 //! step. Used for the figures of BENCHMARKS.md (issue 18, eleventh round).
 //!
 //! ```text
-//! cargo run --release -p m1 --example mirror_loop -- [MODES] [VARIANTS]
+//! cargo run --release -p m1 --example mirror_loop -- [MODES] [VARIANTS] [LAYOUT]
 //! ```
 //!
+//! `LAYOUT` is a preset (`tmt`, the default, `keck` or `elt`), on its built-in cell.
 //! `VARIANTS` is a comma-separated list (default `1,2`): `1` or `2` threads
 //! (`CoupledMirror::set_two_threads`) or `a` for the automatic choice, with a `p` suffix for
 //! the Gram matrices stored by half (`CoupledMirror::set_gram_packed`), without it whole.
@@ -41,7 +42,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             );
         }
     }
-    let layout = Layout::tmt();
+    let layout = Layout::preset(args.get(3).map_or("tmt", String::as_str))?;
     let cell = CellModel::new(&layout, &CellParams::default())?.modes()?;
     let na = layout.n_actuators();
     let base = CoupledMirror::new(

@@ -287,6 +287,17 @@ fn at_column<T: Copy, const N: usize>(slices: &[&[T]; N], c: usize, fill: T) -> 
     out
 }
 
+/// The elements from `from` on of each of the `N` slices (fewer than a vector's lanes), as
+/// vectors filled with zeros; a loop for the reason of [`at_column`].
+#[inline(always)]
+fn partial_at<S: Simd, const N: usize>(simd: S, slices: &[&[f64]; N], from: usize) -> [S::f64s; N] {
+    let mut out = [simd.splat_f64s(0.0); N];
+    for (o, s) in out.iter_mut().zip(slices) {
+        *o = simd.partial_load_f64s(&s[from..]);
+    }
+    out
+}
+
 /// Dot products of `R` rows with `L` vectors (`R L` independent accumulation chains), each
 /// summed by lane, across the lanes, then with the scalar tail.
 #[inline(always)]
@@ -656,8 +667,8 @@ pub fn state_map<S: Simd, const NS: usize, const NI: usize>(
     // The columns after the last whole vector: one vector loaded with zeros past `n`, summed
     // as the others.
     if tail < n {
-        let xv: [S::f64s; NS] = std::array::from_fn(|j| simd.partial_load_f64s(&xs[j][tail..]));
-        let uv: [S::f64s; NI] = std::array::from_fn(|l| simd.partial_load_f64s(&us[l][tail..]));
+        let xv: [S::f64s; NS] = partial_at(simd, &xs, tail);
+        let uv: [S::f64s; NI] = partial_at(simd, &us, tail);
         let mut dacc = simd.splat_f64s(0.0);
         for g in 0..groups {
             let acc = group_sums(simd, a, b, g, (&use_x[g], &use_u[g]), &xv, &uv);
@@ -811,8 +822,8 @@ pub fn rows_map<S: Simd, const NS: usize, const NI: usize>(
     // The columns after the last whole vector: one vector loaded with zeros past `n`, summed
     // as the others.
     if tail < n {
-        let xv: [S::f64s; NS] = std::array::from_fn(|j| simd.partial_load_f64s(&xs[j][tail..]));
-        let uv: [S::f64s; NI] = std::array::from_fn(|l| simd.partial_load_f64s(&us[l][tail..]));
+        let xv: [S::f64s; NS] = partial_at(simd, &xs, tail);
+        let uv: [S::f64s; NI] = partial_at(simd, &us, tail);
         for g in 0..rows.div_ceil(G) {
             let acc = group_sums(simd, a, b, g, (&use_x[g], &use_u[g]), &xv, &uv);
             for (r, acc) in acc.into_iter().enumerate() {

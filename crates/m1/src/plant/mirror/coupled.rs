@@ -109,6 +109,9 @@ pub struct CoupledMirror {
     pub(super) tick_in: [[Gamma; 2]; 2],
     pub(super) ramp: [SVector<f64, N_STATE>; 2],
     pub(super) cell_c: [SMatrix<f64, 1, N_STATE>; 2],
+    /// The same maps as plain row-major arrays, by sub-step kind and channel kind, as the tick's
+    /// kernel reads them ([`ChannelMaps`]): made once, not at every tick.
+    pub(super) channel_maps: [[ChannelMaps; 2]; 2],
     /// Feedthrough of the cell displacement into the cell force (same for both kinds).
     pub(super) cell_d: f64,
     /// `E` per kind: end-of-tick force per unit ramp of the cell displacement.
@@ -267,6 +270,26 @@ pub(super) struct ThreadsTrial {
     seconds: [f64; 2],
 }
 
+/// One channel kind's tick maps as row-major arrays ([`CoupledMirror::channel_maps`]): the
+/// state map `p`, the cell displacement's input column without the ramp, `g[:, 1] - ramp`,
+/// and the cell force's row `c`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub(super) struct ChannelMaps {
+    pub(super) p: [[f64; N_STATE]; N_STATE],
+    pub(super) g: [[f64; 1]; N_STATE],
+    pub(super) c: [f64; N_STATE],
+}
+
+impl ChannelMaps {
+    fn new(p: &Phi, g: &Gamma, ramp: &SVector<f64, N_STATE>, c: &SMatrix<f64, 1, N_STATE>) -> Self {
+        Self {
+            p: std::array::from_fn(|i| std::array::from_fn(|s| p[(i, s)])),
+            g: std::array::from_fn(|i| [g[(i, 1)] - ramp[i]]),
+            c: std::array::from_fn(|i| c[i]),
+        }
+    }
+}
+
 impl CoupledMirror {
     /// `n_segments` identical segments of `model` on the structure `cell` (its `n_modes` lowest
     /// modes, `damping_ratio` unless the model carries its own), at rest. The coupling is
@@ -382,14 +405,23 @@ impl CoupledMirror {
         gg.columns_mut(r, r).copy_from(&gram[1]);
         let wg = row_major(&(&w_inv * &gg));
         let gg = row_major(&gg);
+        let tick = [[mp[0].0, mt[0].0], [mp[1].0, mt[1].0]];
+        let tick_in = [[mp[0].1, mt[0].1], [mp[1].1, mt[1].1]];
+        let cell_c = [cp, ct];
+        let channel_maps = std::array::from_fn(|set| {
+            std::array::from_fn(|k| {
+                ChannelMaps::new(&tick[set][k], &tick_in[set][k], &ramp[k], &cell_c[k])
+            })
+        });
         let mut mirror = Self {
             n_segments,
             ts,
             substeps,
-            tick: [[mp[0].0, mt[0].0], [mp[1].0, mt[1].0]],
-            tick_in: [[mp[0].1, mt[0].1], [mp[1].1, mt[1].1]],
+            tick,
+            tick_in,
             ramp,
-            cell_c: [cp, ct],
+            cell_c,
+            channel_maps,
             cell_d,
             e,
             basis: v,

@@ -3,15 +3,15 @@
 //! modal force, the modes; a step's coupled part as one SIMD dispatch ([`Step`]); and the
 //! outputs back in actuator space.
 
-use super::coupled::CoupledMirror;
+use super::coupled::{ChannelMaps, CoupledMirror};
 use pulp::WithSimd;
 
 use super::projection::Reconstruct;
 use crate::linalg::kernels::{axpy, rows_dot, rows_dot_f32, rows_dot2_f32, rows_map, state_map};
 use crate::linalg::pair::{LazyPair, Pair};
 use crate::linalg::symmetric::{BLOCK, SymPacked32, add_columns, sym_dot_f32, sym_dot_rows_f32};
-use crate::plant::segment::{Gamma, N_STATE, Phi, state};
-use nalgebra::{SMatrix, SVector};
+use crate::plant::segment::{N_STATE, state};
+use nalgebra::SVector;
 
 impl CoupledMirror {
     /// One coupled tick, entirely on the modes: the segments' response to the cell motion is
@@ -345,11 +345,9 @@ impl CoupledMirror {
         let [xi_p, xi_t] = &mut self.xi;
         let [sc_p, sc_t] = &mut self.scratch;
         let kind = |k: usize, xi, scratch, psi, drive_step, psi32, drive32| ChannelKind {
-            p: &self.tick[set][k],
-            g: &self.tick_in[set][k],
+            maps: &self.channel_maps[set][k],
             ramp: &self.ramp[k],
             pending,
-            c: &self.cell_c[k],
             q: &self.q,
             xi,
             scratch,
@@ -603,16 +601,14 @@ impl pulp::WithSimd for FreeKind<'_> {
 }
 
 /// The cell-driven channels of one kind over a tick ([`CoupledMirror::tick_channels`]), from
-/// the tick's maps (`p`, `g`), the ramp's response, the cell force's row `c`, the modes `q` and
+/// the tick's maps (row-major, [`ChannelMaps`]), the ramp's response, the modes `q` and
 /// the states `xi`: the states without the ramp into `scratch`, the kind's part of the solve's
 /// right-hand side into `psi` and, at a servo sample, the drive's change into `drive_step`.
 struct ChannelKind<'a> {
-    p: &'a Phi,
-    g: &'a Gamma,
+    maps: &'a ChannelMaps,
     ramp: &'a SVector<f64, N_STATE>,
     /// Whether `xi` still lacks the last tick's ramp part (`ramp q`, `q` the modes now).
     pending: bool,
-    c: &'a SMatrix<f64, 1, N_STATE>,
     q: &'a [f64],
     xi: &'a mut [f64],
     scratch: &'a mut [f64],
@@ -638,31 +634,27 @@ impl pulp::WithSimd for ChannelKind<'_> {
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(mut self, simd: S) {
         let r = self.psi.len();
-        let (p, g, ramp, c) = (self.p, self.g, self.ramp, self.c);
+        let maps = self.maps;
         if self.pending {
             RampKind {
-                ramp,
+                ramp: self.ramp,
                 q: self.q,
                 xi: &mut *self.xi,
             }
             .with_simd(simd);
         }
-        let pa: [[f64; N_STATE]; N_STATE] =
-            std::array::from_fn(|i| std::array::from_fn(|s| p[(i, s)]));
-        let ca: [f64; N_STATE] = std::array::from_fn(|i| c[i]);
         // Cell-driven part without this tick's ramp: Y_i = sum_s p_is xi_s + (g_i1 - ramp_i) q;
         // psi~_k = Y c^T.
-        let gc: [[f64; 1]; N_STATE] = std::array::from_fn(|i| [g[(i, 1)] - ramp[i]]);
         self.psi.fill(0.0);
         state_map::<S, N_STATE, 1>(
             simd,
-            &pa,
-            &gc,
+            &maps.p,
+            &maps.g,
             self.xi,
             [self.q],
             r,
             self.scratch,
-            Some((&ca, self.psi)),
+            Some((&maps.c, self.psi)),
         );
         // The cell-driven part's drive change (the ramp does not reach the drive).
         if let Some(out) = self.drive_step.as_deref_mut() {
