@@ -15,16 +15,33 @@ pub fn catmull_rom(t: f64) -> [f64; 4] {
 }
 
 /// Index of the sample before position `u` (in samples, periodic of period `n`), the four
-/// indices around it and the Catmull-Rom weights.
+/// indices around it and the Catmull-Rom weights. The indices wrap by comparison, not by
+/// integer division (a 64-bit division takes tens of cycles, and the wind FMU takes a stencil
+/// per segment per step).
 #[inline]
 pub fn periodic_stencil(u: f64, n: usize) -> ([usize; 4], [f64; 4]) {
-    let u = u.rem_euclid(n as f64);
-    let fl = u.floor();
-    // rem_euclid can round up to n itself.
-    let i0 = (fl as usize) % n;
+    // `rem_euclid` without its `fmod` call where that returns `u` as it is (the same values).
+    let nf = n as f64;
+    let u = if (0.0..nf).contains(&u) {
+        u
+    } else if (-nf..0.0).contains(&u) {
+        u + nf
+    } else {
+        u.rem_euclid(nf)
+    };
+    // u >= 0 (or NaN): truncation is the floor, without a call (baseline x86-64 has no
+    // rounding instruction).
+    let i0 = u as usize;
+    let fl = i0 as f64;
     let w = catmull_rom(u - fl);
-    let idx = [(i0 + n - 1) % n, i0, (i0 + 1) % n, (i0 + 2) % n];
-    (idx, w)
+    // rem_euclid can round up to n itself.
+    let i0 = if i0 >= n { i0 - n } else { i0 };
+    if n < 3 {
+        return ([(i0 + n - 1) % n, i0, (i0 + 1) % n, (i0 + 2) % n], w);
+    }
+    let wrap = |i: usize| if i >= n { i - n } else { i };
+    let before = if i0 == 0 { n - 1 } else { i0 - 1 };
+    ([before, i0, wrap(i0 + 1), wrap(i0 + 2)], w)
 }
 
 #[cfg(test)]
@@ -40,5 +57,24 @@ mod tests {
         assert_eq!(catmull_rom(0.0), [0.0, 1.0, 0.0, 0.0]);
         let (idx, _) = periodic_stencil(-0.5, 8);
         assert_eq!(idx, [6, 7, 0, 1]);
+    }
+
+    #[test]
+    fn stencil_indices_wrap_as_the_remainder_does() {
+        for n in 1..=6usize {
+            for k in -100..=100 {
+                let u = f64::from(k) * 0.37;
+                let (idx, w) = periodic_stencil(u, n);
+                let r = u.rem_euclid(n as f64);
+                let i0 = (r.floor() as usize) % n;
+                let want = [(i0 + n - 1) % n, i0, (i0 + 1) % n, (i0 + 2) % n];
+                assert_eq!(idx, want, "u {u}, n {n}");
+                assert_eq!(w, catmull_rom(r - r.floor()), "u {u}, n {n}");
+                assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-15);
+            }
+        }
+        // A position just below a whole period rounds up to it: sample 0, weight on it.
+        let (idx, w) = periodic_stencil(-1e-17, 8);
+        assert_eq!((idx, w), ([7, 0, 1, 2], [0.0, 1.0, 0.0, 0.0]));
     }
 }
