@@ -209,26 +209,32 @@ mod cstrings {
 
 impl Values {
     /// The scalars of a Real variable.
+    #[inline]
     pub fn real(&self, v: RealVar) -> &[f64] {
         &self.reals[v.slot..v.slot + v.len]
     }
     /// The scalars of a Real variable, mutable.
+    #[inline]
     pub fn real_mut(&mut self, v: RealVar) -> &mut [f64] {
         &mut self.reals[v.slot..v.slot + v.len]
     }
     /// A scalar Real.
+    #[inline]
     pub fn scalar(&self, v: RealVar) -> f64 {
         self.reals[v.slot]
     }
     /// An Integer.
+    #[inline]
     pub fn integer(&self, v: IntVar) -> i32 {
         self.integers[v.slot]
     }
     /// A Boolean.
+    #[inline]
     pub fn boolean(&self, v: BoolVar) -> bool {
         self.booleans[v.slot]
     }
     /// A Boolean, mutable.
+    #[inline]
     pub fn boolean_mut(&mut self, v: BoolVar) -> &mut bool {
         &mut self.booleans[v.slot]
     }

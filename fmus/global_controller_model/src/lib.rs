@@ -147,9 +147,10 @@ fmu::variables! {
 
 /// Writes `u_cmd = u + u_lo` into `v`.
 fn write_command(x: &Vars, u: &[f64], v: &mut Values) {
+    // Two variables of the one table: their slots, not a borrow of each per value.
+    let (lo, cmd) = (x.u_lo.slot, x.u_cmd.slot);
     for (i, ui) in u.iter().enumerate() {
-        let lo = v.real(x.u_lo)[i];
-        v.real_mut(x.u_cmd)[i] = ui + lo;
+        v.reals[cmd + i] = ui + v.reals[lo + i];
     }
 }
 
