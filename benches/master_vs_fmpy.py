@@ -444,7 +444,7 @@ def main():
                               ("container, parallelDoStep=True", "cont_par", "ours")):
             if k in b:
                 theirs, ours = b[k] - s1[k], b[ref + "_run"] - s1[ref + "_run"]
-                loop = f"{theirs / ours:11.1f}x" if theirs > 0 and ours > 0 else "   (in noise)"
+                loop = f"{theirs / ours:11.2f}x" if theirs > 0 and ours > 0 else "   (in noise)"
                 print(f"  {label:32s} {b[k] / b[ref + '_cmd']:15.1f}x"
                       f" {b[k] / b[ref + '_run']:14.1f}x {loop}")
     finally:
