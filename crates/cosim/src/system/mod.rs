@@ -54,8 +54,8 @@
 //!   it (or its own next step, or the end of the run).
 //! - In both orders, a **sink** (a component no other one reads, stepping every base step,
 //!   the only instance of its FMU, with Real inputs only: the optics metrics of the standard
-//!   systems) is kept there: at each of its turns the master sends its inputs (from the
-//!   snapshot in Jacobi order, the newest outputs in Gauss-Seidel order) and goes on. Its steps
+//!   systems) is kept there: at each of its turns the master sends its inputs (the outputs of
+//!   the communication point in Jacobi order, the newest outputs in Gauss-Seidel order) and goes on. Its steps
 //!   queue there one after the other, so a step that takes many base steps now and then (the
 //!   optics' PSSN at 10 Hz, about 1 ms) is caught up over the next ones instead of making the
 //!   master wait; the master waits only when 256 messages are in flight.

@@ -31,15 +31,6 @@ impl Values {
         }
     }
 
-    /// Copies `other` (of the same lengths) into these buffers without allocating (Strings
-    /// reuse their capacity).
-    pub(super) fn copy_from(&mut self, other: &Self) {
-        self.real.copy_from_slice(&other.real);
-        self.integer.copy_from_slice(&other.integer);
-        self.boolean.copy_from_slice(&other.boolean);
-        self.string.clone_from_slice(&other.string);
-    }
-
     /// Sets slot `slot` of kind `kind` from a number ([`Self::number`]'s inverse; a String
     /// is left as it is).
     pub(super) fn set_number(&mut self, kind: Kind, slot: usize, v: f64) {

@@ -335,7 +335,6 @@ impl Simulation {
             params: system.scheduler,
             parallel_steps: 0,
             outputs: Values::zeroed(total),
-            snapshot: Values::zeroed(total),
             pending: vec![None; n],
             visible: 0,
             order: system.order,

@@ -128,8 +128,6 @@ pub struct Simulation {
     pub(super) parallel_steps: u64,
     /// The visible outputs of all components, per kind, concatenated.
     pub(super) outputs: Values,
-    /// Snapshot of `outputs` at the communication point (Jacobi).
-    pub(super) snapshot: Values,
     /// Per component, the base step at which the outputs of its latest step become visible,
     /// while they are not yet (FMI timing: the end of that step).
     pub(super) pending: Vec<Option<u64>>,

@@ -197,25 +197,29 @@ impl Simulation {
         }
     }
 
-    /// Jacobi: every due component steps on the outputs of the communication point (a
-    /// snapshot), on the threads the policy picks; their outputs become visible at the end of
-    /// their steps (this step's end for those stepping every base step).
+    /// Jacobi: every due component steps on the outputs of the communication point, on the
+    /// threads the policy picks; their outputs become visible at the end of their steps (this
+    /// step's end for those stepping every base step).
+    ///
+    /// The visible outputs do not change until every due component has stepped (they are
+    /// published after, [`Self::publish_due`]), so the components read them in place: no
+    /// snapshot. The one write meanwhile is a kept sink's recorded outputs coming back (when
+    /// the look-ahead queue is full, [`Self::kept_turn`] waits for a reply), and no component
+    /// reads a sink.
     fn step_jacobi(&mut self, k: u64, t: f64, h: f64, left: usize) -> Result<()> {
         let due = |r: &Running| due_at_step(k, r.every as u64);
-        self.snapshot.copy_from(&self.outputs);
-        // Sinks kept on the look-ahead thread get their inputs from the snapshot and step there.
+        // Sinks kept on the look-ahead thread get their inputs now and step there.
         for i in 0..self.comps.len() {
             if due_at_step(k, self.every[i]) {
                 self.kept_turn(i, k, t, h, left, true)?;
             }
         }
-        let snapshot = &self.snapshot;
         let plan = threads::plan_jacobi(&self.comps, &due, &self.params);
         if plan.is_parallel() {
             self.parallel_steps += 1;
         }
         let visible = Visible {
-            values: snapshot,
+            values: &self.outputs,
             seen: (!self.set_unchanged_inputs).then_some(&self.seen[..]),
         };
         let critical = threads::advance_jacobi(plan, &mut self.comps, &due, visible, t, h, left)?;
@@ -356,9 +360,9 @@ impl Simulation {
     }
 
     /// The turn of due component `i` as a sink kept on the look-ahead thread (module docs):
-    /// if it is one (or becomes one now), its inputs go there from `self.snapshot` (Jacobi) or
-    /// `self.outputs` and it steps there, and this returns true. A full queue is waited for
-    /// first.
+    /// if it is one (or becomes one now), its inputs go there from `self.outputs` and it steps
+    /// there, and this returns true. A full queue is waited for first. In Jacobi order
+    /// (`jacobi`) the memo is not used.
     fn kept_turn(
         &mut self,
         i: usize,
@@ -366,7 +370,7 @@ impl Simulation {
         t: f64,
         h: f64,
         left: usize,
-        from_snapshot: bool,
+        jacobi: bool,
     ) -> Result<bool> {
         let Some(la) = self.lookahead.as_ref() else {
             return Ok(false);
@@ -439,11 +443,7 @@ impl Simulation {
         }
         // A sink has Real inputs only: those of stale sources come straight from their ports
         // (they stay stale; in Jacobi order none is).
-        let shared = if from_snapshot {
-            &self.snapshot.real
-        } else {
-            &self.outputs.real
-        };
+        let shared = &self.outputs.real;
         let Some(sink) = self.sinks[i].as_mut() else {
             return Ok(false);
         };
@@ -453,7 +453,7 @@ impl Simulation {
         // others here.
         let (seen, runs) = (&self.seen, &self.real_runs[i]);
         let m = &self.memo;
-        let plan = m.from.filter(|_| !from_snapshot).and_then(|from| {
+        let plan = m.from.filter(|_| !jacobi).and_then(|from| {
             sink.plans.iter().position(|p| {
                 p.from == from
                     && runs
