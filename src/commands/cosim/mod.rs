@@ -627,6 +627,16 @@ fn ssp_system(
     Ok(sys)
 }
 
+impl RunCmd {
+    /// The master's options of this command on system `s`: zero start, look-ahead thread,
+    /// unchanged inputs.
+    fn master_options(&self, s: &mut System) {
+        s.zero_start = self.zero_start;
+        s.no_lookahead = self.no_lookahead;
+        s.set_unchanged_inputs = self.set_unchanged_inputs;
+    }
+}
+
 /// Runs `m1cs run`.
 pub fn run_cmd(a: &RunCmd) -> Result<(), String> {
     std::fs::create_dir_all(&a.out).map_err(|e| format!("{}: {e}", a.out.display()))?;
@@ -639,9 +649,7 @@ pub fn run_cmd(a: &RunCmd) -> Result<(), String> {
     if let Some(path) = &a.ssp {
         let s = cosim::ssp::read(path).map_err(|e| e.to_string())?;
         let mut sys = ssp_system(a, path, &s, given)?;
-        sys.zero_start = a.zero_start;
-        sys.no_lookahead = a.no_lookahead;
-        sys.set_unchanged_inputs = a.set_unchanged_inputs;
+        a.master_options(&mut sys);
         runs.push(("system".into(), sys));
         // Keep the unpacked archive alive during the run.
         // The optics metrics are recorded when the system has an `optics` component.
@@ -663,18 +671,14 @@ pub fn run_cmd(a: &RunCmd) -> Result<(), String> {
             args.actuator = variant;
             let mut s = standard_system(&args, true)?;
             s.order = order;
-            s.zero_start = a.zero_start;
-            s.no_lookahead = a.no_lookahead;
-            s.set_unchanged_inputs = a.set_unchanged_inputs;
+            a.master_options(&mut s);
             runs.push((label.into(), s));
         }
     } else {
         for (label, closed) in [("open loop", false), ("closed loop", true)] {
             let mut s = standard_system(&a.system, closed)?;
             s.order = order;
-            s.zero_start = a.zero_start;
-            s.no_lookahead = a.no_lookahead;
-            s.set_unchanged_inputs = a.set_unchanged_inputs;
+            a.master_options(&mut s);
             runs.push((label.into(), s));
         }
     }

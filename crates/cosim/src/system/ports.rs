@@ -71,6 +71,17 @@ pub(super) struct Visible<'a> {
     pub(super) seen: Option<&'a [u64]>,
 }
 
+impl<'a> Visible<'a> {
+    /// `values` with the change counts `seen`, unless every input is to be set at every step
+    /// (`set_unchanged`).
+    pub(super) fn new(values: &'a Values, seen: &'a [u64], set_unchanged: bool) -> Self {
+        Self {
+            values,
+            seen: (!set_unchanged).then_some(seen),
+        }
+    }
+}
+
 /// Most runs of consecutive input slots for which a port's Real inputs are set straight from
 /// the shared buffer, a set call per run ([`Port::direct`]): a mirror's command, wind and pier
 /// inputs are three runs, a scalar-wired component's inputs may be hundreds (there one copy

@@ -211,17 +211,14 @@ impl Simulation {
         // Sinks kept on the look-ahead thread get their inputs now and step there.
         for i in 0..self.comps.len() {
             if due_at_step(k, self.every[i]) {
-                self.kept_turn(i, k, t, h, left, true)?;
+                self.kept_turn(i, k, t, h, left)?;
             }
         }
         let plan = threads::plan_jacobi(&self.comps, &due, &self.params);
         if plan.is_parallel() {
             self.parallel_steps += 1;
         }
-        let visible = Visible {
-            values: &self.outputs,
-            seen: (!self.set_unchanged_inputs).then_some(&self.seen[..]),
-        };
+        let visible = Visible::new(&self.outputs, &self.seen, self.set_unchanged_inputs);
         let critical = threads::advance_jacobi(plan, &mut self.comps, &due, visible, t, h, left)?;
         for i in 0..self.comps.len() {
             if due_at_step(k, self.every[i]) {
@@ -256,7 +253,7 @@ impl Simulation {
             if let Some(p) = wait {
                 self.settle_some(p + 1)?;
             }
-            if !self.kept_turn(i, k, t, h, left, false)? {
+            if !self.kept_turn(i, k, t, h, left)? {
                 self.gs_turn(i, k, t, h, left)?;
             }
         }
@@ -348,10 +345,7 @@ impl Simulation {
         }
         self.fresh_sources(i);
         if let Some(r) = self.comps[i].as_deref_mut() {
-            let visible = Visible {
-                values: &self.outputs,
-                seen: (!self.set_unchanged_inputs).then_some(&self.seen[..]),
-            };
+            let visible = Visible::new(&self.outputs, &self.seen, self.set_unchanged_inputs);
             r.advance(visible, t, h, left)?;
             self.fmu_critical += r.last;
         }
@@ -361,17 +355,9 @@ impl Simulation {
 
     /// The turn of due component `i` as a sink kept on the look-ahead thread (module docs):
     /// if it is one (or becomes one now), its inputs go there from `self.outputs` and it steps
-    /// there, and this returns true. A full queue is waited for first. In Jacobi order
-    /// (`jacobi`) the memo is not used.
-    fn kept_turn(
-        &mut self,
-        i: usize,
-        k: u64,
-        t: f64,
-        h: f64,
-        left: usize,
-        jacobi: bool,
-    ) -> Result<bool> {
+    /// there, and this returns true. A full queue is waited for first. (Only a Gauss-Seidel
+    /// hand-over fills the memo: in Jacobi order it stays empty.)
+    fn kept_turn(&mut self, i: usize, k: u64, t: f64, h: f64, left: usize) -> Result<bool> {
         let Some(la) = self.lookahead.as_ref() else {
             return Ok(false);
         };
@@ -453,7 +439,7 @@ impl Simulation {
         // others here.
         let (seen, runs) = (&self.seen, &self.real_runs[i]);
         let m = &self.memo;
-        let plan = m.from.filter(|_| !jacobi).and_then(|from| {
+        let plan = m.from.and_then(|from| {
             sink.plans.iter().position(|p| {
                 p.from == from
                     && runs
