@@ -224,15 +224,18 @@ pub(super) fn record_runs(
         ] {
             let _ = std::fs::remove_file(a.out.join(old));
         }
-        let (csv, file): (_, Box<dyn cosim::system::Sink>) = match a.format {
+        let (csv, file) = match a.format {
             Format::Csv => {
                 let p = a.out.join(format!("{stem}.csv"));
                 let sink = cosim::system::CsvSink::create(&p).map_err(|e| e.to_string())?;
-                (p, Box::new(sink))
+                // Formatted and written on a thread of its own, off the master's thread (a
+                // binary row costs next to nothing: the npy sink stays in place).
+                let sink = cosim::system::BackgroundSink::new(Box::new(sink));
+                (p, Box::new(sink) as Box<dyn cosim::system::Sink>)
             }
             Format::Npy => {
                 let p = a.out.join(format!("{stem}.npy"));
-                (p.clone(), Box::new(super::npy::NpySink::new(&p)))
+                (p.clone(), Box::new(super::npy::NpySink::new(&p)) as _)
             }
         };
         let mirror = ["mirror", "segments"]
@@ -263,11 +266,11 @@ pub(super) fn record_runs(
             decimation: a.decimation,
             stop: Some(&STOP),
         };
-        let bar = progress_bar(label);
+        let mut progress = Progress::start(label);
         let outcome = cosim::system::run_into(s, &options, &mut sink, &mut |t, stop| {
-            show_progress(&bar, t0, t, stop);
+            progress.show(t, stop);
         });
-        bar.finish_and_clear();
+        progress.finish();
         // The run's own wall time (set-up and loop), before the figures' post-processing.
         let seconds = t0.elapsed().as_secs_f64();
         let report = outcome.map_err(|f| {

@@ -467,12 +467,11 @@ pub(crate) fn run_one(
     partial_csv: Option<&Path>,
 ) -> Result<Outcome, String> {
     let record: Vec<String> = metrics.iter().map(|s| s.to_string()).collect();
-    let bar = progress_bar(label);
-    let t0 = Instant::now();
+    let mut progress = Progress::start(label);
     let outcome = run(system, &record, decimation, &mut |t, stop| {
-        show_progress(&bar, t0, t, stop);
+        progress.show(t, stop);
     });
-    bar.finish_and_clear();
+    progress.finish();
     let results = match outcome {
         Ok(r) => r,
         Err(f) => {
@@ -502,21 +501,47 @@ pub(crate) fn progress_bar(label: &str) -> indicatif::ProgressBar {
     bar
 }
 
-/// Moves `bar` to simulated time `t` of `stop`, with the speed since `t0`.
-pub(crate) fn show_progress(bar: &indicatif::ProgressBar, t0: Instant, t: f64, stop: f64) {
-    let f = (t / stop).clamp(0.0, 1.0);
-    let pos = (f * 1000.0) as u64;
-    if pos != bar.position() {
-        bar.set_position(pos);
+/// A run's progress bar (simulated time over the stop time) and the speed since its start.
+pub(crate) struct Progress {
+    bar: indicatif::ProgressBar,
+    t0: Instant,
+    /// The bar's position as last set: asking the bar takes its lock, at every step.
+    shown: u64,
+}
+
+impl Progress {
+    /// The bar of a run labelled `label`, started now.
+    pub(crate) fn start(label: &str) -> Self {
+        Self {
+            bar: progress_bar(label),
+            t0: Instant::now(),
+            shown: 0,
+        }
+    }
+
+    /// Moves the bar to simulated time `t` of `stop`.
+    pub(crate) fn show(&mut self, t: f64, stop: f64) {
+        let f = (t / stop).clamp(0.0, 1.0);
+        let pos = (f * 1000.0) as u64;
+        if pos == self.shown {
+            return;
+        }
+        self.shown = pos;
+        self.bar.set_position(pos);
         // The message (a formatted string) once per per cent: the bar redraws at a few hertz.
         if !pos.is_multiple_of(10) {
             return;
         }
-        let wall = t0.elapsed().as_secs_f64();
-        bar.set_message(format!(
+        let wall = self.t0.elapsed().as_secs_f64();
+        self.bar.set_message(format!(
             "t = {t:.3} s, {:.2}x real time",
             t / wall.max(1e-9)
         ));
+    }
+
+    /// Clears the bar.
+    pub(crate) fn finish(&self) {
+        self.bar.finish_and_clear();
     }
 }
 

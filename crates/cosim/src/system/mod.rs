@@ -136,9 +136,11 @@
 //!   look-ahead thread, the Jacobi threads).
 //! - `run.rs`: the run loop and its results ([`run`], [`Results`], [`Timing`], [`Failure`]).
 
+mod background;
 mod definition;
 mod init;
 mod ports;
+mod queue;
 mod run;
 mod setup;
 mod simulation;
@@ -146,6 +148,7 @@ mod step;
 mod threads;
 mod wiring;
 
+pub use background::BackgroundSink;
 pub use definition::{Component, Connection, Order, System, Value};
 pub use run::{CsvSink, Ended, Failure, Report, Results, RunOptions, Sink, Timing, run, run_into};
 pub use simulation::{Recorded, Simulation};

@@ -9,6 +9,7 @@ use std::time::Instant;
 
 use super::definition::Order;
 use super::ports::{Ports, SourcedRun, Values, Visible, copy_past_cache, gather_real_past_cache};
+use super::queue::TryRecv;
 use super::simulation::Simulation;
 use super::threads::{self, Flight, InFlight, Job, Kept, KeptStep, LOOKAHEAD_SLOTS, Reply, Work};
 use crate::error::{CosimError, Result};
@@ -587,12 +588,12 @@ impl Simulation {
         // Only a wait is timed (it counts as the FMU's time): a look is not worth a clock read.
         let t0 = wait.then(Instant::now);
         let reply = if wait {
-            threads::receive(&la.done, threads::SPIN_MASTER)
+            la.done.recv(threads::SPIN_MASTER)
         } else {
             match la.done.try_recv() {
-                Ok(r) => Some(r),
-                Err(std::sync::mpsc::TryRecvError::Empty) => return None,
-                Err(std::sync::mpsc::TryRecvError::Disconnected) => None,
+                TryRecv::Ready(r) => Some(r),
+                TryRecv::Empty => return None,
+                TryRecv::Closed => None,
             }
         };
         la.in_flight.pop_front();

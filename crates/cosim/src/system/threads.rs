@@ -14,6 +14,7 @@
 //! in the order sent.
 
 use super::ports::Visible;
+use super::queue::{Receiver, Sender, queue};
 use super::step::Running;
 use super::wiring::Kind;
 use crate::error::{CosimError, Result};
@@ -77,42 +78,8 @@ impl SchedulerParams {
 /// sleeps, so a run that stops handing over (or a pause) costs nothing.
 const SPIN_WORKER: std::time::Duration = std::time::Duration::from_micros(500);
 
-/// Polls between two yields of the core while a thread waits for its next message.
-const YIELD_EVERY: u32 = 8;
-
 /// How long the master polls for the component on the look-ahead thread before it sleeps.
 pub(super) const SPIN_MASTER: std::time::Duration = std::time::Duration::from_micros(200);
-
-/// The next message of `rx`: polled for up to `spin`, then waited for (sleeping). `None`
-/// once the sender is gone.
-pub(super) fn receive<T>(
-    rx: &std::sync::mpsc::Receiver<T>,
-    spin: std::time::Duration,
-) -> Option<T> {
-    use std::sync::mpsc::TryRecvError;
-    let start = std::time::Instant::now();
-    let mut polls = 0u32;
-    loop {
-        match rx.try_recv() {
-            Ok(v) => return Some(v),
-            Err(TryRecvError::Disconnected) => return None,
-            Err(TryRecvError::Empty) => {}
-        }
-        polls += 1;
-        // The clock is read every 64 polls: cheap beside the poll, fine enough for the limit.
-        if polls.is_multiple_of(64) && start.elapsed() >= spin {
-            return rx.recv().ok();
-        }
-        // Now and then a thread with work on this core (an FMU's own helper thread) runs
-        // first; a yield at every poll made the master's own core slower (a system call per
-        // poll: the TMT mirror's step 10-15 % longer at 60 and 300 modes).
-        if polls.is_multiple_of(YIELD_EVERY) {
-            std::thread::yield_now();
-        } else {
-            std::hint::spin_loop();
-        }
-    }
-}
 
 /// A component's step on the look-ahead thread: it goes there with its inputs gathered and
 /// comes back stepped, with the outcome.
@@ -267,8 +234,8 @@ pub(super) struct InFlight {
 
 /// The look-ahead thread of a simulation and the messages it has in flight.
 pub(super) struct Lookahead {
-    pub(super) jobs: Option<std::sync::mpsc::SyncSender<Work>>,
-    pub(super) done: std::sync::mpsc::Receiver<Reply>,
+    pub(super) jobs: Option<Sender<Work>>,
+    pub(super) done: Receiver<Reply>,
     thread: Option<std::thread::JoinHandle<()>>,
     /// The messages in flight, oldest first: the order in which their replies come.
     pub(super) in_flight: std::collections::VecDeque<InFlight>,
@@ -282,11 +249,11 @@ impl Lookahead {
     /// The thread, for a simulation of `n` components.
     pub(super) fn start(n: usize) -> Result<Self> {
         // Room for every message in flight in either channel: a send never blocks.
-        let (jobs, inbox) = std::sync::mpsc::sync_channel::<Work>(LOOKAHEAD_SLOTS);
-        let (outbox, done) = std::sync::mpsc::sync_channel::<Reply>(LOOKAHEAD_SLOTS);
+        let (jobs, mut inbox) = queue::<Work>(LOOKAHEAD_SLOTS);
+        let (mut outbox, done) = queue::<Reply>(LOOKAHEAD_SLOTS);
         let thread = std::thread::Builder::new()
             .name("cosim-lookahead".into())
-            .spawn(move || work(&inbox, &outbox, n))
+            .spawn(move || work(&mut inbox, &mut outbox, n))
             .map_err(|e| CosimError::Invalid(format!("cannot start the look-ahead thread: {e}")))?;
         Ok(Self {
             jobs: Some(jobs),
@@ -313,34 +280,26 @@ impl Lookahead {
     ) -> std::result::Result<(), Box<Work>> {
         let Some(tx) = self
             .jobs
-            .as_ref()
+            .as_mut()
             .filter(|_| self.in_flight.len() < LOOKAHEAD_SLOTS)
         else {
             return Err(Box::new(work));
         };
-        match tx.send(work) {
-            Ok(()) => {
-                self.in_flight.push_back(flight);
-                if matches!(flight.what, Flight::Step | Flight::KeptStep) {
-                    self.deferred += 1;
-                }
-                Ok(())
-            }
-            Err(std::sync::mpsc::SendError(work)) => Err(Box::new(work)),
+        tx.send(work).map_err(Box::new)?;
+        self.in_flight.push_back(flight);
+        if matches!(flight.what, Flight::Step | Flight::KeptStep) {
+            self.deferred += 1;
         }
+        Ok(())
     }
 }
 
 /// The look-ahead thread's loop: each message in turn, one reply each, until the master hangs
 /// up; the components it keeps are dropped here then (after every reply).
-fn work(
-    inbox: &std::sync::mpsc::Receiver<Work>,
-    outbox: &std::sync::mpsc::SyncSender<Reply>,
-    n: usize,
-) {
+fn work(inbox: &mut Receiver<Work>, outbox: &mut Sender<Reply>, n: usize) {
     let mut kept: Vec<Option<Box<Kept>>> = (0..n).map(|_| None).collect();
     let mut memo: Vec<f64> = Vec::new();
-    while let Some(w) = receive(inbox, SPIN_WORKER) {
+    while let Some(w) = inbox.recv(SPIN_WORKER) {
         let reply = match w {
             Work::Step(mut job) => {
                 if job.memo {
@@ -410,6 +369,7 @@ fn work(
                 Reply::Returned(i, kept.get_mut(i).and_then(Option::take).map(|k| k.comp))
             }
         };
+        // Never full: at most as many replies as messages in flight.
         if outbox.send(reply).is_err() {
             break;
         }
@@ -423,7 +383,7 @@ impl Drop for Lookahead {
         // before the libraries close: Simulation's fields drop after this one.
         self.jobs = None;
         for _ in self.in_flight.drain(..) {
-            if self.done.recv().is_err() {
+            if self.done.recv(SPIN_MASTER).is_none() {
                 break;
             }
         }
