@@ -257,7 +257,11 @@ mod tests {
         }
         let e = sink.row(&[0.0, 0.0]).expect_err("the next row reports it");
         assert!(e.to_string().contains("disk full"), "{e}");
-        assert_eq!(rows.lock().unwrap().len(), 5, "nothing written after the failure");
+        assert_eq!(
+            rows.lock().unwrap().len(),
+            5,
+            "nothing written after the failure"
+        );
         assert!(sink.row(&[0.0, 0.0]).is_err(), "nor taken");
     }
 

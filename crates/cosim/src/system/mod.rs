@@ -69,6 +69,11 @@
 //! displacements cross once per step for both the edge sensors and the optics
 //! ([`Simulation::lookahead_memo_steps`] counts those steps).
 //!
+//! Messages and replies go through a wait-free ring of one sender and one receiver (`rtrb`):
+//! a send is a plain store, not a locked instruction that would wait for the message's lines to
+//! reach the other core. A thread that has polled for a while sleeps and is woken by the next
+//! message (`queue.rs`).
+//!
 //! Its steps run in the order they were sent and their replies come back in that order. Only
 //! components taking at least [`SchedulerParams::lookahead_min_seconds`] per step (a running
 //! mean) go there, so that handing one over pays. A recorded component may go too when [`run`]

@@ -40,8 +40,9 @@ pub struct SchedulerParams {
     /// Mean time per step (s) from which a component may step on the look-ahead thread in
     /// Gauss-Seidel order. Handing a step over and taking it back costs the master about 1 us
     /// when the thread is awake (measured on the 2-core machine with the TMT edge sensors and
-    /// optics, whose inputs are the mirror's 1476 displacements: 0.3 us to copy them, 0.5 us to
-    /// send the step, the rest to receive it); waking a sleeping thread takes 50-150 us there,
+    /// optics, whose inputs are the mirror's 1476 displacements: 0.3 us to copy them past the
+    /// cache and as long again for those stores to drain, a few tens of nanoseconds to send the
+    /// step, the rest to receive it); waking a sleeping thread takes 50-150 us there,
     /// hidden while the master steps the others. Default 5e-6, five times that cost;
     /// [`super::Simulation::set_lookahead`] changes it on a running simulation.
     pub lookahead_min_seconds: f64,
@@ -75,7 +76,8 @@ impl SchedulerParams {
 /// machine, a per-cent of a 1 ms TMT step) and the thread its scheduling latency; polling
 /// through the idle part of a typical step avoids both. The poll only reads an atomic in the
 /// core's own cache, so it takes no memory bandwidth from the components; beyond it the thread
-/// sleeps, so a run that stops handing over (or a pause) costs nothing.
+/// sleeps, so a run that stops handing over (or a pause) costs next to nothing (a look at the
+/// queue every 2 ms, `queue.rs`).
 const SPIN_WORKER: std::time::Duration = std::time::Duration::from_micros(500);
 
 /// How long the master polls for the component on the look-ahead thread before it sleeps.
