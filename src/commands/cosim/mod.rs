@@ -490,7 +490,7 @@ pub(crate) fn run_one(
 }
 
 /// The progress bar of a run labelled `label` (simulated time over the stop time).
-pub(crate) fn progress_bar(label: &str) -> indicatif::ProgressBar {
+fn progress_bar(label: &str) -> indicatif::ProgressBar {
     let bar = indicatif::ProgressBar::new(1000);
     bar.set_style(
         indicatif::ProgressStyle::with_template("{prefix:>12} [{bar:30}] {msg} ({elapsed})")

@@ -40,9 +40,9 @@ pub struct SchedulerParams {
     /// Mean time per step (s) from which a component may step on the look-ahead thread in
     /// Gauss-Seidel order. Handing a step over and taking it back costs the master about 1 us
     /// when the thread is awake (measured on the 2-core machine with the TMT edge sensors and
-    /// optics, whose inputs are the mirror's 1476 displacements: 0.3 us to copy them past the
-    /// cache and as long again for those stores to drain, a few tens of nanoseconds to send the
-    /// step, the rest to receive it); waking a sleeping thread takes 50-150 us there,
+    /// optics, whose inputs are the mirror's 1476 displacements: 0.24-0.54 us to copy them past
+    /// the cache, the stores' drain included, a few nanoseconds to send the step, the rest to
+    /// receive it); waking a sleeping thread takes 50-150 us there,
     /// hidden while the master steps the others. Default 5e-6, five times that cost;
     /// [`super::Simulation::set_lookahead`] changes it on a running simulation.
     pub lookahead_min_seconds: f64,
