@@ -947,6 +947,65 @@ mod tests {
         }
     }
 
+    /// The columns after a row's last whole vector are summed as the others, to the bit: each
+    /// column of `n` columns (not a whole number of vectors) against the same column of `64`
+    /// (whole vectors for every width), for both kernels, the running sum `d` included.
+    #[test]
+    fn the_last_columns_are_summed_as_the_others() {
+        struct Case;
+        impl pulp::WithSimd for Case {
+            type Output = ();
+            #[inline(always)]
+            fn with_simd<S: Simd>(self, simd: S) {
+                const WIDE: usize = 64;
+                let a: [[f64; NS]; NS] = std::array::from_fn(|i| {
+                    std::array::from_fn(|j| ((i * 5 + j * 3) % 7) as f64 / 3.0 - 1.0)
+                });
+                let b: [[f64; NI]; NS] =
+                    std::array::from_fn(|i| std::array::from_fn(|l| (i + l) as f64 * 0.3));
+                let w: [f64; NS] = std::array::from_fn(|i| 0.7 - i as f64 * 0.2);
+                let value = |k: usize| ((k * 7919) % 1013) as f64 / 1013.0 - 0.5;
+                // Column c of state j, and of input l, whatever the width.
+                let run = |n: usize| {
+                    let x: Vec<f64> = (0..NS * n).map(|k| value((k / n) * WIDE + k % n)).collect();
+                    let u: Vec<Vec<f64>> = (0..NI)
+                        .map(|l| (0..n).map(|c| value(9000 + l * WIDE + c)).collect())
+                        .collect();
+                    let mut out = vec![0.0; NS * n];
+                    let mut d: Vec<f64> = (0..n).map(|c| c as f64 / 7.0).collect();
+                    state_map::<S, NS, NI>(
+                        simd,
+                        &a,
+                        &b,
+                        &x,
+                        [&u[0], &u[1]],
+                        n,
+                        &mut out,
+                        Some((&w, &mut d)),
+                    );
+                    let mut rows = vec![0.0; NS * n];
+                    rows_map::<S, NS, NI>(simd, &a, &b, &x, [&u[0], &u[1]], n, &mut rows);
+                    (out, d, rows)
+                };
+                let (wide, wide_d, wide_rows) = run(WIDE);
+                for n in [S::F64_LANES + 1, 2 * S::F64_LANES - 1, 61] {
+                    let (out, d, rows) = run(n);
+                    for c in 0..n {
+                        for i in 0..NS {
+                            let (got, want) = (out[i * n + c], wide[i * WIDE + c]);
+                            assert_eq!(got.to_bits(), want.to_bits(), "state_map n {n} ({i}, {c})");
+                            let (got, want) = (rows[i * n + c], wide_rows[i * WIDE + c]);
+                            assert_eq!(got.to_bits(), want.to_bits(), "rows_map n {n} ({i}, {c})");
+                        }
+                        assert_eq!(d[c].to_bits(), wide_d[c].to_bits(), "d, n {n}, column {c}");
+                    }
+                }
+            }
+        }
+        pulp::Arch::new().dispatch(Case);
+        pulp::WithSimd::with_simd(Case, pulp::Scalar256b);
+    }
+
     /// States and inputs of the `state_map` tests.
     const NS: usize = 5;
     const NI: usize = 2;
