@@ -15,7 +15,7 @@
 //! | edge sensors | 1 ms | a CSR product with the same non-zeros, `y = H z`, `gap = g0 + G z` (fused when `H` and `G` share a pattern); and the memory floor: the non-zeros and `z` read once |
 //! | optics | 1 ms | metrics: one dot-product pass over `z`; PSSN: the FFTs of one evaluation (`m1::optics::pssn`), per step |
 //! | wind | 10 ms (100 Hz) | streaming the table entries one sample interpolates and the forces it writes |
-//! | master | 1 ms | a copy of the scalars the standard system connects per step (not measured here) |
+//! | master | 1 ms | a copy of the scalars the standard system connects per step; its own time from `m1cs run` (below) |
 //!
 //! Each measurement runs in `BLOCKS` blocks of equal length (about 1.5 s in all unless
 //! `--steps` fixes the steps per block) and reports the median time per step and the minimum.
@@ -26,10 +26,14 @@
 //!
 //! ```text
 //! cargo bench --bench floors -- [--layout tmt|keck] [--modes 60,300] [--steps N] [--json PATH]
+//!     [--fmu-dir DIR]
 //! ```
 //!
-//! The master's own time is not measured here: its actual share of a run comes from
-//! `target/release/m1cs run --json` (`master_share` x the loop time).
+//! The master's own time is its wall time outside the FMUs' calls in the standard closed loop,
+//! measured in the same run by [`MASTER_RUNS`] invocations of this package's `m1cs run --json
+//! --no-plots` (5 s of wind, open and closed loop, the default modes) on the FMUs packaged in
+//! `--fmu-dir` (default `target/fmu`, written by `cargo xtask package LAYOUT`): per run
+//! `master_share` x the loop time over the steps. Without the packaged FMUs the row says so.
 #![allow(clippy::expect_used, clippy::unwrap_used, clippy::panic)]
 
 use std::hint::black_box;
@@ -63,6 +67,7 @@ struct Args {
     modes: Vec<i32>,
     steps: Option<usize>,
     json: Option<PathBuf>,
+    fmu_dir: PathBuf,
 }
 
 fn parse_args() -> Args {
@@ -71,6 +76,7 @@ fn parse_args() -> Args {
         modes: vec![60, 300],
         steps: None,
         json: None,
+        fmu_dir: PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/fmu"),
     };
     let mut it = std::env::args().skip(1);
     while let Some(arg) = it.next() {
@@ -101,6 +107,7 @@ fn parse_args() -> Args {
                 a.steps = Some(s.parse().unwrap_or_else(|e| panic!("--steps {s}: {e}")))
             }
             "--json" => a.json = Some(PathBuf::from(value("--json"))),
+            "--fmu-dir" => a.fmu_dir = PathBuf::from(value("--fmu-dir")),
             // `cargo bench` passes `--bench`; anything else unknown is ignored too.
             _ => {}
         }
@@ -917,7 +924,7 @@ fn wind(layout: &str, steps: Option<usize>, arch: pulp::Arch, rows: &mut Vec<Row
     });
 }
 
-fn master(layout: &str, steps: Option<usize>, rows: &mut Vec<Row>) {
+fn master(layout: &str, steps: Option<usize>, fmu_dir: &std::path::Path, rows: &mut Vec<Row>) {
     let l = Layout::preset(layout).expect("layout");
     let (na, ns) = (l.n_actuators(), l.n_sensors());
     // wind.f_wind -> mirror, mirror.z -> sensors and optics, controller.u_cmd -> mirror,
@@ -932,18 +939,119 @@ fn master(layout: &str, steps: Option<usize>, rows: &mut Vec<Row>) {
         }
     });
     let gbs = (8 * n) as f64 / floor.median / 1e9;
+    let (time, runs) = match master_runs(layout, fmu_dir) {
+        Ok(runs) => (
+            stats_of(&runs.iter().map(|r| r.per_step).collect::<Vec<_>>()),
+            runs,
+        ),
+        Err(why) => {
+            eprintln!("master: not measured: {why}");
+            (None, Vec::new())
+        }
+    };
     rows.push(Row {
         component: "master",
-        case: "connected scalars per 1 ms step".into(),
-        time: None,
+        case: "its own time per 1 ms step in the standard closed loop".into(),
+        time,
         floor,
         basis: format!(
-            "memcpy of {n} f64 ({}: 4 na + ns, na = {na}, ns = {ns}) at {gbs:.1} GB/s; actual: \
-             master_share x loop time of `target/release/m1cs run --json`",
-            mb((8 * n) as f64)
+            "memcpy of {n} f64 ({}: 4 na + ns, na = {na}, ns = {ns}) at {gbs:.1} GB/s; the time: \
+             master_share x loop time / steps of `m1cs run --json --no-plots` ({} runs, open and \
+             closed loop)",
+            mb((8 * n) as f64),
+            runs.len()
         ),
-        details: json!({"scalars": n, "na": na, "ns": ns, "gb_per_s": gbs}),
+        details: json!({
+            "scalars": n,
+            "na": na,
+            "ns": ns,
+            "gb_per_s": gbs,
+            "runs": runs.iter().map(|r| json!({
+                "run": r.run,
+                "master_share": r.share,
+                "loop_real_time_factor": r.real_time,
+                "master_us_per_step": r.per_step * 1e6,
+            })).collect::<Vec<_>>(),
+        }),
     });
+}
+
+/// Invocations of `m1cs run` that time the master ([`master`]).
+const MASTER_RUNS: usize = 3;
+
+/// One run's master: its share of the loop, the loop's real-time factor, its own time per
+/// step (s).
+struct MasterRun {
+    run: String,
+    share: f64,
+    real_time: f64,
+    per_step: f64,
+}
+
+/// The master's own time in [`MASTER_RUNS`] invocations of this package's `m1cs run` on the
+/// standard system of `layout` (each: open and closed loop), or why it could not be run.
+fn master_runs(layout: &str, fmu_dir: &std::path::Path) -> Result<Vec<MasterRun>, String> {
+    if !fmu_dir.join(layout).is_dir() {
+        return Err(format!(
+            "no FMUs in {} (`cargo xtask package {layout}` first)",
+            fmu_dir.join(layout).display()
+        ));
+    }
+    let out = std::env::temp_dir().join(format!("m1cs-floors-master-{}", std::process::id()));
+    let mut runs = Vec::new();
+    for _ in 0..MASTER_RUNS {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_m1cs"))
+            .args([
+                "run",
+                "--layout",
+                layout,
+                "--json",
+                "--no-plots",
+                "--fmu-dir",
+            ])
+            .arg(fmu_dir)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .map_err(|e| format!("m1cs run: {e}"))?;
+        if !o.status.success() {
+            return Err(format!(
+                "m1cs run failed: {}",
+                String::from_utf8_lossy(&o.stderr).trim()
+            ));
+        }
+        let doc: Value =
+            serde_json::from_slice(&o.stdout).map_err(|e| format!("m1cs run --json: {e}"))?;
+        let duration = doc["duration_s"].as_f64().ok_or("no duration_s")?;
+        for r in doc["runs"].as_array().ok_or("no runs")? {
+            let (share, real_time) = (
+                r["master_share"].as_f64().ok_or("no master_share")?,
+                r["loop_real_time_factor"]
+                    .as_f64()
+                    .ok_or("no loop_real_time_factor")?,
+            );
+            let steps = r["rows"].as_f64().ok_or("no rows")? - 1.0;
+            runs.push(MasterRun {
+                run: r["run"].as_str().unwrap_or("?").to_string(),
+                share,
+                real_time,
+                per_step: share * duration / real_time / steps,
+            });
+        }
+    }
+    let _ = std::fs::remove_dir_all(&out);
+    Ok(runs)
+}
+
+/// Median and minimum of per-step times taken apart ([`master`]).
+fn stats_of(t: &[f64]) -> Option<Stats> {
+    let mut t = t.to_vec();
+    t.sort_by(f64::total_cmp);
+    Some(Stats {
+        median: *t.get(t.len() / 2)?,
+        min: *t.first()?,
+        steps: 0,
+    })
 }
 
 fn main() {
@@ -970,7 +1078,7 @@ fn main() {
     edge_sensors(&layout, a.steps, arch, &mut rows);
     optics(&layout, a.steps, &mut rows);
     wind(&layout, a.steps, arch, &mut rows);
-    master(&layout, a.steps, &mut rows);
+    master(&layout, a.steps, &a.fmu_dir, &mut rows);
 
     println!("\n## Floors: {layout}, medians of {BLOCKS} blocks per step (minimum in brackets)\n");
     println!("| component | case | time per step (us) | floor (us) | ratio | floor basis |");
@@ -988,9 +1096,9 @@ fn main() {
         );
     }
     println!(
-        "\nThe master's own time is not measured in-process: its share of a run is \
-         `master_share` x the loop time of `target/release/m1cs run --json`; the row above is \
-         only the floor of its data movement.\nTotal bench time {:.1} s.",
+        "\nThe master's own time is its wall time outside the FMUs' calls in `m1cs run` (its \
+         share of the loop times the loop, per step), against the memory floor of the values \
+         the standard system connects per step.\nTotal bench time {:.1} s.",
         start.elapsed().as_secs_f64()
     );
     if let Some(path) = &a.json {
