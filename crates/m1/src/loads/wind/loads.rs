@@ -271,14 +271,32 @@ impl WindLoads {
     /// Wind-frame integrals `[G_0, G_xi, G_eta]` of segment `i` at time `t` (the unit screen's,
     /// times the rms pressure).
     fn wind_integrals(&self, i: usize, t: f64) -> [f64; 3] {
-        self.integrals_at(i, &self.stencil(i, t))
+        self.integrals_at(i, &self.stencil(i, self.shift(t)))
     }
 
-    /// The four table samples of segment `i` around its position at time `t`, and their
-    /// weights.
+    /// How far the screen has moved along the flow at time `t`, in samples, within one period
+    /// (`[0, samples)`): taken once per time, so that each segment's position is within a period
+    /// of the table's range and its stencil needs no remainder (a `fmod` per segment cost the
+    /// TMT forces 4.3 us per call, 60 %, once a run had gone past the screen's first period:
+    /// 10 s at 10 m/s). Within the first period it is the plain ratio, unchanged.
     #[inline]
-    fn stencil(&self, i: usize, t: f64) -> ([usize; 4], [f64; 4]) {
-        let u = self.screen.along[i] - self.speed * t / self.screen.spacing;
+    fn shift(&self, t: f64) -> f64 {
+        let (s, n) = (
+            self.speed * t / self.screen.spacing,
+            self.screen.samples as f64,
+        );
+        if (0.0..n).contains(&s) {
+            s
+        } else {
+            s.rem_euclid(n)
+        }
+    }
+
+    /// The four table samples of segment `i` around its position with the screen moved by
+    /// `shift` samples ([`Self::shift`]), and their weights.
+    #[inline]
+    fn stencil(&self, i: usize, shift: f64) -> ([usize; 4], [f64; 4]) {
+        let u = self.screen.along[i] - shift;
         periodic_stencil(u, self.screen.samples)
     }
 
@@ -336,12 +354,13 @@ impl WindLoads {
         let n = self.screen.samples;
         let tables = &self.screen.tables;
         let mut stencils = [([0usize; 4], [0.0f64; 4]); FORCE_CHUNK];
+        let shift = self.shift(t);
         for (c, fc) in out.chunks_mut(3 * FORCE_CHUNK).enumerate() {
             let first = c * FORCE_CHUNK;
             let mut touch = 0.0;
             for (k, st) in stencils[..fc.len() / 3].iter_mut().enumerate() {
                 let i = first + k;
-                *st = self.stencil(i, t);
+                *st = self.stencil(i, shift);
                 touch += tables[3 * (i * n + st.0[0])] + tables[3 * (i * n + st.0[3]) + 2];
             }
             std::hint::black_box(touch);
