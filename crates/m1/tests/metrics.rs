@@ -391,3 +391,32 @@ fn wrong_sizes_are_errors() {
             .is_err()
     );
 }
+
+/// Random states over every segment (TMT's 492 and Keck's 36: whole vectors of segments and
+/// the segments after them, in `evaluate`'s two paths) against the closed form with its Gram
+/// matrix written out here, and the split of the rms between focus-mode and the rest.
+#[test]
+fn random_states_match_the_closed_form_on_every_segment() {
+    for (layout, seed) in [(Layout::tmt(), 11), (Layout::keck(), 12)] {
+        let g = geometry(&layout);
+        let m = MirrorMetrics::new(&g).unwrap();
+        for k in 0..3 {
+            let z = random_z(g.n_actuators(), seed + 100 * k, 40e-9);
+            let r = m.evaluate(&z).unwrap();
+            let ptt = actuators_to_ptt(&g, &z).unwrap();
+            let expected = closed_form_rms(&layout, &ptt);
+            assert!(
+                (r.rms / expected - 1.0).abs() < 1e-10,
+                "{}: rms {} expected {expected}",
+                layout.name,
+                r.rms
+            );
+            let split = (r.rms_without_focus.powi(2) + r.focus_rms.powi(2)).sqrt();
+            assert!(
+                (split / r.rms - 1.0).abs() < 1e-10,
+                "{}: {r:?}",
+                layout.name
+            );
+        }
+    }
+}

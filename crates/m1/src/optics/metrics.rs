@@ -50,7 +50,8 @@
 //!
 //! Every residual is accumulated directly (not as a difference of squares), so a pure global
 //! piston/tip/tilt gives 0 to round-off (the plane is refined once on the residual). An evaluation
-//! is three passes over the segments, `O(na)`, without allocation.
+//! is two passes over vectors of segments (`O(na)`, the processor's widest vectors, each sum
+//! taken by lane), after the displacements are laid out actuator by actuator.
 
 use nalgebra::{Matrix3, Vector3};
 
@@ -181,6 +182,18 @@ pub struct MirrorMetrics {
     focus_norm2: f64,
     /// The focus-mode vector in actuator space (unit norm).
     focus: Vec<f64>,
+    /// The same per-segment values by component, for [`Self::evaluate`]'s passes over
+    /// vectors of segments: `M_i^-1` entry by entry, the centres' `x` and `y`, `F` by component.
+    by_component: ByComponent,
+}
+
+/// [`MirrorMetrics`]' per-segment values as one array per component (entry `i` segment `i`).
+#[derive(Debug, Clone, Default)]
+struct ByComponent {
+    to_ptt: [Vec<f64>; 9],
+    cx: Vec<f64>,
+    cy: Vec<f64>,
+    focus: [Vec<f64>; 3],
 }
 
 /// Sums of the first evaluation pass.
@@ -267,6 +280,7 @@ impl MirrorMetrics {
             focus_ptt: vec![[0.0; 3]; n],
             focus_norm2: 1.0,
             focus: Vec::new(),
+            by_component: ByComponent::default(),
         };
         let mut residual = vec![[0.0; 3]; n];
         metrics.residual_ptt(&focus, &mut residual)?;
@@ -285,6 +299,12 @@ impl MirrorMetrics {
         metrics.focus_ptt = residual;
         metrics.focus_norm2 = focus_norm2;
         metrics.focus = focus;
+        metrics.by_component = ByComponent {
+            to_ptt: std::array::from_fn(|k| metrics.to_ptt.iter().map(|m| m[k]).collect()),
+            cx: metrics.centres.iter().map(|c| c[0]).collect(),
+            cy: metrics.centres.iter().map(|c| c[1]).collect(),
+            focus: std::array::from_fn(|k| metrics.focus_ptt.iter().map(|f| f[k]).collect()),
+        };
         Ok(metrics)
     }
 
@@ -382,35 +402,7 @@ impl MirrorMetrics {
     /// (`<r, plane(delta)> = delta.b1`, and the focus mode is orthogonal to every plane).
     pub fn evaluate(&self, z: &[f64]) -> Result<SurfaceMetrics, M1Error> {
         check_len(z, self.n_actuators())?;
-        let s = self.segment_states(z);
-        let m = self.moments(&s);
-        let beta0 = self.gram_inv * m.b;
-        // F is orthogonal to {1, x, y}, so <r, F> = <s, F>.
-        let c = m.sf / self.focus_norm2;
-        let (area, moment) = (self.area, self.moment);
-        let (mut r0, mut rx, mut ry, mut rr, mut qq) = (0.0, 0.0, 0.0, 0.0, 0.0);
-        for ((si, ci), f) in s.iter().zip(&self.centres).zip(&self.focus_ptt) {
-            let r = residual(si, ci, &beta0);
-            let ap = area * r[0];
-            r0 += ap;
-            rx += ap * ci[0] + moment * r[1];
-            ry += ap * ci[1] + moment * r[2];
-            rr += self.norm2(&r);
-            qq += self.norm2(&[r[0] - c * f[0], r[1] - c * f[1], r[2] - c * f[2]]);
-        }
-        let b1 = Vector3::new(r0, rx, ry);
-        let delta = self.gram_inv * b1;
-        let beta = beta0 + delta;
-        let refined = delta.dot(&b1);
-        let (rr, qq) = ((rr - refined).max(0.0), (qq - refined).max(0.0));
-        let area = self.total_area();
-        Ok(SurfaceMetrics {
-            rms: (rr / area).sqrt(),
-            focus: c,
-            focus_rms: c * self.focus_rms_per_unit(),
-            rms_without_focus: (qq / area).sqrt(),
-            global_ptt: [beta[0], beta[1], beta[2]],
-        })
+        Ok(pulp::Arch::new().dispatch(Evaluate { m: self, z }))
     }
 
     /// The segment states `[p, tx, ty]` (about each segment centre, aperture plane) of `z` with
@@ -432,6 +424,202 @@ impl MirrorMetrics {
         }
         Ok([beta[0], beta[1], beta[2]])
     }
+}
+
+/// [`MirrorMetrics::evaluate`] over vectors of segments (the processor's widest, `pulp`'s
+/// runtime dispatch): the segment states and their moments, which give the plane `beta0` of the
+/// normal equations; then one pass over the residuals about it, which gives both the refinement
+/// `delta = G^-1 b1` (the step of iterative refinement [`MirrorMetrics::residual_ptt`] takes
+/// too) and their squared norms, which the refinement changes by `-2 delta.b1 + delta^T G delta
+/// = -delta.b1` (`<r, plane(delta)> = delta.b1`, and the focus mode is orthogonal to every
+/// plane). Each sum is taken by lane, then across the lanes; the segments after the last whole
+/// vector one by one. The states are computed again in the second pass rather than stored.
+struct Evaluate<'a> {
+    m: &'a MirrorMetrics,
+    z: &'a [f64],
+}
+
+impl pulp::WithSimd for Evaluate<'_> {
+    type Output = SurfaceMetrics;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) -> SurfaceMetrics {
+        let (m, z) = (self.m, self.z);
+        let bc = &m.by_component;
+        let n = m.n_segments();
+        let lanes = S::F64_LANES;
+        let whole = n - n % lanes;
+        // The displacements by actuator of a segment, so that a vector holds one actuator of
+        // `lanes` segments.
+        let mut by_actuator = vec![0.0; 3 * n];
+        {
+            let (z0, rest) = by_actuator.split_at_mut(n);
+            let (z1, z2) = rest.split_at_mut(n);
+            let pieces = z0.iter_mut().zip(z1.iter_mut()).zip(z2.iter_mut());
+            for (((a, b), c), zi) in pieces.zip(z.chunks_exact(3)) {
+                (*a, *b, *c) = (zi[0], zi[1], zi[2]);
+            }
+        }
+        let zk: [&[f64]; 3] = [
+            &by_actuator[..n],
+            &by_actuator[n..2 * n],
+            &by_actuator[2 * n..],
+        ];
+        let (area, moment) = (m.area, m.moment);
+        let zero = simd.splat_f64s(0.0);
+        // First pass: sum s0, s0 cx, s0 cy, s1, s2 and <s, F>.
+        let mut acc = [zero; 6];
+        let (va, vi) = (simd.splat_f64s(area), simd.splat_f64s(moment));
+        for i in (0..whole).step_by(lanes) {
+            let [s0, s1, s2] = seg_states(simd, bc, &zk, i);
+            let (cx, cy) = (vec_at::<S>(&bc.cx, i), vec_at::<S>(&bc.cy, i));
+            let f = [
+                vec_at::<S>(&bc.focus[0], i),
+                vec_at::<S>(&bc.focus[1], i),
+                vec_at::<S>(&bc.focus[2], i),
+            ];
+            acc[0] = simd.add_f64s(acc[0], s0);
+            acc[1] = simd.mul_add_f64s(s0, cx, acc[1]);
+            acc[2] = simd.mul_add_f64s(s0, cy, acc[2]);
+            acc[3] = simd.add_f64s(acc[3], s1);
+            acc[4] = simd.add_f64s(acc[4], s2);
+            let sf = simd.mul_add_f64s(s1, f[1], simd.mul_f64s(s2, f[2]));
+            acc[5] = simd.mul_add_f64s(
+                va,
+                simd.mul_f64s(s0, f[0]),
+                simd.mul_add_f64s(vi, sf, acc[5]),
+            );
+        }
+        let mut sums = [0.0; 6];
+        for (s, v) in sums.iter_mut().zip(acc) {
+            *s = simd.reduce_sum_f64s(v);
+        }
+        for i in whole..n {
+            let s = m.segment_ptt(i, z);
+            let (c, f) = (&m.centres[i], &m.focus_ptt[i]);
+            sums[0] += s[0];
+            sums[1] += s[0] * c[0];
+            sums[2] += s[0] * c[1];
+            sums[3] += s[1];
+            sums[4] += s[2];
+            sums[5] += area * s[0] * f[0] + moment * (s[1] * f[1] + s[2] * f[2]);
+        }
+        let b = Vector3::new(
+            area * sums[0],
+            area * sums[1] + moment * sums[3],
+            area * sums[2] + moment * sums[4],
+        );
+        let beta0 = m.gram_inv * b;
+        // F is orthogonal to {1, x, y}, so <r, F> = <s, F>.
+        let c = sums[5] / m.focus_norm2;
+        // Second pass: the residuals' moments and squared norms, with and without focus-mode.
+        let mut acc = [zero; 7];
+        let (b0, b1, b2) = (
+            simd.splat_f64s(beta0[0]),
+            simd.splat_f64s(beta0[1]),
+            simd.splat_f64s(beta0[2]),
+        );
+        let vc = simd.splat_f64s(c);
+        for i in (0..whole).step_by(lanes) {
+            let [s0, s1, s2] = seg_states(simd, bc, &zk, i);
+            let (cx, cy) = (vec_at::<S>(&bc.cx, i), vec_at::<S>(&bc.cy, i));
+            let plane = simd.mul_add_f64s(b2, cy, simd.mul_add_f64s(b1, cx, b0));
+            let (r0, r1, r2) = (
+                simd.sub_f64s(s0, plane),
+                simd.sub_f64s(s1, b1),
+                simd.sub_f64s(s2, b2),
+            );
+            acc[0] = simd.add_f64s(acc[0], r0);
+            acc[1] = simd.mul_add_f64s(r0, cx, acc[1]);
+            acc[2] = simd.mul_add_f64s(r0, cy, acc[2]);
+            acc[3] = simd.add_f64s(acc[3], r1);
+            acc[4] = simd.add_f64s(acc[4], r2);
+            acc[5] = simd.add_f64s(acc[5], norm2_vec(simd, va, vi, [r0, r1, r2]));
+            let f = [
+                vec_at::<S>(&bc.focus[0], i),
+                vec_at::<S>(&bc.focus[1], i),
+                vec_at::<S>(&bc.focus[2], i),
+            ];
+            let q = [
+                simd.sub_f64s(r0, simd.mul_f64s(vc, f[0])),
+                simd.sub_f64s(r1, simd.mul_f64s(vc, f[1])),
+                simd.sub_f64s(r2, simd.mul_f64s(vc, f[2])),
+            ];
+            acc[6] = simd.add_f64s(acc[6], norm2_vec(simd, va, vi, q));
+        }
+        let mut sums = [0.0; 7];
+        for (s, v) in sums.iter_mut().zip(acc) {
+            *s = simd.reduce_sum_f64s(v);
+        }
+        for i in whole..n {
+            let (ci, f) = (&m.centres[i], &m.focus_ptt[i]);
+            let r = residual(&m.segment_ptt(i, z), ci, &beta0);
+            sums[0] += r[0];
+            sums[1] += r[0] * ci[0];
+            sums[2] += r[0] * ci[1];
+            sums[3] += r[1];
+            sums[4] += r[2];
+            sums[5] += m.norm2(&r);
+            sums[6] += m.norm2(&[r[0] - c * f[0], r[1] - c * f[1], r[2] - c * f[2]]);
+        }
+        let b1 = Vector3::new(
+            area * sums[0],
+            area * sums[1] + moment * sums[3],
+            area * sums[2] + moment * sums[4],
+        );
+        let delta = m.gram_inv * b1;
+        let beta = beta0 + delta;
+        let refined = delta.dot(&b1);
+        let (rr, qq) = ((sums[5] - refined).max(0.0), (sums[6] - refined).max(0.0));
+        let total = m.total_area();
+        SurfaceMetrics {
+            rms: (rr / total).sqrt(),
+            focus: c,
+            focus_rms: c * m.focus_rms_per_unit(),
+            rms_without_focus: (qq / total).sqrt(),
+            global_ptt: [beta[0], beta[1], beta[2]],
+        }
+    }
+}
+
+/// `lanes` entries of `v` from `i`, as a vector.
+#[inline(always)]
+fn vec_at<S: pulp::Simd>(v: &[f64], i: usize) -> S::f64s {
+    S::as_simd_f64s(&v[i..i + S::F64_LANES]).0[0]
+}
+
+/// The states `[p, tx, ty]` of the `lanes` segments from `i`, as vectors, from the actuators'
+/// displacements by actuator of the segment (`zk[k][i]`: actuator `k` of segment `i`).
+#[inline(always)]
+fn seg_states<S: pulp::Simd>(
+    simd: S,
+    bc: &ByComponent,
+    zk: &[&[f64]; 3],
+    i: usize,
+) -> [S::f64s; 3] {
+    let z0 = vec_at::<S>(zk[0], i);
+    let z1 = vec_at::<S>(zk[1], i);
+    let z2 = vec_at::<S>(zk[2], i);
+    let t = &bc.to_ptt;
+    let mut out = [simd.splat_f64s(0.0); 3];
+    for (r, o) in out.iter_mut().enumerate() {
+        let k = 3 * r;
+        let a = simd.mul_f64s(vec_at::<S>(&t[k], i), z0);
+        let a = simd.mul_add_f64s(vec_at::<S>(&t[k + 1], i), z1, a);
+        *o = simd.mul_add_f64s(vec_at::<S>(&t[k + 2], i), z2, a);
+    }
+    out
+}
+
+/// `A p^2 + I (tx^2 + ty^2)` by lane.
+#[inline(always)]
+fn norm2_vec<S: pulp::Simd>(simd: S, a: S::f64s, i: S::f64s, s: [S::f64s; 3]) -> S::f64s {
+    let [p, tx, ty] = s;
+    simd.mul_add_f64s(
+        a,
+        simd.mul_f64s(p, p),
+        simd.mul_f64s(i, simd.mul_add_f64s(tx, tx, simd.mul_f64s(ty, ty))),
+    )
 }
 
 /// A segment's state `s` (centre `c`) after removing the global plane `beta`.
