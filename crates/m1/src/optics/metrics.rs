@@ -434,6 +434,11 @@ impl MirrorMetrics {
 /// = -delta.b1` (`<r, plane(delta)> = delta.b1`, and the focus mode is orthogonal to every
 /// plane). Each sum is taken by lane, then across the lanes; the segments after the last whole
 /// vector one by one. The states are computed again in the second pass rather than stored.
+///
+/// The vector operations here are written out, in `#[inline(always)]` functions, without
+/// closures or `array::map` around them: those are compiled as functions of their own, without
+/// the processor's vector features, where every `pulp` operation becomes a call (a version with
+/// them took 18 us per TMT evaluation instead of 1.7).
 struct Evaluate<'a> {
     m: &'a MirrorMetrics,
     z: &'a [f64],
