@@ -939,6 +939,7 @@ fn master(layout: &str, steps: Option<usize>, fmu_dir: &std::path::Path, rows: &
         }
     });
     let gbs = (8 * n) as f64 / floor.median / 1e9;
+    let mut failure = None;
     let (time, runs) = match master_runs(layout, fmu_dir) {
         Ok(runs) => (
             stats_of(&runs.iter().map(|r| r.per_step).collect::<Vec<_>>()),
@@ -946,22 +947,29 @@ fn master(layout: &str, steps: Option<usize>, fmu_dir: &std::path::Path, rows: &
         ),
         Err(why) => {
             eprintln!("master: not measured: {why}");
+            failure = Some(why);
             (None, Vec::new())
         }
     };
     rows.push(Row {
         component: "master",
-        case: "its own time per 1 ms step in the standard closed loop".into(),
+        case: "its own time per 1 ms step in the standard system (open and closed loop)".into(),
         time,
         floor,
         basis: format!(
             "memcpy of {n} f64 ({}: 4 na + ns, na = {na}, ns = {ns}) at {gbs:.1} GB/s; the time: \
-             master_share x loop time / steps of `m1cs run --json --no-plots` ({} runs, open and \
-             closed loop)",
+             master_share x loop time / steps of `m1cs run --json --no-plots` ({}){}",
             mb((8 * n) as f64),
-            runs.len()
+            match runs.len() {
+                0 => "not run".to_string(),
+                k => format!("{k} runs, open and closed loop, the upper median"),
+            },
+            failure
+                .as_ref()
+                .map_or(String::new(), |why| format!("; not measured: {why}"))
         ),
         details: json!({
+            "not_measured": failure,
             "scalars": n,
             "na": na,
             "ns": ns,
@@ -998,59 +1006,76 @@ fn master_runs(layout: &str, fmu_dir: &std::path::Path) -> Result<Vec<MasterRun>
         ));
     }
     let out = std::env::temp_dir().join(format!("m1cs-floors-master-{}", std::process::id()));
-    let mut runs = Vec::new();
-    for _ in 0..MASTER_RUNS {
-        let o = std::process::Command::new(env!("CARGO_BIN_EXE_m1cs"))
-            .args([
-                "run",
-                "--layout",
-                layout,
-                "--json",
-                "--no-plots",
-                "--fmu-dir",
-            ])
-            .arg(fmu_dir)
-            .arg("--out")
-            .arg(&out)
-            .output()
-            .map_err(|e| format!("m1cs run: {e}"))?;
-        if !o.status.success() {
-            return Err(format!(
-                "m1cs run failed: {}",
-                String::from_utf8_lossy(&o.stderr).trim()
-            ));
-        }
-        let doc: Value =
-            serde_json::from_slice(&o.stdout).map_err(|e| format!("m1cs run --json: {e}"))?;
-        let duration = doc["duration_s"].as_f64().ok_or("no duration_s")?;
-        for r in doc["runs"].as_array().ok_or("no runs")? {
-            let (share, real_time) = (
-                r["master_share"].as_f64().ok_or("no master_share")?,
-                r["loop_real_time_factor"]
-                    .as_f64()
-                    .ok_or("no loop_real_time_factor")?,
-            );
-            let steps = r["rows"].as_f64().ok_or("no rows")? - 1.0;
-            runs.push(MasterRun {
-                run: r["run"].as_str().unwrap_or("?").to_string(),
-                share,
-                real_time,
-                per_step: share * duration / real_time / steps,
-            });
-        }
-    }
+    let runs = (0..MASTER_RUNS).try_fold(Vec::new(), |mut runs, _| {
+        runs.extend(master_run(layout, fmu_dir, &out)?);
+        Ok::<_, String>(runs)
+    });
     let _ = std::fs::remove_dir_all(&out);
+    runs
+}
+
+/// One invocation of `m1cs run` for [`master_runs`] (its results in `out`): both of its runs.
+fn master_run(
+    layout: &str,
+    fmu_dir: &std::path::Path,
+    out: &std::path::Path,
+) -> Result<Vec<MasterRun>, String> {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_m1cs"))
+        .args([
+            "run",
+            "--layout",
+            layout,
+            "--json",
+            "--no-plots",
+            "--fmu-dir",
+        ])
+        .arg(fmu_dir)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .map_err(|e| format!("m1cs run: {e}"))?;
+    if !o.status.success() {
+        return Err(format!(
+            "m1cs run failed: {}",
+            String::from_utf8_lossy(&o.stderr).trim()
+        ));
+    }
+    let doc: Value =
+        serde_json::from_slice(&o.stdout).map_err(|e| format!("m1cs run --json: {e}"))?;
+    let duration = doc["duration_s"].as_f64().ok_or("no duration_s")?;
+    let mut runs = Vec::new();
+    for r in doc["runs"].as_array().ok_or("no runs")? {
+        let name = r["run"].as_str().unwrap_or("?").to_string();
+        // A run that stopped early simulated less than `duration`: not a figure of the loop.
+        if !(r["ended_by"].is_null() && r["interrupted_at_s"].is_null()) {
+            return Err(format!("m1cs run: the {name} run stopped before its end"));
+        }
+        let (share, real_time) = (
+            r["master_share"].as_f64().ok_or("no master_share")?,
+            r["loop_real_time_factor"]
+                .as_f64()
+                .ok_or("no loop_real_time_factor")?,
+        );
+        let steps = r["rows"].as_f64().ok_or("no rows")? - 1.0;
+        runs.push(MasterRun {
+            run: name,
+            share,
+            real_time,
+            per_step: share * duration / real_time / steps,
+        });
+    }
     Ok(runs)
 }
 
-/// Median and minimum of per-step times taken apart ([`master`]).
+/// Median (the upper one of an even count) and minimum of per-step times taken apart
+/// ([`master`]); `steps` is their number.
 fn stats_of(t: &[f64]) -> Option<Stats> {
     let mut t = t.to_vec();
     t.sort_by(f64::total_cmp);
     Some(Stats {
         median: *t.get(t.len() / 2)?,
         min: *t.first()?,
-        steps: 0,
+        steps: t.len(),
     })
 }
 

@@ -379,10 +379,11 @@ fn flow_wraps_seamlessly_after_one_screen_period() {
     let na = g.n_actuators();
     let (mut a, mut b) = (vec![0.0; na], vec![0.0; na]);
     let rms = loads.expected_force_rms();
-    // One period on and many (the screen's shift taken within a period once per time).
+    // One period on and many, and one back (the screen's shift taken within a period once per
+    // time, from below zero too).
     for t in [0.0, 1.234, 7.5] {
         loads.forces(t, &mut a).unwrap();
-        for k in [1.0, 5.0, 37.0] {
+        for k in [-1.0, 1.0, 5.0, 37.0] {
             loads.forces(t + k * period, &mut b).unwrap();
             for (x, y) in a.iter().zip(&b) {
                 assert!((x - y).abs() < 1e-9 * rms, "{k} periods on: {x} vs {y}");

@@ -26,6 +26,9 @@ pub fn periodic_stencil(u: f64, n: usize) -> ([usize; 4], [f64; 4]) {
         u
     } else if (-nf..0.0).contains(&u) {
         u + nf
+    } else if (-2.0 * nf..-nf).contains(&u) {
+        // `u + n` is exact here (Sterbenz), as `u % n` is: the same steps as `rem_euclid`.
+        (u + nf) + nf
     } else {
         u.rem_euclid(nf)
     };

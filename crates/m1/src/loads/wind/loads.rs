@@ -274,11 +274,13 @@ impl WindLoads {
         self.integrals_at(i, &self.stencil(i, self.shift(t)))
     }
 
-    /// How far the screen has moved along the flow at time `t`, in samples, within one period
-    /// (`[0, samples)`): taken once per time, so that each segment's position is within a period
-    /// of the table's range and its stencil needs no remainder (a `fmod` per segment cost the
-    /// TMT forces 4.3 us per call, 60 %, once a run had gone past the screen's first period:
-    /// 10 s at 10 m/s). Within the first period it is the plain ratio, unchanged.
+    /// How far the screen has moved along the flow at time `t`, in samples, brought within one
+    /// period (`[0, samples]`: the remainder can round up to `samples`) once per time, so that
+    /// each segment's position stays within a period or two of the table's range, where its
+    /// stencil wraps by adding the period ([`periodic_stencil`]) instead of taking a remainder
+    /// per segment: that `fmod` cost the TMT forces 4 us per call, a third of them, once a run
+    /// had gone past the screen's first period (128 s at 1 m/s, 12.8 s at 10 m/s with the
+    /// default 128 m screen). Within the first period it is the plain ratio, unchanged.
     #[inline]
     fn shift(&self, t: f64) -> f64 {
         let (s, n) = (
