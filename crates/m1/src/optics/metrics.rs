@@ -748,7 +748,7 @@ mod evaluate_tests {
     #[test]
     fn every_instruction_set_matches_the_scalar_passes() {
         let l = Layout::elt();
-        assert!(l.n_segments() % 8 != 0 && l.n_segments() % 4 != 0);
+        assert!(!l.n_segments().is_multiple_of(8) && !l.n_segments().is_multiple_of(4));
         let g = Geometry::new(&l, GeometryParams::for_layout(&l)).expect("geometry");
         let focus: Vec<f64> = (0..g.n_actuators())
             .map(|k| {
