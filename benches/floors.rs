@@ -29,7 +29,7 @@
 //!     [--fmu-dir DIR]
 //! ```
 //!
-//! The master's own time is its wall time outside the FMUs' calls in the standard closed loop,
+//! The master's own time is its wall time outside the FMUs' calls in the standard system,
 //! measured in the same run by [`MASTER_RUNS`] invocations of this package's `m1cs run --json
 //! --no-plots` (5 s of wind, open and closed loop, the default modes) on the FMUs packaged in
 //! `--fmu-dir` (default `target/fmu`, written by `cargo xtask package LAYOUT`): per run
@@ -157,19 +157,15 @@ fn measure(fixed_steps: Option<usize>, granule: usize, mut run: impl FnMut(usize
     let wanted =
         fixed_steps.unwrap_or_else(|| (TARGET_SECONDS / BLOCKS as f64 / per_step).ceil() as usize);
     let steps = wanted.max(1).div_ceil(granule) * granule;
-    let mut t: Vec<f64> = (0..BLOCKS)
+    let t: Vec<f64> = (0..BLOCKS)
         .map(|_| {
             let s = Instant::now();
             run(steps);
             s.elapsed().as_secs_f64() / steps as f64
         })
         .collect();
-    t.sort_by(f64::total_cmp);
-    Stats {
-        median: t[BLOCKS / 2],
-        min: t[0],
-        steps,
-    }
+    let stats = stats_of(&t).expect("BLOCKS > 0");
+    Stats { steps, ..stats }
 }
 
 /// One line of the table.
@@ -1067,8 +1063,8 @@ fn master_run(
     Ok(runs)
 }
 
-/// Median (the upper one of an even count) and minimum of per-step times taken apart
-/// ([`master`]); `steps` is their number.
+/// Median (the upper one of an even count) and minimum of per-step times; `steps` is their
+/// number (None: no time).
 fn stats_of(t: &[f64]) -> Option<Stats> {
     let mut t = t.to_vec();
     t.sort_by(f64::total_cmp);

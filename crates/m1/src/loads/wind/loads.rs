@@ -275,7 +275,7 @@ impl WindLoads {
     }
 
     /// How far the screen has moved along the flow at time `t`, in samples, brought within one
-    /// period (`[0, samples]`: the remainder can round up to `samples`) once per time, so that
+    /// period (`[0, samples]`: the remainder can round up to `samples`) once per call, so that
     /// each segment's position stays within a period or two of the table's range, where its
     /// stencil wraps by adding the period ([`periodic_stencil`]) instead of taking a remainder
     /// per segment: that `fmod` cost the TMT forces 4 us per call, a third of them, once a run
