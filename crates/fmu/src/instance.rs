@@ -446,12 +446,9 @@ impl<M: Model> Instance<M> {
         // Fast path for the master's bulk output transfers: one contiguous run of Real value
         // references, copied in one go.
         if out.len() == vrs.len()
-            && let (Some(&first), Some(&last)) = (vrs.first(), vrs.last())
-            && last >= first
-            && (last - first) as usize + 1 == vrs.len()
+            && let Some((first, last)) = consecutive(vrs)
             && self.type_range(VarType::Real).contains(&first)
             && self.type_range(VarType::Real).contains(&last)
-            && vrs.windows(2).all(|w| w[1] == w[0] + 1)
         {
             self.refresh_on_demand(|g| g.start <= last && first < g.end)?;
             let s = (first - self.type_range(VarType::Real).start) as usize;
@@ -566,10 +563,7 @@ impl<M: Model> Instance<M> {
         // check, then copied in one go.
         if self.state == StepComplete
             && vals.len() == vrs.len()
-            && let (Some(&first), Some(&last)) = (vrs.first(), vrs.last())
-            && last >= first
-            && (last - first) as usize + 1 == vrs.len()
-            && vrs.windows(2).all(|w| w[1] == w[0] + 1)
+            && let Some((first, last)) = consecutive(vrs)
             && self.type_range(VarType::Real).contains(&last)
         {
             let mut pos = 0;
@@ -775,6 +769,45 @@ impl<M: Model> Instance<M> {
     }
 }
 
+/// The first and last of `vrs` if they are consecutive value references (`first`, `first +
+/// 1`, ...), the form of the master's bulk transfers. Each reference is compared with its
+/// position's in one pass that accumulates the differences, with no branch per value, so that
+/// the loop vectorises (`pulp`'s runtime dispatch): a pairwise `windows(2).all(...)` took about
+/// 0.7 us for the TMT mirror's 1476 displacements, more than the copy it guards, and the TMT
+/// edge sensors' 5544 outputs took 2.7 us (BENCHMARKS.md, issue 18, seventeenth round).
+fn consecutive(vrs: &[u32]) -> Option<(u32, u32)> {
+    struct Check<'a>(&'a [u32], u32);
+    impl pulp::WithSimd for Check<'_> {
+        type Output = u32;
+        #[inline(always)]
+        fn with_simd<S: pulp::Simd>(self, _simd: S) -> u32 {
+            // Reference k must be first + k: `vr - k` (wrapping) equals `first` for all.
+            let (vrs, first) = (self.0, self.1);
+            let mut lanes = [0u32; 16];
+            let mut at = 0u32;
+            let chunks = vrs.chunks_exact(16);
+            let tail = chunks.remainder();
+            for c in chunks {
+                for (j, (l, v)) in lanes.iter_mut().zip(c).enumerate() {
+                    *l |= v.wrapping_sub(at.wrapping_add(j as u32)) ^ first;
+                }
+                at = at.wrapping_add(16);
+            }
+            let mut rest = 0u32;
+            for (j, v) in tail.iter().enumerate() {
+                rest |= v.wrapping_sub(at.wrapping_add(j as u32)) ^ first;
+            }
+            lanes.iter().fold(rest, |a, l| a | l)
+        }
+    }
+    let (&first, &last) = (vrs.first()?, vrs.last()?);
+    // The length first: `last - first + 1` references, none wrapping past u32::MAX.
+    if last < first || (last - first) as usize + 1 != vrs.len() {
+        return None;
+    }
+    (pulp::Arch::new().dispatch(Check(vrs, first)) == 0).then_some((first, last))
+}
+
 /// Whether every value is finite: `0 * v` is 0 for a finite `v` and NaN otherwise, summed in
 /// sixteen independent lanes so that the loop vectorises, compiled for the processor's widest
 /// vectors (`pulp`'s runtime dispatch). The master sets thousands of inputs per step, and every
@@ -804,7 +837,42 @@ fn all_finite(x: &[f64]) -> bool {
 
 #[cfg(test)]
 mod tests {
-    use super::all_finite;
+    use super::{all_finite, consecutive};
+
+    /// Consecutive references of every length around the vector widths are found, from 0 and
+    /// up to `u32::MAX`; one reference out of place anywhere (a swap, a repeat, a gap closed
+    /// elsewhere) is not.
+    #[test]
+    fn consecutive_references_are_found_and_others_are_not() {
+        assert_eq!(consecutive(&[]), None);
+        for n in [1u32, 2, 15, 16, 17, 31, 32, 33, 70] {
+            for first in [0u32, 7, u32::MAX - n + 1] {
+                let vrs: Vec<u32> = (0..n).map(|k| first + k).collect();
+                assert_eq!(
+                    consecutive(&vrs),
+                    Some((first, first + n - 1)),
+                    "{n} {first}"
+                );
+                for at in 0..n as usize {
+                    // Swapped with the next (the ends and the length stay right inside).
+                    if at + 2 < n as usize && at > 0 {
+                        let mut v = vrs.clone();
+                        v.swap(at, at + 1);
+                        assert_eq!(consecutive(&v), None, "swap {n} {first} {at}");
+                    }
+                    // One reference replaced by its neighbour's.
+                    if n > 1 {
+                        let mut v = vrs.clone();
+                        v[at] = if at == 0 { v[1] } else { v[at - 1] };
+                        assert_eq!(consecutive(&v), None, "repeat {n} {first} {at}");
+                    }
+                }
+            }
+        }
+        // The ends right, the middle not: 0, 2, 1, 3.
+        assert_eq!(consecutive(&[0, 2, 1, 3]), None);
+        assert_eq!(consecutive(&[5, 4]), None);
+    }
 
     /// Finite runs of every length around the vector widths pass, with the extremes of the
     /// finite values among them; one NaN or infinity anywhere fails.
