@@ -772,37 +772,29 @@ impl<M: Model> Instance<M> {
 /// The first and last of `vrs` if they are consecutive value references (`first`, `first +
 /// 1`, ...), the form of the master's bulk transfers. Each reference is compared with its
 /// position's in one pass that accumulates the differences, with no branch per value, so that
-/// the loop vectorises (`pulp`'s runtime dispatch): a pairwise `windows(2).all(...)` took about
-/// 0.7 us for the TMT mirror's 1476 displacements, more than the copy it guards, and the TMT
-/// edge sensors' 5544 outputs took 2.7 us (BENCHMARKS.md, issue 18, seventeenth round).
+/// the loop vectorises (`pulp`'s runtime dispatch): 0.08-0.1 us for the TMT mirror's 1476
+/// displacements and 0.2 us for the TMT edge sensors' 5544 outputs, where a pairwise
+/// `windows(2).all(...)` took 0.7 and 2.7-3 us, more than the copies they guard
+/// (BENCHMARKS.md, issue 18, seventeenth round).
 fn consecutive(vrs: &[u32]) -> Option<(u32, u32)> {
     struct Check<'a>(&'a [u32], u32);
     impl pulp::WithSimd for Check<'_> {
         type Output = u32;
         #[inline(always)]
         fn with_simd<S: pulp::Simd>(self, _simd: S) -> u32 {
-            // Reference k must be first + k: `vr - k` (wrapping) equals `first` for all.
+            // Reference k must be first + k: `vr - k` (wrapping) equals `first` for all. The
+            // positions count in a range that stops at the length (`u32` below).
             let (vrs, first) = (self.0, self.1);
-            let mut lanes = [0u32; 16];
-            let mut at = 0u32;
-            let chunks = vrs.chunks_exact(16);
-            let tail = chunks.remainder();
-            for c in chunks {
-                for (j, (l, v)) in lanes.iter_mut().zip(c).enumerate() {
-                    *l |= v.wrapping_sub(at.wrapping_add(j as u32)) ^ first;
-                }
-                at = at.wrapping_add(16);
-            }
-            let mut rest = 0u32;
-            for (j, v) in tail.iter().enumerate() {
-                rest |= v.wrapping_sub(at.wrapping_add(j as u32)) ^ first;
-            }
-            lanes.iter().fold(rest, |a, l| a | l)
+            vrs.iter()
+                .zip(0..vrs.len() as u32)
+                .fold(0, |a, (v, k)| a | (v.wrapping_sub(k) ^ first))
         }
     }
     let (&first, &last) = (vrs.first()?, vrs.last()?);
-    // The length first: `last - first + 1` references, none wrapping past u32::MAX.
-    if last < first || (last - first) as usize + 1 != vrs.len() {
+    // The length first: `last - first + 1` references, none wrapping past u32::MAX, and
+    // fewer than 2^32 of them (their positions are counted in u32).
+    if last < first || (last - first) as usize + 1 != vrs.len() || u32::try_from(vrs.len()).is_err()
+    {
         return None;
     }
     (pulp::Arch::new().dispatch(Check(vrs, first)) == 0).then_some((first, last))
@@ -850,7 +842,7 @@ mod tests {
                 let vrs: Vec<u32> = (0..n).map(|k| first + k).collect();
                 assert_eq!(
                     consecutive(&vrs),
-                    Some((first, first + n - 1)),
+                    Some((first, first + (n - 1))),
                     "{n} {first}"
                 );
                 for at in 0..n as usize {
