@@ -218,6 +218,14 @@ impl Values {
     pub fn real_mut(&mut self, v: RealVar) -> &mut [f64] {
         &mut self.reals[v.slot..v.slot + v.len]
     }
+    /// The scalars of several Real variables at once, each mutable (a model that reads some
+    /// and writes others in one call, with no copy in between); `None` if two overlap.
+    #[inline]
+    pub fn reals_mut<const N: usize>(&mut self, vars: [RealVar; N]) -> Option<[&mut [f64]; N]> {
+        self.reals
+            .get_disjoint_mut(vars.map(|v| v.slot..v.slot + v.len))
+            .ok()
+    }
     /// A scalar Real.
     #[inline]
     pub fn scalar(&self, v: RealVar) -> f64 {
@@ -710,6 +718,27 @@ impl TableBuilder {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Disjoint variables come back as their own slices, in the order asked; the same one twice,
+    /// or two that overlap, give None.
+    #[test]
+    fn reals_mut_gives_disjoint_variables_only() {
+        let mut v = Values {
+            reals: (0..10).map(f64::from).collect(),
+            ..Values::default()
+        };
+        let (a, b, c) = (
+            RealVar { slot: 0, len: 3 },
+            RealVar { slot: 3, len: 4 },
+            RealVar { slot: 7, len: 3 },
+        );
+        let [x, y, z] = v.reals_mut([c, a, b]).unwrap();
+        assert_eq!((x[0], y[0], z[3]), (7.0, 0.0, 6.0));
+        z[0] = -1.0;
+        assert_eq!(v.real(b)[0], -1.0);
+        assert!(v.reals_mut([a, a]).is_none());
+        assert!(v.reals_mut([b, RealVar { slot: 6, len: 2 }]).is_none());
+    }
 
     fn table() -> (VariableTable, RealVar, RealVar, IntVar) {
         let mut b = TableBuilder::new();

@@ -228,9 +228,6 @@ pub struct EdgeSensorsRunning {
     spec: SensorSpec,
     clock: SampleClock,
     sensors: Arc<EdgeSensors>,
-    /// Buffers of one reading.
-    y: Vec<f64>,
-    gap: Vec<f64>,
 }
 
 /// The serialised form of [`EdgeSensorsRunning`].
@@ -262,35 +259,26 @@ impl TryFrom<SavedSensors> for EdgeSensorsRunning {
 
 impl EdgeSensorsRunning {
     fn new(vars: Vars, spec: SensorSpec, clock: SampleClock, sensors: Arc<EdgeSensors>) -> Self {
-        let ns = sensors.n_sensors();
         Self {
             vars,
             spec,
             clock,
             sensors,
-            y: vec![0.0; ns],
-            gap: vec![0.0; ns],
         }
     }
 
     /// Reads sample `k` (at its instant, for the drift) from the inputs in `v` and writes the
-    /// outputs.
+    /// outputs there, in place (a copy of the TMT's 5544 values through a buffer took about
+    /// 0.9 us of each step). Nothing is written if the inputs are refused.
     fn read(&mut self, v: &mut Values, k: u64) -> Result<(), FmuError> {
         let x = self.vars;
+        let temperature = v.scalar(x.temperature);
+        let [z, w, y, gap] = v.reals_mut([x.z, x.w, x.y, x.gap]).ok_or_else(|| {
+            FmuError::Model("edge sensors: inputs and outputs overlap (internal error)".into())
+        })?;
         self.sensors
-            .read_into_at(
-                v.real(x.z),
-                v.real(x.w),
-                v.scalar(x.temperature),
-                self.clock.instant(k),
-                k,
-                &mut self.y,
-                &mut self.gap,
-            )
-            .map_err(wiring::model_error)?;
-        v.real_mut(x.y).copy_from_slice(&self.y);
-        v.real_mut(x.gap).copy_from_slice(&self.gap);
-        Ok(())
+            .read_into_at(z, w, temperature, self.clock.instant(k), k, y, gap)
+            .map_err(wiring::model_error)
     }
 
     /// The sensors (for in-process use and tests).
