@@ -179,7 +179,6 @@ pub struct Mirror<V: MirrorVariant> {
 pub struct MirrorRunning {
     vars: Vars,
     solver: Solver,
-    z: Vec<f64>,
     /// `z_cell` and `f_cell`: computed when read (a master of the standard system never does).
     on_demand: [std::ops::Range<u32>; 2],
 }
@@ -194,13 +193,13 @@ pub type Piezo = Mirror<PiezoVariant>;
 pub const DEFAULT_MODES: i32 = 60;
 
 impl MirrorRunning {
-    /// The mirror's displacement, the output every system reads.
+    /// The mirror's displacement, the output every system reads (written in place).
     fn write_outputs(&mut self, v: &mut Values) {
+        let z = v.real_mut(self.vars.z);
         match &self.solver {
-            Solver::Coupled(m) => m.mirror(&mut self.z),
-            Solver::QuasiStatic(m) => m.mirror(&mut self.z),
+            Solver::Coupled(m) => m.mirror(z),
+            Solver::QuasiStatic(m) => m.mirror(z),
         }
-        v.real_mut(self.vars.z).copy_from_slice(&self.z);
     }
 
     /// The cell's displacement and force (the coupled solver computes them on this call).
@@ -301,7 +300,6 @@ impl<V: MirrorVariant> Model for Mirror<V> {
         let mut running = MirrorRunning {
             vars: self.vars,
             solver,
-            z: vec![0.0; self.vars.z.len],
             on_demand: [range(self.vars.z_cell), range(self.vars.f_cell)],
         };
         running.write_outputs(v);
