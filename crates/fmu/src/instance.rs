@@ -15,7 +15,11 @@ use crate::variables::{Causality, Values, VarType, Variability, Variable, Variab
 
 /// Tag at the start of every live instance, checked before any use of an instance pointer.
 pub(crate) const MAGIC: u64 = 0x4d31_4353_464d_5532; // "M1CSFMU2"
-const STATE_MAGIC: &[u8; 8] = b"M1CSST02";
+/// Tag at the start of every serialised FMU state. Its digits change whenever a model's saved
+/// state changes its layout (the format records no field names): a state from another layout is
+/// then refused instead of misread. 03: the mirror's running state lost its displacement buffer
+/// (and every change to the coupled solver's fields since 02).
+const STATE_MAGIC: &[u8; 8] = b"M1CSST03";
 
 /// The FMI 2.0 co-simulation states.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -749,9 +753,18 @@ impl<M: Model> Instance<M> {
 
     /// Reads a serialised snapshot back (fmi2DeSerializeFMUstate).
     pub fn deserialize(&self, bytes: &[u8]) -> Result<Snapshot<M>, FmuError> {
-        let body = bytes
-            .strip_prefix(STATE_MAGIC.as_slice())
-            .ok_or_else(|| FmuError::State("not a serialized state of this FMU".into()))?;
+        let body =
+            bytes
+                .strip_prefix(STATE_MAGIC.as_slice())
+                .ok_or_else(|| match bytes.get(..8) {
+                    Some(tag) if tag.starts_with(b"M1CSST") => FmuError::State(format!(
+                        "the state was saved by another version of these FMUs (state layout {}, \
+                     this one reads {})",
+                        String::from_utf8_lossy(&tag[6..]),
+                        String::from_utf8_lossy(&STATE_MAGIC[6..])
+                    )),
+                    _ => FmuError::State("not a serialized state of this FMU".into()),
+                })?;
         let s: Snapshot<M> =
             postcard::from_bytes(body).map_err(|e| FmuError::State(e.to_string()))?;
         if s.guid != self.guid || s.values.reals.len() != self.values.reals.len() {
@@ -774,7 +787,7 @@ impl<M: Model> Instance<M> {
 /// position's in one pass that accumulates the differences, with no branch per value, so that
 /// the loop vectorises (`pulp`'s runtime dispatch): 0.08-0.1 us for the TMT mirror's 1476
 /// displacements and 0.2 us for the TMT edge sensors' 5544 outputs, where a pairwise
-/// `windows(2).all(...)` took 0.7 and 2.7-3 us, more than the copies they guard
+/// `windows(2).all(...)` took 0.66-0.90 and 2.6-3.3 us, more than the copies they guard
 /// (BENCHMARKS.md, issue 18, seventeenth round).
 fn consecutive(vrs: &[u32]) -> Option<(u32, u32)> {
     struct Check<'a>(&'a [u32], u32);
@@ -832,8 +845,8 @@ mod tests {
     use super::{all_finite, consecutive};
 
     /// Consecutive references of every length around the vector widths are found, from 0 and
-    /// up to `u32::MAX`; one reference out of place anywhere (a swap, a repeat, a gap closed
-    /// elsewhere) is not.
+    /// up to `u32::MAX`; one reference out of place anywhere (a swap with the next, a repeat of
+    /// a neighbour) is not.
     #[test]
     fn consecutive_references_are_found_and_others_are_not() {
         assert_eq!(consecutive(&[]), None);

@@ -219,7 +219,8 @@ impl Values {
         &mut self.reals[v.slot..v.slot + v.len]
     }
     /// The scalars of several Real variables at once, each mutable (a model that reads some
-    /// and writes others in one call, with no copy in between); `None` if two overlap.
+    /// and writes others in one call, with no copy in between); `None` if two overlap or one
+    /// lies outside the values.
     #[inline]
     pub fn reals_mut<const N: usize>(&mut self, vars: [RealVar; N]) -> Option<[&mut [f64]; N]> {
         self.reals

@@ -151,6 +151,36 @@ fn serialize_deserialize_set_reproduces_exactly() {
     assert_eq!(other.free_state(&mut r2), OK);
 }
 
+/// A state saved with another layout's tag (an older build of these FMUs) is refused with a
+/// message naming both layouts; bytes that are no state of ours at all, with the plain one.
+#[test]
+fn state_of_another_layout_is_refused_naming_it() {
+    let (mut fmu, _) = stepped();
+    let mut s: fmi2FMUstate = std::ptr::null_mut();
+    assert_eq!(fmu.get_state(&mut s), OK);
+    let blob = fmu.serialize(s).unwrap();
+    assert_eq!(fmu.free_state(&mut s), OK);
+    assert!(blob.starts_with(b"M1CSST"), "{:?}", &blob[..8]);
+    let mut old = blob.clone();
+    old[6..8].copy_from_slice(b"02");
+    let mut slot: fmi2FMUstate = std::ptr::null_mut();
+    assert_eq!(fmu.deserialize(&old, &mut slot), ERROR);
+    assert!(slot.is_null(), "nothing allocated");
+    assert!(
+        fmu.logged(&["another version of these FMUs", "layout 02"]),
+        "{}",
+        fmu.log.dump()
+    );
+    let mut junk = blob;
+    junk[..8].copy_from_slice(b"NOTASTAT");
+    assert_eq!(fmu.deserialize(&junk, &mut slot), ERROR);
+    assert!(
+        fmu.logged(&["not a serialized state of this FMU"]),
+        "{}",
+        fmu.log.dump()
+    );
+}
+
 #[test]
 fn state_of_the_other_variant_is_refused() {
     let big = describe("big");

@@ -274,7 +274,11 @@ impl EdgeSensorsRunning {
         let x = self.vars;
         let temperature = v.scalar(x.temperature);
         let [z, w, y, gap] = v.reals_mut([x.z, x.w, x.y, x.gap]).ok_or_else(|| {
-            FmuError::Model("edge sensors: inputs and outputs overlap (internal error)".into())
+            FmuError::Model(
+                "edge sensors: the inputs and outputs overlap or lie outside the values \
+                 (internal error)"
+                    .into(),
+            )
         })?;
         self.sensors
             .read_into_at(z, w, temperature, self.clock.instant(k), k, y, gap)
