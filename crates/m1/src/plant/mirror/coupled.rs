@@ -20,9 +20,14 @@ use crate::plant::structure::{Flexibility, ModalModel, ModalSolver};
 
 /// Retained modes from which [`CoupledMirror`] streams its coupled solve's matrices in single
 /// precision by default ([`CoupledMirror::set_coupling_single`]): there the `r x 2r` matrix
-/// `[W G_p, W G_t]` in double precision (360 kB at 150 modes) and the Gram matrices' single-
-/// precision copy (180 kB) no longer fit a core's L2 cache of the project's machine (512 kB).
-pub const SINGLE_COUPLING_MIN_MODES: usize = 150;
+/// `[W G_p, W G_t]` in double precision (`16 r^2` bytes, 32 kB at 45 modes) no longer fits a
+/// core's L1 data cache (32-48 kB), and each tick's pass over it waits on the L2 cache. On the
+/// project's machine (`mirror_loop`, alternating): Keck 45 modes 12.1-12.4 against 13.1-14.8 us
+/// per step, 60 modes 14.2-14.8 against 15.4-16.8 us, TMT 60 modes 30.3-31.1 against 31.3-32.8
+/// us; at 30 modes no gain and at 20 a loss (the conversions to single precision). It was 150
+/// until the seventeenth round of issue 18, where the double-precision matrix (360 kB) and the
+/// Gram matrices' single-precision copy (180 kB) outgrow the 512 kB L2.
+pub const SINGLE_COUPLING_MIN_MODES: usize = 45;
 
 /// Retained modes from which [`CoupledMirror`] splits its large streaming products between two
 /// threads by default ([`CoupledMirror::set_two_threads`]).

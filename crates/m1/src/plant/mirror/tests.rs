@@ -253,15 +253,16 @@ fn substeps_give_the_same_results_for_any_chunk_of_ticks() {
 
 /// The coupled solve's matrix streamed in single precision changes the mirror's response to
 /// wind, a command and a pier input by less than 1e-6 of its largest value over 400 ms, and
-/// the cell's force likewise, with the Gram matrices whole and by half: TMT with 300 modes and
-/// the voice coil (the case it is the default for), and Keck's piezo at 60 modes with two
-/// coupled sub-steps per servo period.
+/// the cell's force likewise, with the Gram matrices whole and by half: TMT with the voice coil
+/// at 300 modes and at the default 60, and Keck's piezo at 60 modes with two coupled sub-steps
+/// per servo period (single precision is the default in all three).
 #[test]
 fn coupling_precision_single_matches_double() {
     let tmt = Layout::tmt();
     let keck = Layout::keck();
     let cases = [
         (&tmt, SegmentModel::voice_coil(), 300, 1),
+        (&tmt, SegmentModel::voice_coil(), 60, 1),
         (&keck, SegmentModel::piezo(), 60, 2),
     ];
     for (layout, model, modes, substeps) in cases {
