@@ -48,6 +48,15 @@ fn stepped() -> (Fmu, fmu::package::Description) {
     (fmu, d)
 }
 
+/// `blob` is refused by fmi2DeSerializeFMUstate, nothing is allocated, and one logged message
+/// contains every one of `parts`.
+fn assert_refused(fmu: &mut Fmu, blob: &[u8], parts: &[&str]) {
+    let mut slot: fmi2FMUstate = std::ptr::null_mut();
+    assert_eq!(fmu.deserialize(blob, &mut slot), ERROR);
+    assert!(slot.is_null(), "nothing allocated");
+    assert!(fmu.logged(parts), "{}", fmu.log.dump());
+}
+
 #[test]
 fn get_and_set_state_restore() {
     let (mut fmu, d) = stepped();
@@ -163,22 +172,14 @@ fn state_of_another_layout_is_refused_naming_it() {
     assert!(blob.starts_with(b"M1CSST"), "{:?}", &blob[..8]);
     let mut old = blob.clone();
     old[6..8].copy_from_slice(b"02");
-    let mut slot: fmi2FMUstate = std::ptr::null_mut();
-    assert_eq!(fmu.deserialize(&old, &mut slot), ERROR);
-    assert!(slot.is_null(), "nothing allocated");
-    assert!(
-        fmu.logged(&["another version of these FMUs", "layout 02"]),
-        "{}",
-        fmu.log.dump()
+    assert_refused(
+        &mut fmu,
+        &old,
+        &["another version of these FMUs", "layout 02"],
     );
     let mut junk = blob;
     junk[..8].copy_from_slice(b"NOTASTAT");
-    assert_eq!(fmu.deserialize(&junk, &mut slot), ERROR);
-    assert!(
-        fmu.logged(&["not a serialized state of this FMU"]),
-        "{}",
-        fmu.log.dump()
-    );
+    assert_refused(&mut fmu, &junk, &["not a serialized state of this FMU"]);
 }
 
 #[test]
@@ -193,14 +194,7 @@ fn state_of_the_other_variant_is_refused() {
 
     let (mut small, d) = stepped();
     let before = outputs(&mut small, &d.table);
-    let mut slot: fmi2FMUstate = std::ptr::null_mut();
-    assert_eq!(small.deserialize(&blob, &mut slot), ERROR);
-    assert!(slot.is_null(), "nothing allocated");
-    assert!(
-        small.logged(&["fmi2DeSerializeFMUstate", "GUID"]),
-        "{}",
-        small.log.dump()
-    );
+    assert_refused(&mut small, &blob, &["fmi2DeSerializeFMUstate", "GUID"]);
     // A live state of the other variant is refused by fmi2SetFMUstate as well.
     small.log.take();
     assert_eq!(small.set_state(sb), ERROR);
