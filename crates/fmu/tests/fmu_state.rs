@@ -175,7 +175,7 @@ fn state_of_another_layout_is_refused_naming_it() {
     assert_refused(
         &mut fmu,
         &old,
-        &["another version of these FMUs", "layout 02"],
+        &["another version of these FMUs", "layout 02", "reads 03"],
     );
     let mut junk = blob;
     junk[..8].copy_from_slice(b"NOTASTAT");

@@ -4,8 +4,10 @@
 //! (`m1::plant::static_mirror`) on TMT, with the wind changing every step and every tenth step.
 //! Wind forces change every step unless said. The coupled mirror's step is read as the standard
 //! system reads it, the mirror's displacement only (the cell's displacement and force are
-//! computed when read: a two-column pass over the shapes more). `voicecoil_single`: the coupled solve's matrix
-//! streamed in single precision (`CoupledMirror::set_coupling_single`).
+//! computed when read: a two-column pass over the shapes more). `voicecoil`: the coupled solve's
+//! matrices in double precision; `voicecoil_single`: in single precision
+//! (`CoupledMirror::set_coupling_single`); `piezo`: the default for the retained modes (single
+//! precision from `SINGLE_COUPLING_MIN_MODES`).
 #![allow(clippy::expect_used, clippy::unwrap_used, clippy::panic)]
 use criterion::{Criterion, criterion_group, criterion_main};
 use m1::aperture::layout::Layout;
@@ -28,13 +30,15 @@ fn bench(c: &mut Criterion) {
         let na = 3 * n;
         for &r in &modes {
             for (variant, model, single) in [
-                ("voicecoil", SegmentModel::voice_coil(), false),
-                ("voicecoil_single", SegmentModel::voice_coil(), true),
-                ("piezo", SegmentModel::piezo(), false),
+                ("voicecoil", SegmentModel::voice_coil(), Some(false)),
+                ("voicecoil_single", SegmentModel::voice_coil(), Some(true)),
+                ("piezo", SegmentModel::piezo(), None),
             ] {
                 let mut m = CoupledMirror::new(n, model, cell.clone(), r, 0.02, 1)
                     .unwrap_or_else(|e| panic!("{name}: {e}"));
-                m.set_coupling_single(single);
+                if let Some(single) = single {
+                    m.set_coupling_single(single);
+                }
                 let u = vec![0.0; na];
                 let mut f: Vec<f64> = (0..na).map(|i| (i % 7) as f64).collect();
                 let mut z = vec![0.0; na];

@@ -19,14 +19,15 @@ use crate::plant::segment::{
 use crate::plant::structure::{Flexibility, ModalModel, ModalSolver};
 
 /// Retained modes from which [`CoupledMirror`] streams its coupled solve's matrices in single
-/// precision by default ([`CoupledMirror::set_coupling_single`]): there the `r x 2r` matrix
-/// `[W G_p, W G_t]` in double precision (`16 r^2` bytes, 32 kB at 45 modes) no longer fits a
-/// core's L1 data cache (32-48 kB), and each tick's pass over it waits on the L2 cache. On the
-/// project's machine (`mirror_loop`, alternating): Keck 45 modes 12.1-12.4 against 13.1-14.8 us
-/// per step, 60 modes 14.2-14.8 against 15.4-16.8 us, TMT 60 modes 30.3-31.1 against 31.3-32.8
-/// us; at 30 modes no gain and at 20 a loss (the conversions to single precision). It was 150
-/// until the seventeenth round of issue 18, where the double-precision matrix (360 kB) and the
-/// Gram matrices' single-precision copy (180 kB) outgrow the 512 kB L2.
+/// precision by default ([`CoupledMirror::set_coupling_single`]), chosen by measurement: there
+/// the `r x 2r` matrix `[W G_p, W G_t]` in double precision (`16 r^2` bytes, 32 kB at 45 modes)
+/// fills a 32 kB L1 data cache with nothing left for the vectors, and at 60 modes (57.6 kB)
+/// outgrows a 48 kB one, so each tick's pass over it waits on the L2 cache. On the project's
+/// machine (`mirror_loop`, alternating): Keck 45 modes 12.1-12.4 against 13.1-14.8 us per step,
+/// 60 modes 14.2-14.8 against 15.4-16.8 us, TMT 60 modes 30.3-31.1 against 31.3-32.8 us; at 30
+/// modes no gain and at 20 a loss (the conversions to single precision). It was 150 until the
+/// seventeenth round of issue 18, where the double-precision matrix (360 kB) and the Gram
+/// matrices' single-precision copy (180 kB) outgrow the 512 kB L2.
 pub const SINGLE_COUPLING_MIN_MODES: usize = 45;
 
 /// Retained modes from which [`CoupledMirror`] splits its large streaming products between two
@@ -504,10 +505,11 @@ impl CoupledMirror {
     /// Streams the coupled solve's matrices in single precision (`true`, the default from
     /// [`SINGLE_COUPLING_MIN_MODES`] retained modes, where a sample's tick also takes the
     /// one-pass form of the module documentation) or double precision (`false`, the default
-    /// below, where the matrices fit a core's cache and halving them gains nothing). A TMT step
-    /// with 300 modes streams 14.4 MB in double precision, 8.2 MB in single; against double
-    /// precision single moves the mirror's response by about 2e-9 of its largest value (the
-    /// tests `coupling_precision_*` bound it by 1e-6 for both actuators).
+    /// below, where the double-precision matrix fits a core's L1 cache and halving it gains
+    /// nothing). A TMT step with 300 modes streams 14.4 MB in double precision, 8.2 MB in single;
+    /// against double precision single moves the mirror's response by about 2e-9 of its largest
+    /// value on TMT (the test `coupling_precision_single_matches_double` bounds it by 1e-7 for the
+    /// voice coil and 1e-6 for the piezo).
     pub fn set_coupling_single(&mut self, single: bool) {
         self.coupling_single = single;
     }

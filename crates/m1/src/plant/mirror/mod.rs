@@ -83,8 +83,8 @@
 //! block triangle ([`crate::linalg::symmetric`]): with $D = B_1^{1/2}$ (every $b_1 > 0$) and
 //! $S = D M D$, $W - I = D^{-1} K D$ with $K = (I - S)^{-1} S$ symmetric, so that a sample's
 //! tick streams 1.25 $r \times 2r$ matrices instead of 2. Below
-//! [`SINGLE_COUPLING_MIN_MODES`] (45) the double-precision matrix fits a core's L1 cache and
-//! the conversions to single precision cost more than the traffic they save. In single precision (each vector lane sums about `2r / 8`
+//! [`SINGLE_COUPLING_MIN_MODES`] the double-precision matrix fits a core's L1 cache with room
+//! to spare, and the conversions to single precision cost more than the traffic they save. In single precision (each vector lane sums about `2r / 8`
 //! products, then the lanes are summed, and the row's sum is added in double precision)
 //! against double precision ([`CoupledMirror::set_coupling_single`]) the mirror's response
 //! moves by about 2e-9 of its largest value (TMT, 300 modes).

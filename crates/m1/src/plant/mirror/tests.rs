@@ -176,11 +176,16 @@ fn settles_on_the_static_solution() {
 }
 
 /// The coupled solve gives the same answer (to rounding) for any split of time into
-/// communication steps, on both structure presets, and refuses a step off the servo grid.
+/// communication steps, on both structure presets, with its matrices in double and in single
+/// precision, and refuses a step off the servo grid.
 #[test]
 fn results_do_not_depend_on_the_communication_step() {
-    for p in [CellParams::soft_cell(), CellParams::tmt()] {
+    for (p, single) in [CellParams::soft_cell(), CellParams::tmt()]
+        .into_iter()
+        .flat_map(|p| [(p, false), (p, true)])
+    {
         let (mut a, _) = keck_on(SegmentModel::voice_coil(), 50, &p);
+        a.set_coupling_single(single);
         let mut b = a.clone();
         let na = a.n_actuators();
         let fw = wind(na);
@@ -252,20 +257,21 @@ fn substeps_give_the_same_results_for_any_chunk_of_ticks() {
 }
 
 /// The coupled solve's matrix streamed in single precision changes the mirror's response to
-/// wind, a command and a pier input by less than 1e-6 of its largest value over 400 ms, and
-/// the cell's force likewise, with the Gram matrices whole and by half: TMT with the voice coil
-/// at 300 modes and at the default 60, and Keck's piezo at 60 modes with two coupled sub-steps
-/// per servo period (single precision is the default in all three).
+/// wind, a command and a pier input over 400 ms, and the cell's force likewise, with the Gram
+/// matrices whole and by half, by less than 1e-7 of its largest value for TMT's voice coil at
+/// 300 modes and at the default 60 (measured 2.1e-9: the correction `W - I` is about 4e-7 in
+/// norm there, so losing it would show) and 1e-6 for Keck's piezo at 60 modes with two coupled
+/// sub-steps per servo period (measured 5e-8). Single precision is the default in all three.
 #[test]
 fn coupling_precision_single_matches_double() {
     let tmt = Layout::tmt();
     let keck = Layout::keck();
     let cases = [
-        (&tmt, SegmentModel::voice_coil(), 300, 1),
-        (&tmt, SegmentModel::voice_coil(), 60, 1),
-        (&keck, SegmentModel::piezo(), 60, 2),
+        (&tmt, SegmentModel::voice_coil(), 300, 1, 1e-7),
+        (&tmt, SegmentModel::voice_coil(), 60, 1, 1e-7),
+        (&keck, SegmentModel::piezo(), 60, 2, 1e-6),
     ];
-    for (layout, model, modes, substeps) in cases {
+    for (layout, model, modes, substeps, bound) in cases {
         let cell = CellModel::new(layout, &CellParams::default())
             .expect("cell")
             .modes()
@@ -280,8 +286,8 @@ fn coupling_precision_single_matches_double() {
                 substeps,
             )
             .expect("mirror");
-            // The default follows the retained modes.
-            assert_eq!(m.coupling_single(), modes >= SINGLE_COUPLING_MIN_MODES);
+            // Single precision by default at these mode counts.
+            assert!(m.coupling_single() && modes >= SINGLE_COUPLING_MIN_MODES);
             m.set_coupling_single(single);
             m
         };
@@ -331,9 +337,9 @@ fn coupling_precision_single_matches_double() {
                 w[0] / max_z,
                 w[1] / max_f
             );
-            assert!(w[0] <= 1e-6 * max_z, "{form}, z: {:e} of {max_z:e}", w[0]);
+            assert!(w[0] <= bound * max_z, "{form}, z: {:e} of {max_z:e}", w[0]);
             assert!(
-                w[1] <= 1e-6 * max_f,
+                w[1] <= bound * max_f,
                 "{form}, force: {:e} of {max_f:e}",
                 w[1]
             );
