@@ -753,18 +753,9 @@ impl<M: Model> Instance<M> {
 
     /// Reads a serialised snapshot back (fmi2DeSerializeFMUstate).
     pub fn deserialize(&self, bytes: &[u8]) -> Result<Snapshot<M>, FmuError> {
-        let body =
-            bytes
-                .strip_prefix(STATE_MAGIC.as_slice())
-                .ok_or_else(|| match bytes.get(..8) {
-                    Some(tag) if tag.starts_with(b"M1CSST") => FmuError::State(format!(
-                        "the state was saved by another version of these FMUs (state layout {}, \
-                     this one reads {})",
-                        String::from_utf8_lossy(&tag[6..]),
-                        String::from_utf8_lossy(&STATE_MAGIC[6..])
-                    )),
-                    _ => FmuError::State("not a serialized state of this FMU".into()),
-                })?;
+        let body = bytes
+            .strip_prefix(STATE_MAGIC.as_slice())
+            .ok_or_else(|| foreign_state(bytes))?;
         let s: Snapshot<M> =
             postcard::from_bytes(body).map_err(|e| FmuError::State(e.to_string()))?;
         if s.guid != self.guid || s.values.reals.len() != self.values.reals.len() {
@@ -779,6 +770,20 @@ impl<M: Model> Instance<M> {
     /// fmi2GetRealStatus(fmi2LastSuccessfulTime).
     pub fn last_successful_time(&self) -> f64 {
         self.time
+    }
+}
+
+/// Why `bytes` without this build's [`STATE_MAGIC`] is refused: a state of another layout of
+/// these FMUs (named), or no state of ours at all.
+fn foreign_state(bytes: &[u8]) -> FmuError {
+    match bytes.get(..8) {
+        Some(tag) if tag.starts_with(&STATE_MAGIC[..6]) => FmuError::State(format!(
+            "the state was saved by another version of these FMUs (state layout {}, this one \
+             reads {})",
+            String::from_utf8_lossy(&tag[6..]),
+            String::from_utf8_lossy(&STATE_MAGIC[6..])
+        )),
+        _ => FmuError::State("not a serialized state of this FMU".into()),
     }
 }
 

@@ -48,6 +48,14 @@ fn stepped() -> (Fmu, fmu::package::Description) {
     (fmu, d)
 }
 
+/// A new FMU state of `fmu` taken now, and its serialised bytes.
+fn saved(fmu: &mut Fmu) -> (fmi2FMUstate, Vec<u8>) {
+    let mut s: fmi2FMUstate = std::ptr::null_mut();
+    assert_eq!(fmu.get_state(&mut s), OK);
+    let blob = fmu.serialize(s).unwrap();
+    (s, blob)
+}
+
 /// `blob` is refused by fmi2DeSerializeFMUstate, nothing is allocated, and one logged message
 /// contains every one of `parts`.
 fn assert_refused(fmu: &mut Fmu, blob: &[u8], parts: &[&str]) {
@@ -122,9 +130,7 @@ fn serialize_deserialize_set_reproduces_exactly() {
     let (mut fmu, d) = stepped();
     let t = &d.table;
     let at10 = outputs(&mut fmu, t);
-    let mut s: fmi2FMUstate = std::ptr::null_mut();
-    assert_eq!(fmu.get_state(&mut s), OK);
-    let blob = fmu.serialize(s).unwrap();
+    let (mut s, blob) = saved(&mut fmu);
     assert!(blob.len() > 8);
     let first = run(&mut fmu, t, 10..30);
     assert_eq!(fmu.free_state(&mut s), OK);
@@ -165,9 +171,7 @@ fn serialize_deserialize_set_reproduces_exactly() {
 #[test]
 fn state_of_another_layout_is_refused_naming_it() {
     let (mut fmu, _) = stepped();
-    let mut s: fmi2FMUstate = std::ptr::null_mut();
-    assert_eq!(fmu.get_state(&mut s), OK);
-    let blob = fmu.serialize(s).unwrap();
+    let (mut s, blob) = saved(&mut fmu);
     assert_eq!(fmu.free_state(&mut s), OK);
     assert!(blob.starts_with(b"M1CSST"), "{:?}", &blob[..8]);
     let mut old = blob.clone();
@@ -212,9 +216,7 @@ fn state_of_the_other_variant_is_refused() {
 #[test]
 fn truncated_or_corrupt_blobs_are_refused() {
     let (mut fmu, d) = stepped();
-    let mut s: fmi2FMUstate = std::ptr::null_mut();
-    assert_eq!(fmu.get_state(&mut s), OK);
-    let blob = fmu.serialize(s).unwrap();
+    let (mut s, blob) = saved(&mut fmu);
     let before = outputs(&mut fmu, &d.table);
     let mut cuts = vec![0, 1, 4, 7, 8, 9, 16, blob.len() / 2, blob.len() - 1];
     cuts.retain(|&c| c < blob.len());

@@ -194,7 +194,7 @@ pub const DEFAULT_MODES: i32 = 60;
 
 impl MirrorRunning {
     /// The mirror's displacement, the output every system reads (written in place).
-    fn write_outputs(&mut self, v: &mut Values) {
+    fn write_outputs(&self, v: &mut Values) {
         let z = v.real_mut(self.vars.z);
         match &self.solver {
             Solver::Coupled(m) => m.mirror(z),
