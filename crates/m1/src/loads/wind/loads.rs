@@ -22,16 +22,29 @@ pub(super) struct UnitScreen {
     spacing: f64,
     /// (cos theta, sin theta).
     direction: [f64; 2],
+    /// Number of segments.
+    segments: usize,
+    /// The segments rounded up to a multiple of [`MAX_LANES`]: the length of each per-segment
+    /// array below (zeros past the segments), so that a step takes them a whole vector at a time.
+    stride: usize,
     /// Segment centre along the flow, in samples.
     along: Vec<f64>,
+    /// `floor(along_i)` modulo the samples per side, as a float (an exact integer): where
+    /// segment `i`'s table starts in [`UnitScreen::rows`].
+    origin: Vec<f64>,
     /// Wind-frame integrals `[G_0, G_xi, G_eta]` -> `Q = [F, M_alpha, M_beta]`, per segment.
     to_load: Vec<[[f64; 3]; 3]>,
-    /// Wind-frame integrals -> actuator forces (`P^-T` times `to_load`), per segment.
-    to_forces: Vec<[[f64; 3]; 3]>,
-    /// `tables[3 (i N + n) + q]`: integral `q` of segment `i` with the screen shifted by
-    /// `(along_i - n) dx`. The three integrals of a sample are adjacent, so that a step reads
-    /// each segment's four samples around its position in one or two cache lines.
-    tables: Vec<f64>,
+    /// Wind-frame integrals -> actuator forces (`P^-T` times `to_load`): entry `(k, c)` of
+    /// segment `i` at `to_forces[(3 k + c) stride + i]`, so that a step reads each entry of
+    /// consecutive segments as one vector.
+    to_forces: Vec<f64>,
+    /// The tables, by rows along the flow: `rows[(3 r + q) stride + i]` is integral `q` of
+    /// segment `i` with the screen shifted by `(along_i - j) dx`, `j = (r + origin_i) mod N`.
+    /// Each segment's position along the flow relative to its own origin is the same for every
+    /// segment up to one sample, so a step reads five consecutive rows (`3 stride` values each)
+    /// for all the segments: streamed, where one table per segment (24 kB apart for TMT) made a
+    /// step touch several hundred pages.
+    rows: Vec<f64>,
     /// Expected rms of `G_0`.
     force_rms: f64,
     area: f64,
@@ -84,6 +97,7 @@ impl WindLoads {
         }
         let layout = &geometry.layout;
         let nseg = layout.n_segments();
+        let stride = nseg.next_multiple_of(MAX_LANES);
         let a = layout.circumradius;
         let extent = layout
             .segments
@@ -122,10 +136,17 @@ impl WindLoads {
 
         // Segment positions in the wind frame, in samples.
         let centres: Vec<[f64; 2]> = layout.segments.iter().map(|s| to_wind(s.center)).collect();
-        let along: Vec<f64> = centres.iter().map(|c| c[0] / dx).collect();
+        let mut along: Vec<f64> = centres.iter().map(|c| c[0] / dx).collect();
+        let origin: Vec<usize> = along
+            .iter()
+            .map(|&u| (u.floor() as i64).rem_euclid(n as i64) as usize)
+            .collect();
+        along.resize(stride, 0.0);
         // The tables and the expected variance: from the cache when an earlier run made them
         // for the same screen and segments, else synthesised.
-        let mut key = Fingerprint::new("wind");
+        // "wind-rows": the tables by rows along the flow ([`UnitScreen::rows`]); the entries of
+        // the earlier "wind" key hold them by segment, a layout of the same shape.
+        let mut key = Fingerprint::new("wind-rows");
         key.bytes(
             serde_json::to_string(sp)
                 .map_err(|e| M1Error::Numerical(format!("wind cache key: {e}")))?
@@ -138,19 +159,19 @@ impl WindLoads {
         }
         let cached = store
             .load(&key, &["variance", "tables"])
-            .filter(|a| a[0].data.len() == 1 && a[1].shape == [3 * nseg * n]);
+            .filter(|a| a[0].data.len() == 1 && a[1].shape == [3 * stride * n]);
         let (variance, tables) = match cached {
             Some(mut a) => {
                 let tables = a.pop().map(|t| t.data).unwrap_or_default();
                 (a[0].data[0], tables)
             }
             None => {
-                let (variance, tables) = synthesise(sp, &hexagon, &centres, dx);
+                let (variance, tables) = synthesise(sp, &hexagon, &centres, &origin, stride, dx);
                 store.store(
                     &key,
                     &[
                         ("variance", &[], &[variance]),
-                        ("tables", &[3 * nseg * n], &tables),
+                        ("tables", &[3 * stride * n], &tables),
                     ],
                 );
                 (variance, tables)
@@ -159,7 +180,7 @@ impl WindLoads {
 
         // Wind-frame integrals -> generalised forces -> actuator forces.
         let mut to_load = Vec::with_capacity(nseg);
-        let mut to_forces = Vec::with_capacity(nseg);
+        let mut to_forces = vec![0.0; 9 * stride];
         for i in 0..nseg {
             let s = &geometry.segments[i];
             let g = 1.0 / s.normal[2];
@@ -176,17 +197,26 @@ impl WindLoads {
                 std::array::from_fn(|col| (0..3).map(|j| pinv[j][k] * b[j][col]).sum())
             });
             to_load.push(b);
-            to_forces.push(m);
+            for (k, mk) in m.iter().enumerate() {
+                for (c, mkc) in mk.iter().enumerate() {
+                    to_forces[(3 * k + c) * stride + i] = *mkc;
+                }
+            }
         }
 
         let screen = std::sync::Arc::new(UnitScreen {
             samples: n,
             spacing: dx,
             direction: [cos, sin],
+            segments: nseg,
+            stride,
             along,
+            origin: (0..stride)
+                .map(|i| origin.get(i).map_or(0.0, |&c| c as f64))
+                .collect(),
             to_load,
             to_forces,
-            tables,
+            rows: tables,
             force_rms: variance.sqrt(),
             area,
         });
@@ -229,12 +259,12 @@ impl WindLoads {
 
     /// Number of segments.
     pub fn n_segments(&self) -> usize {
-        self.screen.along.len()
+        self.screen.segments
     }
 
     /// Number of actuators (3 per segment).
     pub fn n_actuators(&self) -> usize {
-        3 * self.screen.along.len()
+        3 * self.screen.segments
     }
 
     /// Screen spacing `dx` (m): the shift between table entries.
@@ -265,7 +295,12 @@ impl WindLoads {
 
     /// Bytes held by the tables and maps.
     pub fn memory_bytes(&self) -> usize {
-        8 * (self.screen.tables.len() + self.screen.along.len() + 18 * self.screen.to_load.len())
+        let s = &self.screen;
+        8 * (s.rows.len()
+            + s.along.len()
+            + s.origin.len()
+            + 9 * s.to_load.len()
+            + s.to_forces.len())
     }
 
     /// Wind-frame integrals `[G_0, G_xi, G_eta]` of segment `i` at time `t` (the unit screen's,
@@ -302,19 +337,40 @@ impl WindLoads {
         periodic_stencil(u, self.screen.samples)
     }
 
-    /// [`Self::wind_integrals`] of segment `i` from its stencil.
+    /// [`Self::wind_integrals`] of segment `i` from its stencil (sample indices `idx` along
+    /// the flow, weights `w`).
     #[inline]
     fn integrals_at(&self, i: usize, (idx, w): &([usize; 4], [f64; 4])) -> [f64; 3] {
-        let n = self.screen.samples;
-        let tab = &self.screen.tables[3 * i * n..3 * (i + 1) * n];
+        let sc = &*self.screen;
+        let (n, stride) = (sc.samples, sc.stride);
+        let origin = sc.origin[i] as usize;
+        let row = |j: usize| {
+            if j >= origin {
+                j - origin
+            } else {
+                j + n - origin
+            }
+        };
         std::array::from_fn(|q| {
             self.pressure_rms
                 * idx
                     .iter()
                     .zip(w)
-                    .map(|(&j, wj)| wj * tab[3 * j + q])
+                    .map(|(&j, wj)| wj * sc.rows[(3 * row(j) + q) * stride + i])
                     .sum::<f64>()
         })
+    }
+
+    /// Segment `i`'s three forces with the screen moved by `shift` samples: what
+    /// [`Self::forces`] writes at `3 i..3 i + 3`, one segment at a time.
+    #[inline]
+    fn segment_forces(&self, i: usize, shift: f64, f: &mut [f64]) {
+        let g = self.integrals_at(i, &self.stencil(i, shift));
+        let stride = self.screen.stride;
+        let m = |k: usize, c: usize| self.screen.to_forces[(3 * k + c) * stride + i];
+        for (k, fk) in f.iter_mut().enumerate() {
+            *fk = m(k, 0) * g[0] + m(k, 1) * g[1] + m(k, 2) * g[2];
+        }
     }
 
     /// `[int p dA, int p (x - c_x) dA, int p (y - c_y) dA]` over segment `i`'s hexagon in the
@@ -341,46 +397,171 @@ impl WindLoads {
 
     /// Equivalent forces at every actuator at time `t` (N, along each segment's normal;
     /// actuator `k` of segment `i` at `3 i + k`).
+    ///
+    /// The segments are taken a vector of them at a time ([`RowForces`]), with the operations
+    /// of one at a time in the same order: the same values to the bit.
     pub fn forces(&self, t: f64, out: &mut [f64]) -> Result<(), M1Error> {
-        if out.len() != self.n_actuators() {
-            return Err(M1Error::SizeMismatch {
-                what: "f_wind",
-                expected: self.n_actuators(),
-                found: out.len(),
-            });
-        }
-        // By chunks of segments: first their stencils, each with a load of the first and the
-        // last table entry it reads, then their forces. The loads do not depend on each other,
-        // so their cache misses overlap (the TMT tables, 12 MB, are mostly out of the caches by
-        // the next 100 Hz step: one segment at a time, each miss was waited for in turn).
-        let n = self.screen.samples;
-        let tables = &self.screen.tables;
-        let mut stencils = [([0usize; 4], [0.0f64; 4]); FORCE_CHUNK];
+        self.check_forces_len(out)?;
+        pulp::Arch::new().dispatch(RowForces {
+            loads: self,
+            shift: self.shift(t),
+            out,
+        });
+        Ok(())
+    }
+
+    /// [`Self::forces`] one segment at a time: the reference of its vectorised steps.
+    #[doc(hidden)]
+    pub fn forces_by_segment(&self, t: f64, out: &mut [f64]) -> Result<(), M1Error> {
+        self.check_forces_len(out)?;
         let shift = self.shift(t);
-        for (c, fc) in out.chunks_mut(3 * FORCE_CHUNK).enumerate() {
-            let first = c * FORCE_CHUNK;
-            let mut touch = 0.0;
-            for (k, st) in stencils[..fc.len() / 3].iter_mut().enumerate() {
-                let i = first + k;
-                *st = self.stencil(i, shift);
-                touch += tables[3 * (i * n + st.0[0])] + tables[3 * (i * n + st.0[3]) + 2];
-            }
-            std::hint::black_box(touch);
-            for (k, f) in fc.chunks_exact_mut(3).enumerate() {
-                let i = first + k;
-                let g = self.integrals_at(i, &stencils[k]);
-                let m = &self.screen.to_forces[i];
-                for (k, fk) in f.iter_mut().enumerate() {
-                    *fk = m[k][0] * g[0] + m[k][1] * g[1] + m[k][2] * g[2];
-                }
-            }
+        for (i, f) in out.chunks_exact_mut(3).enumerate() {
+            self.segment_forces(i, shift, f);
         }
         Ok(())
     }
+
+    fn check_forces_len(&self, out: &[f64]) -> Result<(), M1Error> {
+        if out.len() == self.n_actuators() {
+            Ok(())
+        } else {
+            Err(M1Error::SizeMismatch {
+                what: "f_wind",
+                expected: self.n_actuators(),
+                found: out.len(),
+            })
+        }
+    }
 }
 
-/// Segments per chunk of [`WindLoads::forces`].
-const FORCE_CHUNK: usize = 32;
+/// [`WindLoads::forces`] with the screen moved by `shift` samples, a vector of segments at a
+/// time.
+///
+/// Every segment's stencil starts at row `K - 1` or `K` of [`UnitScreen::rows`], with
+/// `K = -floor(shift) - 1 (mod N)` (the fraction of its position decides which), so each lane
+/// weighs the five rows `K - 1 ..= K + 3` with a zero weight on the one its stencil leaves out.
+/// That zero term leaves the sum as it is: the forces are [`WindLoads::segment_forces`]' to the
+/// bit. A vector with a lane whose stencil starts elsewhere (a position rounded onto the next
+/// sample, or outside the range the stencil wraps by comparison) is done one segment at a time.
+struct RowForces<'a> {
+    loads: &'a WindLoads,
+    shift: f64,
+    out: &'a mut [f64],
+}
+
+impl<'a> pulp::WithSimd for RowForces<'a> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
+        let RowForces { loads, shift, out } = self;
+        let sc = &*loads.screen;
+        let (n, nseg, stride) = (sc.samples, sc.segments, sc.stride);
+        let lanes = size_of::<S::f64s>() / size_of::<f64>();
+        fn vectors<S: pulp::Simd>(a: &[f64]) -> &[S::f64s] {
+            S::as_simd_f64s(a).0
+        }
+        let part = |a: &'a [f64], j: usize| vectors::<S>(&a[j * stride..(j + 1) * stride]);
+        let along = vectors::<S>(&sc.along);
+        let origin = vectors::<S>(&sc.origin);
+        // `shift` is in [0, n] ([`WindLoads::shift`]).
+        let k = n - 1 - (shift as usize) % n;
+        let rows: [[&[S::f64s]; 3]; 5] = std::array::from_fn(|m| {
+            let r = (k + n - 1 + m) % n;
+            std::array::from_fn(|q| part(&sc.rows, 3 * r + q))
+        });
+        let map: [[&[S::f64s]; 3]; 3] =
+            std::array::from_fn(|kk| std::array::from_fn(|c| part(&sc.to_forces, 3 * kk + c)));
+        let c = |x: f64| simd.splat_f64s(x);
+        let (nf, zero, one, kf) = (c(n as f64), c(0.0), c(1.0), c(k as f64));
+        let (s, rms, minus_two_n) = (c(shift), c(loads.pressure_rms), c(-2.0 * n as f64));
+        // Adding and subtracting 2^52 rounds a float in [0, 2^51] to an integer.
+        let round = c(4_503_599_627_370_496.0);
+        let [half, two, three, minus_three, four, five] = [0.5, 2.0, 3.0, -3.0, 4.0, 5.0].map(c);
+        let mut f = [0.0f64; 3 * 16];
+        // (No closures over `simd` in the loop: they would not inline its vector instructions.)
+        for v in 0..along.len() {
+            // The stencil as `periodic_stencil` takes it: the position wrapped into [0, n] by
+            // adding the period at most twice, then its floor and fraction.
+            let u = simd.sub_f64s(along[v], s);
+            let wrapped = simd.and_m64s(
+                simd.greater_than_or_equal_f64s(u, minus_two_n),
+                simd.less_than_f64s(u, nf),
+            );
+            let u = up(simd, up(simd, u, nf), nf);
+            let r = simd.sub_f64s(simd.add_f64s(u, round), round);
+            let fl = simd.select_f64s(simd.less_than_f64s(u, r), simd.sub_f64s(r, one), r);
+            let t = simd.sub_f64s(u, fl);
+            // Row K - 1 (d = 0) or K (d = 1): d = floor - origin - K mod n.
+            let d = simd.sub_f64s(simd.sub_f64s(fl, origin[v]), kf);
+            let d = up(simd, up(simd, d, nf), nf);
+            let d = simd.select_f64s(simd.less_than_f64s(d, nf), d, simd.sub_f64s(d, nf));
+            let first = simd.equal_f64s(d, zero);
+            let usable = simd.and_m64s(wrapped, simd.or_m64s(first, simd.equal_f64s(d, one)));
+            if simd.first_true_m64s(simd.not_m64s(usable)) < lanes {
+                for i in v * lanes..((v + 1) * lanes).min(nseg) {
+                    loads.segment_forces(i, shift, &mut out[3 * i..3 * i + 3]);
+                }
+                continue;
+            }
+            // The Catmull-Rom weights, as `catmull_rom` computes them.
+            let t2 = simd.mul_f64s(t, t);
+            let t3 = simd.mul_f64s(t2, t);
+            let w0 = simd.sub_f64s(simd.add_f64s(simd.neg_f64s(t3), simd.mul_f64s(two, t2)), t);
+            let w1 = simd.add_f64s(
+                simd.sub_f64s(simd.mul_f64s(three, t3), simd.mul_f64s(five, t2)),
+                two,
+            );
+            let w2 = simd.add_f64s(
+                simd.add_f64s(simd.mul_f64s(minus_three, t3), simd.mul_f64s(four, t2)),
+                t,
+            );
+            let w3 = simd.sub_f64s(t3, t2);
+            let [w0, w1, w2, w3] = [w0, w1, w2, w3].map(|w| simd.mul_f64s(half, w));
+            let w = [
+                simd.select_f64s(first, w0, zero),
+                simd.select_f64s(first, w1, w0),
+                simd.select_f64s(first, w2, w1),
+                simd.select_f64s(first, w3, w2),
+                simd.select_f64s(first, zero, w3),
+            ];
+            let mut g = [zero; 3];
+            for (q, gq) in g.iter_mut().enumerate() {
+                let mut acc = simd.mul_f64s(w[0], rows[0][q][v]);
+                for m in 1..5 {
+                    acc = simd.add_f64s(acc, simd.mul_f64s(w[m], rows[m][q][v]));
+                }
+                *gq = simd.mul_f64s(rms, acc);
+            }
+            for (kk, mk) in map.iter().enumerate() {
+                let fk = simd.add_f64s(
+                    simd.add_f64s(simd.mul_f64s(mk[0][v], g[0]), simd.mul_f64s(mk[1][v], g[1])),
+                    simd.mul_f64s(mk[2][v], g[2]),
+                );
+                simd.partial_store_f64s(&mut f[kk * lanes..(kk + 1) * lanes], fk);
+            }
+            // The last vector's lanes past the segments are padding.
+            let o = &mut out[3 * v * lanes..(3 * (v + 1) * lanes).min(3 * nseg)];
+            for (l, ol) in o.chunks_exact_mut(3).enumerate() {
+                ol.copy_from_slice(&[f[l], f[lanes + l], f[2 * lanes + l]]);
+            }
+        }
+    }
+}
+
+/// Where `a < 0`, `a + n`.
+#[inline(always)]
+fn up<S: pulp::Simd>(simd: S, a: S::f64s, n: S::f64s) -> S::f64s {
+    simd.select_f64s(
+        simd.less_than_f64s(a, simd.splat_f64s(0.0)),
+        simd.add_f64s(a, n),
+        a,
+    )
+}
+
+/// The most `f64` lanes of a vector ([`pulp::Simd`]: 8 with AVX-512): the per-segment arrays
+/// of [`UnitScreen`] are padded to a multiple of it.
+const MAX_LANES: usize = 8;
 
 pub(super) fn unit2(v: [f64; 2]) -> [f64; 2] {
     let n = v[0].hypot(v[1]);
@@ -391,7 +572,7 @@ pub(super) fn unit2(v: [f64; 2]) -> [f64; 2] {
     }
 }
 
-/// The screen's filtered spectra turned into every segment's tables (`3 nseg n` values: the
+/// The screen's filtered spectra turned into every segment's tables (`3 stride n` values: the
 /// integrals of the unit screen over the hexagon at each sample along the flow) and the
 /// expected variance of `G_0`: the random draws of the spectrum, the hexagon's transform at
 /// every wavenumber, and two inverse 2-D FFTs (the first two fields packed in one), finished
@@ -400,10 +581,12 @@ fn synthesise(
     sp: &ScreenParams,
     hexagon: &[[f64; 2]],
     centres: &[[f64; 2]],
+    origin: &[usize],
+    stride: usize,
     dx: f64,
 ) -> (f64, Vec<f64>) {
     let n = sp.samples;
-    let nseg = centres.len();
+
     // Filtered spectra: c H, c H_xi, c H_eta; and the expected variance of G_0.
     let psd = sp.discrete_psd();
     let spectrum = ScreenSpectrum::drawn(sp, &psd);
@@ -444,14 +627,15 @@ fn synthesise(
     let mut rows: Vec<usize> = stencils.iter().flat_map(|(r, _)| *r).collect();
     rows.sort_unstable();
     rows.dedup();
-    let mut tables = vec![0.0; 3 * nseg * n];
+    let mut tables = vec![0.0; 3 * stride * n];
     let mut fill = |q: usize, buf: &[Complex64], part: fn(&Complex64) -> f64| {
-        for (i, (rs, w)) in stencils.iter().enumerate() {
-            let out = &mut tables[3 * i * n..3 * (i + 1) * n];
+        for (i, ((rs, w), &c)) in stencils.iter().zip(origin).enumerate() {
             for (r, wr) in rs.iter().zip(w) {
                 let row = &buf[r * n..(r + 1) * n];
-                for (o, v) in out.chunks_exact_mut(3).zip(row) {
-                    o[q] += wr * SQRT_2 * part(v);
+                // Sample j of segment i in row j - origin_i (mod n).
+                let (wrapped, from_origin) = row.split_at(c);
+                for (k, v) in from_origin.iter().chain(wrapped).enumerate() {
+                    tables[(3 * k + q) * stride + i] += wr * SQRT_2 * part(v);
                 }
             }
         }
@@ -464,4 +648,81 @@ fn synthesise(
     let g2 = real_inverse_fft_rows(&b2, None, n, &rows);
     fill(2, &g2, |v| v.re);
     (variance, tables)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::aperture::geometry::GeometryParams;
+    use crate::aperture::layout::Layout;
+
+    /// The forces of every segment at `shift`, vectorised and one segment at a time.
+    fn both(loads: &WindLoads, shift: f64) -> (Vec<f64>, Vec<f64>) {
+        let mut vectorised = vec![f64::NAN; loads.n_actuators()];
+        pulp::Arch::new().dispatch(RowForces {
+            loads,
+            shift,
+            out: &mut vectorised,
+        });
+        let mut one = vec![f64::NAN; loads.n_actuators()];
+        for (i, f) in one.chunks_exact_mut(3).enumerate() {
+            loads.segment_forces(i, shift, f);
+        }
+        (vectorised, one)
+    }
+
+    /// Bit patterns, so that a NaN left unwritten or a sign of zero counts.
+    fn bits(v: &[f64]) -> Vec<u64> {
+        v.iter().map(|x| x.to_bits()).collect()
+    }
+
+    #[test]
+    fn a_vector_with_a_stencil_off_the_five_rows_is_done_one_segment_at_a_time() {
+        let layout = Layout::preset("keck").unwrap();
+        let geometry = Geometry::new(&layout, GeometryParams::for_layout(&layout)).unwrap();
+        let mut params = WindParams::default();
+        params.screen.size = 32.0;
+        params.screen.samples = 64;
+        let mut loads = WindLoads::new_in(&geometry, &params, &Store::off())
+            .unwrap()
+            .with_flow(3.0, 2.0)
+            .unwrap();
+        let n = params.screen.samples as f64;
+        let screen = std::sync::Arc::get_mut(&mut loads.screen).unwrap();
+        // Segment 0 just below 5 and the shift just above: the position -2^-49 wraps to
+        // -2^-49 + n, which rounds to n itself: its stencil starts at row K + 1.
+        screen.along[0] = 5.0 - 2f64.powi(-50);
+        screen.origin[0] = 4.0;
+        // Segment 9 three periods along: outside the range the stencil wraps by comparison.
+        screen.along[9] += 3.0 * n;
+        let shift_0 = 5.0 + 2f64.powi(-50);
+        assert_eq!(screen.along[0] - shift_0 + n, n);
+        for shift in [shift_0, 0.0, 0.37, 17.5, n - 1e-12, n] {
+            let (vectorised, one) = both(&loads, shift);
+            assert_eq!(bits(&vectorised), bits(&one), "shift {shift}");
+        }
+    }
+
+    #[test]
+    fn the_vectorised_forces_are_those_of_one_segment_at_a_time_to_the_bit() {
+        for name in ["keck", "tmt"] {
+            let layout = Layout::preset(name).unwrap();
+            let geometry = Geometry::new(&layout, GeometryParams::for_layout(&layout)).unwrap();
+            let mut params = WindParams::default();
+            params.screen.samples = 128;
+            params.direction = 23.0;
+            let loads = WindLoads::new_in(&geometry, &params, &Store::off()).unwrap();
+            for k in 0..=600 {
+                // Through a whole period, with shifts on and beside the samples.
+                let shift = k as f64 * 0.2137 + if k % 7 == 0 { 0.5 } else { 0.0 };
+                let shift = if shift > 128.0 {
+                    shift.floor() - 128.0
+                } else {
+                    shift
+                };
+                let (vectorised, one) = both(&loads, shift);
+                assert_eq!(bits(&vectorised), bits(&one), "{name}, shift {shift}");
+            }
+        }
+    }
 }

@@ -50,8 +50,11 @@
 //! For every segment the three integrals are tabulated at initialisation along the flow over one
 //! screen period, at the grid spacing, on the row of the segment centre across the flow (cubic
 //! Catmull-Rom interpolation between grid rows); each step interpolates the tables (cubic
-//! Catmull-Rom, periodic) at the shift `U t`: no integration per step. A sample's three
-//! integrals are stored together, so a segment's step reads one or two cache lines.
+//! Catmull-Rom, periodic) at the shift `U t`: no integration per step. Each segment's table
+//! starts at its own centre, and the tables are stored by rows along the flow (a row holds one
+//! sample of every segment's), so that at any time all the segments read the same five rows: a
+//! step streams them and takes the segments a vector at a time, with the same values to the bit
+//! as one segment at a time.
 //!
 //! The pressure pushes the front face along `-normal`. With the segment's tangent plane at
 //! slope `s` (`g = sqrt(1 + s^2) = 1 / n_z`: area element `g dA` and radial moment arm `g u`),
