@@ -18,8 +18,9 @@ pub(crate) const MAGIC: u64 = 0x4d31_4353_464d_5532; // "M1CSFMU2"
 /// Tag at the start of every serialised FMU state. Its digits change whenever a model's saved
 /// state changes its layout (the format records no field names): a state from another layout is
 /// then refused instead of misread. 03: the mirror's running state lost its displacement buffer
-/// (and every change to the coupled solver's fields since 02).
-const STATE_MAGIC: &[u8; 8] = b"M1CSST03";
+/// (and every change to the coupled solver's fields since 02). 04: the segments' running state
+/// lost its two output buffers.
+const STATE_MAGIC: &[u8; 8] = b"M1CSST04";
 
 /// The FMI 2.0 co-simulation states.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

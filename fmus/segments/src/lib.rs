@@ -195,8 +195,6 @@ pub struct Segments<V: Variant> {
 pub struct SegmentsRunning {
     vars: Vars,
     array: SegmentArray,
-    z: Vec<f64>,
-    f_cell: Vec<f64>,
 }
 
 /// The baseline soft voice-coil variant.
@@ -343,13 +341,19 @@ impl ParamVars {
 }
 
 impl SegmentsRunning {
-    fn write_outputs(&mut self, v: &mut Values) -> Result<(), FmuError> {
+    /// Writes `z` and `f_cell` in place, from the cell's displacement input.
+    fn write_outputs(&self, v: &mut Values) -> Result<(), FmuError> {
+        let x = self.vars;
+        let [z_cell, z, f_cell] = v.reals_mut([x.z_cell, x.z, x.f_cell]).ok_or_else(|| {
+            FmuError::Model(
+                "segments: the inputs and outputs overlap or lie outside the values (internal \
+                 error)"
+                    .into(),
+            )
+        })?;
         self.array
-            .outputs(v.real(self.vars.z_cell), &mut self.z, &mut self.f_cell)
-            .map_err(wiring::model_error)?;
-        v.real_mut(self.vars.z).copy_from_slice(&self.z);
-        v.real_mut(self.vars.f_cell).copy_from_slice(&self.f_cell);
-        Ok(())
+            .outputs(z_cell, z, f_cell)
+            .map_err(wiring::model_error)
     }
 
     /// The physics of the segments (for in-process use and tests).
@@ -383,12 +387,9 @@ impl<V: Variant> Model for Segments<V> {
         let array =
             SegmentArray::new(self.n_segments, model.clone()).map_err(wiring::model_error)?;
         self.vars.params.write_calculated(v, &model);
-        let na = self.vars.z.len;
-        let mut running = SegmentsRunning {
+        let running = SegmentsRunning {
             vars: self.vars,
             array,
-            z: vec![0.0; na],
-            f_cell: vec![0.0; na],
         };
         running.write_outputs(v)?;
         Ok(running)
