@@ -36,7 +36,7 @@ use fmu::{
 use m1::M1Error;
 use m1::aperture::geometry::{Geometry, GeometryParams};
 use m1::aperture::layout::Layout;
-use m1::optics::metrics::MirrorMetrics;
+use m1::optics::metrics::{MetricsScratch, MirrorMetrics};
 use m1::optics::pssn::{Pssn, PssnParams};
 use wiring::signals::{Z, layout_decl, n_segments_decl};
 
@@ -166,6 +166,8 @@ pub struct OpticsRunning {
     engine: Arc<Engine>,
     /// Residual segment states fed to PSSN (scratch, length N).
     residual: Vec<[f64; 3]>,
+    /// The metrics' working buffers, kept between steps.
+    scratch: MetricsScratch,
 }
 
 /// What a serialised [`OpticsRunning`] holds.
@@ -204,6 +206,7 @@ impl TryFrom<OpticsState> for OpticsRunning {
             metrics_clock: s.metrics_clock,
             pssn_clock: s.pssn_clock,
             residual: Vec::with_capacity(engine.metrics.n_segments()),
+            scratch: MetricsScratch::default(),
             engine,
         })
     }
@@ -340,11 +343,11 @@ impl Optics {
 }
 
 impl OpticsRunning {
-    fn sample_metrics(&self, v: &mut Values) -> Result<(), FmuError> {
+    fn sample_metrics(&mut self, v: &mut Values) -> Result<(), FmuError> {
         let m = self
             .engine
             .metrics
-            .evaluate(v.real(self.vars.z))
+            .evaluate_with(v.real(self.vars.z), &mut self.scratch)
             .map_err(model_error)?;
         v.real_mut(self.vars.rms_surface)[0] = m.rms;
         v.real_mut(self.vars.focus_mode)[0] = m.focus_rms;
@@ -431,6 +434,7 @@ impl Model for Optics {
                 next: 1,
             },
             residual: Vec::with_capacity(engine.metrics.n_segments()),
+            scratch: MetricsScratch::default(),
             engine,
         };
         running.sample_metrics(v)?;

@@ -401,8 +401,26 @@ impl MirrorMetrics {
     /// the refinement changes by `-2 delta.b1 + delta^T G delta = -delta.b1`
     /// (`<r, plane(delta)> = delta.b1`, and the focus mode is orthogonal to every plane).
     pub fn evaluate(&self, z: &[f64]) -> Result<SurfaceMetrics, M1Error> {
+        self.evaluate_with(z, &mut MetricsScratch::default())
+    }
+
+    /// [`Self::evaluate`] with its working buffers in `scratch` (kept between calls by a caller
+    /// that evaluates at every step, such as the optics FMU: no allocation per call). The
+    /// same values to the bit.
+    pub fn evaluate_with(
+        &self,
+        z: &[f64],
+        scratch: &mut MetricsScratch,
+    ) -> Result<SurfaceMetrics, M1Error> {
         check_len(z, self.n_actuators())?;
-        Ok(pulp::Arch::new().dispatch(Evaluate { m: self, z }))
+        let n = self.n_segments();
+        scratch.by_actuator.resize(3 * n, 0.0);
+        scratch.states.resize(3 * n, 0.0);
+        Ok(pulp::Arch::new().dispatch(Evaluate {
+            m: self,
+            z,
+            scratch,
+        }))
     }
 
     /// The segment states `[p, tx, ty]` (about each segment centre, aperture plane) of `z` with
@@ -433,7 +451,7 @@ impl MirrorMetrics {
 /// too) and their squared norms, which the refinement changes by `-2 delta.b1 + delta^T G delta
 /// = -delta.b1` (`<r, plane(delta)> = delta.b1`, and the focus mode is orthogonal to every
 /// plane). Each sum is taken by lane, then across the lanes; the segments after the last whole
-/// vector one by one. The states are computed again in the second pass rather than stored.
+/// vector one by one. The first pass stores the states of the whole vectors for the second.
 ///
 /// The vector operations here are written out, in `#[inline(always)]` functions, without
 /// closures or `array::map` around them: those are compiled as functions of their own, without
@@ -442,6 +460,15 @@ impl MirrorMetrics {
 struct Evaluate<'a> {
     m: &'a MirrorMetrics,
     z: &'a [f64],
+    scratch: &'a mut MetricsScratch,
+}
+
+/// The working buffers of [`MirrorMetrics::evaluate_with`]: the displacements by actuator of a
+/// segment and the segments' states, `3 N` values each.
+#[derive(Debug, Clone, Default)]
+pub struct MetricsScratch {
+    by_actuator: Vec<f64>,
+    states: Vec<f64>,
 }
 
 impl pulp::WithSimd for Evaluate<'_> {
@@ -450,13 +477,16 @@ impl pulp::WithSimd for Evaluate<'_> {
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, simd: S) -> SurfaceMetrics {
         let (m, z) = (self.m, self.z);
+        let MetricsScratch {
+            by_actuator,
+            states,
+        } = self.scratch;
         let bc = &m.by_component;
         let n = m.n_segments();
         let lanes = S::F64_LANES;
         let whole = n - n % lanes;
         // The displacements by actuator of a segment, so that a vector holds one actuator of
         // `lanes` segments.
-        let mut by_actuator = vec![0.0; 3 * n];
         {
             let (z0, rest) = by_actuator.split_at_mut(n);
             let (z1, z2) = rest.split_at_mut(n);
@@ -470,6 +500,8 @@ impl pulp::WithSimd for Evaluate<'_> {
             &by_actuator[n..2 * n],
             &by_actuator[2 * n..],
         ];
+        let (s0s, rest) = states.split_at_mut(n);
+        let (s1s, s2s) = rest.split_at_mut(n);
         let (area, moment) = (m.area, m.moment);
         let zero = simd.splat_f64s(0.0);
         // First pass: sum s0, s0 cx, s0 cy, s1, s2 and <s, F>.
@@ -477,6 +509,9 @@ impl pulp::WithSimd for Evaluate<'_> {
         let (va, vi) = (simd.splat_f64s(area), simd.splat_f64s(moment));
         for i in (0..whole).step_by(lanes) {
             let [s0, s1, s2] = seg_states(simd, bc, &zk, i);
+            for (out, s) in [(&mut *s0s, s0), (&mut *s1s, s1), (&mut *s2s, s2)] {
+                simd.partial_store_f64s(&mut out[i..i + lanes], s);
+            }
             let (cx, cy) = (vec_at::<S>(&bc.cx, i), vec_at::<S>(&bc.cy, i));
             let f = [
                 vec_at::<S>(&bc.focus[0], i),
@@ -526,7 +561,11 @@ impl pulp::WithSimd for Evaluate<'_> {
         );
         let vc = simd.splat_f64s(c);
         for i in (0..whole).step_by(lanes) {
-            let [s0, s1, s2] = seg_states(simd, bc, &zk, i);
+            let (s0, s1, s2) = (
+                vec_at::<S>(s0s, i),
+                vec_at::<S>(s1s, i),
+                vec_at::<S>(s2s, i),
+            );
             let (cx, cy) = (vec_at::<S>(&bc.cx, i), vec_at::<S>(&bc.cy, i));
             let plane = simd.mul_add_e_f64s(b2, cy, simd.mul_add_e_f64s(b1, cx, b0));
             let (r0, r1, r2) = (
@@ -741,6 +780,37 @@ mod evaluate_tests {
         }
     }
 
+    /// Working buffers of the right size, every value NaN.
+    fn poisoned(m: &MirrorMetrics) -> MetricsScratch {
+        MetricsScratch {
+            by_actuator: vec![f64::NAN; 3 * m.n_segments()],
+            states: vec![f64::NAN; 3 * m.n_segments()],
+        }
+    }
+
+    /// Buffers kept from one evaluation to the next (the optics FMU's way) give the values of
+    /// fresh ones, to the bit, whatever the earlier state was.
+    #[test]
+    fn kept_buffers_give_the_fresh_values() {
+        let l = Layout::keck();
+        let g = Geometry::new(&l, GeometryParams::for_layout(&l)).expect("geometry");
+        let focus: Vec<f64> = (0..g.n_actuators()).map(|k| (k % 7) as f64).collect();
+        let m = MirrorMetrics::with_focus(&g, &focus).expect("metrics");
+        let state = |phase: f64| -> Vec<f64> {
+            (0..g.n_actuators())
+                .map(|k| 1e-8 * (0.37 * k as f64 + phase).sin() + 1e-9 * phase)
+                .collect()
+        };
+        let mut kept = poisoned(&m);
+        for phase in [0.0, 1.3, -2.1, 0.0] {
+            let z = state(phase);
+            let fresh = m.evaluate(&z).expect("fresh");
+            let again = m.evaluate_with(&z, &mut kept).expect("kept");
+            assert_eq!(format!("{fresh:?}"), format!("{again:?}"), "phase {phase}");
+            assert!(fresh.rms > 0.0 && fresh.rms.is_finite());
+        }
+    }
+
     /// On ELT's 798 segments (not a whole number of vectors of 2, 4 or 8 lanes: every width has
     /// segments after its last whole vector), the evaluation on the processor's widest vectors,
     /// on four lanes and on one agrees with the scalar passes, every output, for a state with a
@@ -770,10 +840,30 @@ mod evaluate_tests {
             .collect();
         for z in [&wavy, &tilted] {
             let want = scalar_reference(&m, z);
+            // Buffers of NaN: a value read before it is written spoils every output.
+            let (mut s1, mut s2, mut s3) = (poisoned(&m), poisoned(&m), poisoned(&m));
             let runs = [
-                pulp::Arch::new().dispatch(Evaluate { m: &m, z }),
-                pulp::WithSimd::with_simd(Evaluate { m: &m, z }, pulp::Scalar256b),
-                pulp::WithSimd::with_simd(Evaluate { m: &m, z }, pulp::Scalar),
+                pulp::Arch::new().dispatch(Evaluate {
+                    m: &m,
+                    z,
+                    scratch: &mut s1,
+                }),
+                pulp::WithSimd::with_simd(
+                    Evaluate {
+                        m: &m,
+                        z,
+                        scratch: &mut s2,
+                    },
+                    pulp::Scalar256b,
+                ),
+                pulp::WithSimd::with_simd(
+                    Evaluate {
+                        m: &m,
+                        z,
+                        scratch: &mut s3,
+                    },
+                    pulp::Scalar,
+                ),
             ];
             let near = |a: f64, b: f64, scale: f64| (a - b).abs() <= 1e-11 * scale;
             for got in runs {
