@@ -201,7 +201,7 @@ initialisation; each step only interpolates them (cubic) at the shift U t, so <c
 at time t is the load at t whatever the communication steps.</p>\
 <p>Initialisation: under a second for TMT at the default 1024<sup>2</sup> screen \
 (release build); memory 48 N<sup>2</sup> bytes during initialisation (48 MiB at N = 1024) and \
-24 N n_segments bytes of tables (11.5 MiB for TMT).</p>";
+24 N s bytes of tables, s the segments rounded up to a multiple of 8 (11.6 MiB for TMT).</p>";
 
 /// Reads and checks the parameters.
 fn key(x: &Vars, v: &Values) -> Result<Key, FmuError> {

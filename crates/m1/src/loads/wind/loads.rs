@@ -145,7 +145,8 @@ impl WindLoads {
         // The tables and the expected variance: from the cache when an earlier run made them
         // for the same screen and segments, else synthesised.
         // "wind-rows": the tables by rows along the flow ([`UnitScreen::rows`]); the entries of
-        // the earlier "wind" key hold them by segment, a layout of the same shape.
+        // the earlier "wind" key hold them by segment (the same shape for a multiple of 8
+        // segments; the build's fingerprint in every key keeps them apart anyway).
         let mut key = Fingerprint::new("wind-rows");
         key.bytes(
             serde_json::to_string(sp)
@@ -398,8 +399,8 @@ impl WindLoads {
     /// Equivalent forces at every actuator at time `t` (N, along each segment's normal;
     /// actuator `k` of segment `i` at `3 i + k`).
     ///
-    /// The segments are taken a vector of them at a time ([`RowForces`]), with the operations
-    /// of one at a time in the same order: the same values to the bit.
+    /// The segments are taken a vector of them at a time (the processor's widest), with the
+    /// operations of one segment at a time in the same order: the same values to the bit.
     pub fn forces(&self, t: f64, out: &mut [f64]) -> Result<(), M1Error> {
         self.check_forces_len(out)?;
         pulp::Arch::new().dispatch(RowForces {
@@ -450,14 +451,16 @@ struct RowForces<'a> {
 }
 
 impl<'a> pulp::WithSimd for RowForces<'a> {
-    type Output = ();
+    /// How many vectors were done one segment at a time.
+    type Output = usize;
 
     #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, simd: S) {
+    fn with_simd<S: pulp::Simd>(self, simd: S) -> usize {
         let RowForces { loads, shift, out } = self;
         let sc = &*loads.screen;
         let (n, nseg, stride) = (sc.samples, sc.segments, sc.stride);
-        let lanes = size_of::<S::f64s>() / size_of::<f64>();
+        let lanes = S::F64_LANES;
+        debug_assert!(lanes <= MAX_LANES && stride.is_multiple_of(lanes));
         fn vectors<S: pulp::Simd>(a: &[f64]) -> &[S::f64s] {
             S::as_simd_f64s(a).0
         }
@@ -478,9 +481,11 @@ impl<'a> pulp::WithSimd for RowForces<'a> {
         // Adding and subtracting 2^52 rounds a float in [0, 2^51] to an integer.
         let round = c(4_503_599_627_370_496.0);
         let [half, two, three, minus_three, four, five] = [0.5, 2.0, 3.0, -3.0, 4.0, 5.0].map(c);
-        let mut f = [0.0f64; 3 * 16];
+        let mut f = [0.0f64; 3 * MAX_LANES];
+        let mut by_segment = 0;
         // (No closures over `simd` in the loop: they would not inline its vector instructions.)
-        for v in 0..along.len() {
+        // The vectors that hold a segment (the rest of the padding is left alone).
+        for v in 0..nseg.div_ceil(lanes) {
             // The stencil as `periodic_stencil` takes it: the position wrapped into [0, n] by
             // adding the period at most twice, then its floor and fraction.
             let u = simd.sub_f64s(along[v], s);
@@ -502,6 +507,7 @@ impl<'a> pulp::WithSimd for RowForces<'a> {
                 for i in v * lanes..((v + 1) * lanes).min(nseg) {
                     loads.segment_forces(i, shift, &mut out[3 * i..3 * i + 3]);
                 }
+                by_segment += 1;
                 continue;
             }
             // The Catmull-Rom weights, as `catmull_rom` computes them.
@@ -546,6 +552,7 @@ impl<'a> pulp::WithSimd for RowForces<'a> {
                 ol.copy_from_slice(&[f[l], f[lanes + l], f[2 * lanes + l]]);
             }
         }
+        by_segment
     }
 }
 
@@ -656,19 +663,36 @@ mod tests {
     use crate::aperture::geometry::GeometryParams;
     use crate::aperture::layout::Layout;
 
-    /// The forces of every segment at `shift`, vectorised and one segment at a time.
-    fn both(loads: &WindLoads, shift: f64) -> (Vec<f64>, Vec<f64>) {
-        let mut vectorised = vec![f64::NAN; loads.n_actuators()];
-        pulp::Arch::new().dispatch(RowForces {
+    /// The vector widths (f64 lanes) the forces are run on: the processor's widest (0), and
+    /// 1, 2 and 4 lanes as portable code (the widths of other processors).
+    const WIDTHS: [usize; 4] = [0, 1, 2, 4];
+
+    /// The forces of every segment at `shift` on vectors of `width` lanes, and how many vectors
+    /// were done one segment at a time.
+    fn vectorised(loads: &WindLoads, shift: f64, width: usize) -> (Vec<f64>, usize) {
+        let mut out = vec![f64::NAN; loads.n_actuators()];
+        let op = RowForces {
             loads,
             shift,
-            out: &mut vectorised,
-        });
-        let mut one = vec![f64::NAN; loads.n_actuators()];
-        for (i, f) in one.chunks_exact_mut(3).enumerate() {
+            out: &mut out,
+        };
+        let by_segment = match width {
+            0 => pulp::Arch::new().dispatch(op),
+            1 => pulp::WithSimd::with_simd(op, pulp::Scalar),
+            2 => pulp::WithSimd::with_simd(op, pulp::Scalar128b),
+            4 => pulp::WithSimd::with_simd(op, pulp::Scalar256b),
+            _ => unreachable!("width {width}"),
+        };
+        (out, by_segment)
+    }
+
+    /// The forces of every segment at `shift`, one segment at a time.
+    fn by_segment(loads: &WindLoads, shift: f64) -> Vec<f64> {
+        let mut out = vec![f64::NAN; loads.n_actuators()];
+        for (i, f) in out.chunks_exact_mut(3).enumerate() {
             loads.segment_forces(i, shift, f);
         }
-        (vectorised, one)
+        out
     }
 
     /// Bit patterns, so that a NaN left unwritten or a sign of zero counts.
@@ -676,52 +700,82 @@ mod tests {
         v.iter().map(|x| x.to_bits()).collect()
     }
 
-    #[test]
-    fn a_vector_with_a_stencil_off_the_five_rows_is_done_one_segment_at_a_time() {
-        let layout = Layout::preset("keck").unwrap();
-        let geometry = Geometry::new(&layout, GeometryParams::for_layout(&layout)).unwrap();
-        let mut params = WindParams::default();
+    /// `layout`'s loads on a small screen (64 samples over 32 m), at 3 m/s and 2 Pa.
+    fn small(layout: &Layout, direction: f64) -> WindLoads {
+        let geometry = Geometry::new(layout, GeometryParams::for_layout(layout)).unwrap();
+        let mut params = WindParams {
+            direction,
+            ..WindParams::default()
+        };
         params.screen.size = 32.0;
         params.screen.samples = 64;
-        let mut loads = WindLoads::new_in(&geometry, &params, &Store::off())
+        WindLoads::new_in(&geometry, &params, &Store::off())
             .unwrap()
             .with_flow(3.0, 2.0)
-            .unwrap();
-        let n = params.screen.samples as f64;
+            .unwrap()
+    }
+
+    #[test]
+    fn a_vector_with_a_stencil_off_the_five_rows_is_done_one_segment_at_a_time() {
+        let mut loads = small(&Layout::preset("keck").unwrap(), 0.0);
+        let n = 64.0;
         let screen = std::sync::Arc::get_mut(&mut loads.screen).unwrap();
         // Segment 0 just below 5 and the shift just above: the position -2^-49 wraps to
         // -2^-49 + n, which rounds to n itself: its stencil starts at row K + 1.
         screen.along[0] = 5.0 - 2f64.powi(-50);
         screen.origin[0] = 4.0;
-        // Segment 9 three periods along: outside the range the stencil wraps by comparison.
-        screen.along[9] += 3.0 * n;
+        // Segment 9 just beyond two periods behind, out of the range the stencil wraps by
+        // comparison: the remainder's `r + n` rounds to n, so its stencil starts at sample 0
+        // with fraction 0, where two additions of n would leave the fraction near 1.
+        screen.along[9] = -2.0 * n - 2f64.powi(-40);
+        screen.origin[9] = 0.0;
         let shift_0 = 5.0 + 2f64.powi(-50);
         assert_eq!(screen.along[0] - shift_0 + n, n);
         for shift in [shift_0, 0.0, 0.37, 17.5, n - 1e-12, n] {
-            let (vectorised, one) = both(&loads, shift);
-            assert_eq!(bits(&vectorised), bits(&one), "shift {shift}");
+            let want = by_segment(&loads, shift);
+            for width in WIDTHS {
+                let (got, fallbacks) = vectorised(&loads, shift, width);
+                assert_eq!(bits(&got), bits(&want), "shift {shift}, width {width}");
+                assert!(fallbacks >= 1, "shift {shift}, width {width}");
+            }
         }
     }
 
+    /// On Keck (36 segments, padded to 40), TMT (492, padded to 496) and a layout of 18
+    /// segments (padded to 24: more padding than a vector of 4), on every vector width, over a
+    /// whole period of shifts on and beside the samples; almost every vector is done as one.
     #[test]
     fn the_vectorised_forces_are_those_of_one_segment_at_a_time_to_the_bit() {
-        for name in ["keck", "tmt"] {
-            let layout = Layout::preset(name).unwrap();
-            let geometry = Geometry::new(&layout, GeometryParams::for_layout(&layout)).unwrap();
-            let mut params = WindParams::default();
-            params.screen.samples = 128;
-            params.direction = 23.0;
-            let loads = WindLoads::new_in(&geometry, &params, &Store::off()).unwrap();
-            for k in 0..=600 {
-                // Through a whole period, with shifts on and beside the samples.
-                let shift = k as f64 * 0.2137 + if k % 7 == 0 { 0.5 } else { 0.0 };
-                let shift = if shift > 128.0 {
-                    shift.floor() - 128.0
+        let hexagonal = Layout::hexagonal("h18", 2, 0, 1.0, 0.005, None).unwrap();
+        assert_eq!(hexagonal.n_segments(), 18);
+        let layouts = [
+            Layout::preset("keck").unwrap(),
+            Layout::preset("tmt").unwrap(),
+            hexagonal,
+        ];
+        for layout in &layouts {
+            let loads = small(layout, 23.0);
+            for k in 0..=320 {
+                // Whole samples, then fractions through the period.
+                let shift = if k < 64 {
+                    f64::from(k)
                 } else {
-                    shift
+                    (f64::from(k) * 0.2137) % 64.0
                 };
-                let (vectorised, one) = both(&loads, shift);
-                assert_eq!(bits(&vectorised), bits(&one), "{name}, shift {shift}");
+                let want = by_segment(&loads, shift);
+                for width in WIDTHS {
+                    let (got, fallbacks) = vectorised(&loads, shift, width);
+                    let name = &layout.name;
+                    assert_eq!(
+                        bits(&got),
+                        bits(&want),
+                        "{name}, shift {shift}, width {width}"
+                    );
+                    assert!(
+                        fallbacks <= 1,
+                        "{name}, shift {shift}, width {width}: {fallbacks}"
+                    );
+                }
             }
         }
     }

@@ -73,8 +73,9 @@
 //! # Memory
 //!
 //! Initialisation holds three complex `N x N` grids (`48 N^2` bytes: 48 MiB at the default
-//! `N = 1024`, 192 MiB at 2048) and keeps `24 N n_segments` bytes of tables (11.5 MiB for TMT,
-//! 0.8 MiB for Keck, 18.7 MiB for the ELT at `N = 1024`).
+//! `N = 1024`, 192 MiB at 2048) and keeps `24 N s` bytes of tables, `s` the segments rounded up
+//! to a multiple of 8 (11.6 MiB for TMT, 0.94 MiB for Keck, 18.75 MiB for the ELT at
+//! `N = 1024`).
 //!
 //! # Files
 //!

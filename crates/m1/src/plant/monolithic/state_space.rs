@@ -475,6 +475,7 @@ pub fn wind_run(
     let mut fw = vec![0.0; na];
     let mut z = vec![0.0; na];
     let mut out = Vec::with_capacity(steps);
+    let mut metrics_scratch = crate::optics::metrics::MetricsScratch::default();
     let ctrl = match control {
         Some((modes, params)) => {
             let gains = params.gains()?;
@@ -527,7 +528,7 @@ pub fn wind_run(
             modes.sample(gains, &mut u_next, y, y_ref, scratch)?;
             u_at = Some(k + (*ctrl_every - 1).max(1));
         }
-        out.push((t + step, metrics.evaluate(&z)?));
+        out.push((t + step, metrics.evaluate_with(&z, &mut metrics_scratch)?));
     }
     Ok(out)
 }
