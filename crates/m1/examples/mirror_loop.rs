@@ -57,12 +57,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut pair = m1::linalg::pair::Pair::start().ok_or("no helper thread")?;
     println!(
         "cores' round trip: {:.0} ns, the mirror's hand-over: {:.0} ns",
-        round_trip_ns(),
+        m1::linalg::pair::round_trip_ns(),
         pair.handoff_ns(31)
     );
     for round in 0..3 {
         for v in &variants {
-            let trip = round_trip_ns();
+            let trip = m1::linalg::pair::round_trip_ns();
             let handoff = pair.handoff_ns(31);
             let mut m = base.clone();
             if !v.starts_with('a') {
@@ -94,39 +94,4 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
     }
     Ok(())
-}
-
-/// The median time (ns) for a value to go from this thread to another spinning thread and back
-/// (a cache line's round trip between the two cores they run on), over 20 rounds of 2000.
-fn round_trip_ns() -> f64 {
-    use std::sync::Arc;
-    use std::sync::atomic::{AtomicU64, Ordering};
-    const ROUNDS: usize = 20;
-    const TRIPS: u64 = 2000;
-    let ping = Arc::new([AtomicU64::new(0), AtomicU64::new(0)]);
-    let other = Arc::clone(&ping);
-    let echo = std::thread::spawn(move || {
-        for i in 1..=ROUNDS as u64 * TRIPS {
-            while other[0].load(Ordering::Acquire) != i {
-                std::hint::spin_loop();
-            }
-            other[1].store(i, Ordering::Release);
-        }
-    });
-    let mut times = Vec::with_capacity(ROUNDS);
-    let mut i = 0;
-    for _ in 0..ROUNDS {
-        let t = Instant::now();
-        for _ in 0..TRIPS {
-            i += 1;
-            ping[0].store(i, Ordering::Release);
-            while ping[1].load(Ordering::Acquire) != i {
-                std::hint::spin_loop();
-            }
-        }
-        times.push(t.elapsed().as_secs_f64() * 1e9 / TRIPS as f64);
-    }
-    let _ = echo.join();
-    times.sort_by(f64::total_cmp);
-    times[ROUNDS / 2]
 }

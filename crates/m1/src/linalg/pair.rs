@@ -276,6 +276,43 @@ impl LazyPair {
     }
 }
 
+/// The median time (ns) for a value to go from this thread to another spinning thread and back
+/// (a cache line's round trip between the two cores they run on), over 20 rounds of 2000: the
+/// least a hand-over of work to another thread and its reply cost. On the project's 2-core VM it
+/// tells where the host put the two virtual cores: about 60 ns on one L3 cache, about 300 ns on
+/// two, 30-50 ns on the two hardware threads of one core (BENCHMARKS.md, twelfth round). For
+/// benchmarks and examples; it spins a thread for a few milliseconds.
+pub fn round_trip_ns() -> f64 {
+    const ROUNDS: usize = 20;
+    const TRIPS: u64 = 2000;
+    let ping = Arc::new([AtomicU64::new(0), AtomicU64::new(0)]);
+    let other = Arc::clone(&ping);
+    let echo = std::thread::spawn(move || {
+        for i in 1..=ROUNDS as u64 * TRIPS {
+            while other[0].load(Ordering::Acquire) != i {
+                std::hint::spin_loop();
+            }
+            other[1].store(i, Ordering::Release);
+        }
+    });
+    let mut times = Vec::with_capacity(ROUNDS);
+    let mut i = 0;
+    for _ in 0..ROUNDS {
+        let t = Instant::now();
+        for _ in 0..TRIPS {
+            i += 1;
+            ping[0].store(i, Ordering::Release);
+            while ping[1].load(Ordering::Acquire) != i {
+                std::hint::spin_loop();
+            }
+        }
+        times.push(t.elapsed().as_secs_f64() * 1e9 / TRIPS as f64);
+    }
+    let _ = echo.join();
+    times.sort_by(f64::total_cmp);
+    times[ROUNDS / 2]
+}
+
 #[cfg(test)]
 mod tests {
     use super::Pair;
