@@ -104,9 +104,9 @@
 //! modes and the free part (by kind), and the shapes' pass back to the actuators are split
 //! between the calling thread and a helper thread ([`crate::linalg::pair`],
 //! [`CoupledMirror::set_two_threads`], default from [`TWO_THREADS_MIN_MODES`]; from
-//! [`SHARED_CACHE_MIN_MODES`] the default tries one and two threads alternately over
-//! [`THREADS_TRIAL_STEPS`] steps each, every [`THREADS_CHECK_STEPS`] steps, and keeps the
-//! faster). Every value is
+//! [`SHARED_CACHE_MIN_MODES`] the default tries one and two threads in blocks of
+//! [`THREADS_TRIAL_BLOCK`] steps, [`THREADS_TRIAL_STEPS`] steps each, every
+//! [`THREADS_CHECK_STEPS`] steps, and keeps the faster). Every value is
 //! summed as on one thread (from 500 modes the correction is taken in the same two parts on one
 //! thread), so the outputs are the same to the bit (tested). The step of a model without any of
 //! these large models' forms is compiled without their code (a separate instance of the step),
@@ -149,6 +149,7 @@ mod tick;
 
 pub use coupled::{
     CoupledMirror, PACKED_GRAM_MIN_MODES, SHARED_CACHE_MIN_MODES, SINGLE_COUPLING_MIN_MODES,
-    THREADS_CHECK_STEPS, THREADS_TRIAL_STEPS, TWO_THREADS_MIN_MODES,
+    THREADS_CHECK_STEPS, THREADS_TRIAL_BLOCK, THREADS_TRIAL_STEPS, THREADS_TRIAL_WARM,
+    TWO_THREADS_MIN_MODES,
 };
 pub use maps::foh_mode;
