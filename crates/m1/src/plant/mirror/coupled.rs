@@ -55,8 +55,8 @@ pub const SHARED_CACHE_MIN_MODES: usize = 150;
 ///   not, two threads owe part of their gain to each keeping its half in its own cache. The
 ///   first version changed sides at every step, timing each on caches the other had filled.
 /// - *Medians.* Every 100th step the optics' PSSN evaluation holds the master's look-ahead
-///   thread on the other core for about 8 steps; a sum of the steps' times counted them in
-///   full on whichever side they fell.
+///   thread on the other core for about 8 steps (in the standard system they fall at the start
+///   of every trial, in its first block); a few such long steps do not decide a median.
 /// - *Ties to two threads.* When the helper does not get the other core in time the caller
 ///   takes its halves back, so two threads then cost what one does; the margin of the first
 ///   version (two kept only at 0.95 times one's time) kept one thread for the next 1000 steps
@@ -74,9 +74,13 @@ pub const THREADS_TRIAL_WARM: u32 = 5;
 /// The steps of each side of a trial of [`THREADS_CHECK_STEPS`].
 pub const THREADS_TRIAL_STEPS: u32 = 2 * THREADS_TRIAL_BLOCK;
 
-// Every block's timed steps meet the inputs' changes every tenth step equally often.
-const _: () =
-    assert!(THREADS_TRIAL_BLOCK.is_multiple_of(10) && THREADS_TRIAL_WARM < THREADS_TRIAL_BLOCK);
+// Every block's timed steps meet the inputs' changes every tenth step equally often, and a
+// choice holds for most of a check period.
+const _: () = assert!(
+    THREADS_TRIAL_BLOCK.is_multiple_of(10)
+        && THREADS_TRIAL_WARM < THREADS_TRIAL_BLOCK
+        && THREADS_CHECK_STEPS > 4 * THREADS_TRIAL_STEPS
+);
 
 /// Retained modes from which [`CoupledMirror`] streams the Gram matrices by their upper block
 /// triangles ([`CoupledMirror::set_gram_packed`]): TMT at 800 modes 21-27 % faster per step on
@@ -1069,10 +1073,13 @@ mod tests {
         one: impl Fn(usize) -> f64,
         two: impl Fn(usize) -> f64,
     ) -> Vec<bool> {
+        let (block, warm) = (THREADS_TRIAL_BLOCK, THREADS_TRIAL_WARM);
         let mut current = false;
         (0..THREADS_CHECK_STEPS)
-            .map(|_| {
+            .map(|k| {
                 let (t, timed) = trial.before_step(current);
+                // Timed: the trial's steps after each block's first ones, nothing else.
+                assert_eq!(timed, k < 4 * block && k % block >= warm, "step {k}");
                 current = t;
                 if timed {
                     let side = usize::from(t);
