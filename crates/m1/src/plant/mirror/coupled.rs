@@ -299,12 +299,15 @@ pub struct CoupledMirror {
     pub(super) free_force: Vec<f64>,
 }
 
+/// The timed steps of each side of a trial: two blocks, each after its first steps.
+const TIMED_PER_SIDE: usize = 2 * (THREADS_TRIAL_BLOCK - THREADS_TRIAL_WARM) as usize;
+
 /// Where the automatic choice of threads is ([`CoupledMirror::set_two_threads`]): steps since
 /// its last choice and the trial's timed steps on one and two threads (s).
 #[derive(Debug, Clone)]
 pub(super) struct ThreadsTrial {
     step: u32,
-    times: [[f64; THREADS_TRIAL_STEPS as usize]; 2],
+    times: [[f64; TIMED_PER_SIDE]; 2],
     timed: [usize; 2],
 }
 
@@ -312,7 +315,7 @@ impl Default for ThreadsTrial {
     fn default() -> Self {
         Self {
             step: 0,
-            times: [[0.0; THREADS_TRIAL_STEPS as usize]; 2],
+            times: [[0.0; TIMED_PER_SIDE]; 2],
             timed: [0; 2],
         }
     }
@@ -1061,8 +1064,7 @@ fn store_f32(dst: &mut [f32], src: &[f64]) -> bool {
 #[cfg(test)]
 mod tests {
     use super::{
-        THREADS_CHECK_STEPS, THREADS_TRIAL_BLOCK, THREADS_TRIAL_STEPS, THREADS_TRIAL_WARM,
-        ThreadsTrial,
+        THREADS_CHECK_STEPS, THREADS_TRIAL_BLOCK, THREADS_TRIAL_WARM, TIMED_PER_SIDE, ThreadsTrial,
     };
 
     /// Runs a whole check period of the trial with one thread's steps taking `one(k)` and two
@@ -1110,7 +1112,7 @@ mod tests {
         }
         let per_side = 2 * (block - warm);
         assert_eq!(trial.timed, [per_side, per_side]);
-        assert!(per_side <= THREADS_TRIAL_STEPS as usize);
+        assert_eq!(per_side, TIMED_PER_SIDE);
         assert!(threads[4 * block..].iter().all(|&t| t), "two threads kept");
         // The next period starts a new trial (its first block on one thread).
         let threads = period(&mut trial, |_| 200e-6, |_| 200e-6);
