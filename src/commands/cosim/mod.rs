@@ -505,21 +505,32 @@ fn progress_bar(label: &str) -> indicatif::ProgressBar {
 pub(crate) struct Progress {
     bar: indicatif::ProgressBar,
     t0: Instant,
-    /// The bar's position as last set: asking the bar takes its lock, at every step.
+    /// The position last computed (a thousandth of the run).
     shown: u64,
+    /// When the bar was last updated.
+    drawn: Instant,
 }
+
+/// The shortest wall time between two updates of a run's progress bar. An update takes the
+/// bar's lock and formats its message: at every thousandth of a 5 s TMT run (every fifth step)
+/// that cost the master's thread about 0.2 us per step on average, 0.5 % of the 60-mode loop
+/// (BENCHMARKS.md, twentieth round of issue 18); the bar redraws at about this rate anyway.
+const DRAW_EVERY: std::time::Duration = std::time::Duration::from_millis(50);
 
 impl Progress {
     /// The bar of a run labelled `label`, started now.
     pub(crate) fn start(label: &str) -> Self {
+        let now = Instant::now();
         Self {
             bar: progress_bar(label),
-            t0: Instant::now(),
+            t0: now,
             shown: 0,
+            drawn: now,
         }
     }
 
-    /// Moves the bar to simulated time `t` of `stop`.
+    /// Moves the bar to simulated time `t` of `stop`: cheap when nothing is to be drawn (one
+    /// division, and a clock read once per thousandth of the run).
     pub(crate) fn show(&mut self, t: f64, stop: f64) {
         let f = (t / stop).clamp(0.0, 1.0);
         let pos = (f * 1000.0) as u64;
@@ -527,12 +538,13 @@ impl Progress {
             return;
         }
         self.shown = pos;
-        self.bar.set_position(pos);
-        // The message (a formatted string) once per per cent: the bar redraws at a few hertz.
-        if !pos.is_multiple_of(10) {
+        let now = Instant::now();
+        if pos < 1000 && now.duration_since(self.drawn) < DRAW_EVERY {
             return;
         }
-        let wall = self.t0.elapsed().as_secs_f64();
+        self.drawn = now;
+        self.bar.set_position(pos);
+        let wall = now.duration_since(self.t0).as_secs_f64();
         self.bar.set_message(format!(
             "t = {t:.3} s, {:.2}x real time",
             t / wall.max(1e-9)

@@ -60,10 +60,14 @@
 //!   optics' PSSN at 10 Hz, about 1 ms) is caught up over the next ones instead of making the
 //!   master wait; the master waits only when 256 messages are in flight.
 //!
-//! The Real inputs of a step sent there are copied past the master's caches (non-temporal
-//! stores: the other core reads them from memory, and the master never waits for lines that
-//! core holds); those from a component whose outputs still wait in its ports (below) come
-//! straight from there. A kept sink reading some of the same outputs as the component sent
+//! The Real inputs of a step sent there are copied into buffers the other core read last, by
+//! one of two ways, whichever the master measured cheaper in its latest trial (every 4096
+//! such copies; `ports::CopyTrial`): past the master's caches (non-temporal stores: the other
+//! core reads them from memory, and the master does not wait for lines that core holds; much
+//! the cheaper on the AMD VM of the project's earlier measurements) or a plain copy (cheaper
+//! on an Intel VM, where the non-temporal stores' fence waits longer than the lines take to
+//! come back). Either way the same values cross. Those from a component whose outputs still
+//! wait in its ports (below) come straight from there. A kept sink reading some of the same outputs as the component sent
 //! there just before it takes those from that component's inputs, which the thread keeps
 //! (the memo), when the outputs have not changed since: in the TMT systems the mirror's 1476
 //! displacements cross once per step for both the edge sensors and the optics

@@ -182,7 +182,7 @@ pub(super) struct Ports {
 
 impl Ports {
     /// Gathers its Integer, Boolean and String inputs out of `shared` (for a step on another
-    /// thread: the Real ones come through [`gather_real_past_cache`]).
+    /// thread: the Real ones come through [`gather_real_for_other_core`]).
     pub(super) fn gather_other_kinds(&mut self, shared: &Values) {
         self.integer.gather(&shared.integer);
         self.boolean.gather(&shared.boolean);
@@ -324,32 +324,52 @@ pub(super) fn sourced_runs(runs: &[(usize, usize, usize)], offsets: &[usize]) ->
     out
 }
 
-/// Copies Real inputs into `dst` for a step on another thread, past this core's caches
-/// ([`copy_past_cache`]): each run from `from(run)`, which gives the source's values (its
+/// Copies Real inputs into `dst` for a step on another thread, the way `way` says
+/// ([`copy_for_other_core`]): each run from `from(run)`, which gives the source's values (its
 /// ports' latest outputs while they are not yet published, the shared buffer otherwise).
-pub(super) fn gather_real_past_cache<'a>(
+/// Returns how many values it copied.
+pub(super) fn gather_real_for_other_core<'a>(
     dst: &mut [f64],
     runs: &[SourcedRun],
+    way: CopyWay,
     mut from: impl FnMut(&SourcedRun) -> &'a [f64],
-) {
+) -> usize {
+    let mut n = 0;
     for r in runs {
-        copy_past_cache(&mut dst[r.dst..r.dst + r.n], from(r));
+        copy_for_other_core(&mut dst[r.dst..r.dst + r.n], from(r), way);
+        n += r.n;
     }
+    n
 }
 
-/// Copies `src` into `dst` (of the same length) for another core to read: on x86-64 with
-/// non-temporal stores, which write the lines to memory without first taking them back from
-/// the core that read them last. A plain copy of the TMT mirror's 1476 displacements into a
-/// buffer the look-ahead thread read a step earlier costs the master about 4 us, nearly all of
-/// it waiting for those lines; this one about 0.3 us (the other core then reads them from
-/// memory, off the master's path). Elsewhere a plain copy.
-pub(super) fn copy_past_cache(dst: &mut [f64], src: &[f64]) {
-    assert_eq!(dst.len(), src.len(), "copy_past_cache: lengths differ");
+/// How the master copies a step's inputs into a buffer that the look-ahead thread's core read
+/// last ([`copy_for_other_core`]). Which is cheaper for the master depends on the machine, so
+/// [`CopyTrial`] measures both now and then.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum CopyWay {
+    /// A plain copy: the stores first take the buffer's cache lines back from the other core.
+    Plain,
+    /// On x86-64, non-temporal stores: the lines go to memory without being taken back (the
+    /// other core then reads them from memory, off the master's path), and a fence before the
+    /// hand-over waits for them to leave. Elsewhere a plain copy.
+    PastCache,
+}
+
+/// Copies `src` into `dst` (of the same length) for another core to read, the way `way` says.
+///
+/// Measured (the master's hand-over of the TMT mirror's 1476 displacements for the edge
+/// sensors' step, a buffer the look-ahead thread read a step earlier): on the AMD EPYC VM of
+/// the earlier rounds of issue 18 a plain copy took about 4 us, nearly all of it waiting for
+/// those lines, and the non-temporal one about 0.3 us; on the Intel VM of its twentieth round
+/// the plain copy took about 0.45 us and the non-temporal one about 0.9 us, most of it the
+/// fence waiting for the stores to reach memory (BENCHMARKS.md).
+pub(super) fn copy_for_other_core(dst: &mut [f64], src: &[f64], way: CopyWay) {
+    assert_eq!(dst.len(), src.len(), "copy_for_other_core: lengths differ");
     #[cfg(target_arch = "x86_64")]
     {
         use std::arch::x86_64::{_mm_loadu_pd, _mm_sfence, _mm_stream_pd};
         // A short run is not worth the fence.
-        if dst.len() >= 32 {
+        if way == CopyWay::PastCache && dst.len() >= 32 {
             // Whole 16-byte pairs from the first aligned element.
             let head = dst.as_ptr().align_offset(16).min(dst.len());
             let pairs = (dst.len() - head) / 2;
@@ -370,12 +390,124 @@ pub(super) fn copy_past_cache(dst: &mut [f64], src: &[f64]) {
             return;
         }
     }
+    let _ = way;
     dst.copy_from_slice(src);
+}
+
+/// Hand-over copies from one trial of [`CopyTrial`] to the next.
+pub(super) const COPY_CHECK_EVERY: u32 = 4096;
+
+/// Hand-over copies in a block of a trial (two blocks a side: plain, past the cache, past the
+/// cache, plain, so that a drift of the machine's load falls on both alike).
+pub(super) const COPY_TRIAL_BLOCK: u32 = 16;
+
+/// The first copies of each block, not timed (the caches settle into the block's way).
+pub(super) const COPY_TRIAL_WARM: u32 = 4;
+
+const COPY_TIMED_PER_SIDE: usize = 2 * (COPY_TRIAL_BLOCK - COPY_TRIAL_WARM) as usize;
+
+const _: () =
+    assert!(COPY_TRIAL_WARM < COPY_TRIAL_BLOCK && COPY_CHECK_EVERY > 4 * COPY_TRIAL_BLOCK);
+
+/// The master's choice of [`CopyWay`] for its hand-over copies, by measurement: every
+/// [`COPY_CHECK_EVERY`] copies it times four blocks of [`COPY_TRIAL_BLOCK`] (plain, past the
+/// cache, past the cache, plain; the first [`COPY_TRIAL_WARM`] of each not timed), compares
+/// the medians of each side's time per value, and keeps the cheaper until the next trial (a
+/// tie keeps the copy past the cache). Both ways copy the same values: the choice changes no
+/// result, only the master's time.
+#[derive(Debug, Clone)]
+pub(super) struct CopyTrial {
+    /// The way kept between trials.
+    way: CopyWay,
+    /// Copies since the last trial began.
+    n: u32,
+    /// The trial's timed copies, nanoseconds per value (room for all made at the start).
+    plain: Vec<f32>,
+    past: Vec<f32>,
+}
+
+impl Default for CopyTrial {
+    fn default() -> Self {
+        Self {
+            way: CopyWay::PastCache,
+            n: 0,
+            plain: Vec::with_capacity(COPY_TIMED_PER_SIDE),
+            past: Vec::with_capacity(COPY_TIMED_PER_SIDE),
+        }
+    }
+}
+
+impl CopyTrial {
+    /// The way for the next copy, and whether to time it.
+    pub(super) fn next(&self) -> (CopyWay, bool) {
+        if self.n >= 4 * COPY_TRIAL_BLOCK {
+            return (self.way, false);
+        }
+        let way = match self.n / COPY_TRIAL_BLOCK {
+            0 | 3 => CopyWay::Plain,
+            _ => CopyWay::PastCache,
+        };
+        (way, self.n % COPY_TRIAL_BLOCK >= COPY_TRIAL_WARM)
+    }
+
+    /// Notes the copy [`Self::next`] asked for: its time per value if it was timed (ns).
+    pub(super) fn done(&mut self, way: CopyWay, timed: Option<f32>) {
+        if let Some(t) = timed {
+            let side = match way {
+                CopyWay::Plain => &mut self.plain,
+                CopyWay::PastCache => &mut self.past,
+            };
+            side.push(t);
+        }
+        self.n += 1;
+        if self.n == 4 * COPY_TRIAL_BLOCK {
+            if let (Some(p), Some(q)) = (median(&mut self.plain), median(&mut self.past)) {
+                self.way = if p < q {
+                    CopyWay::Plain
+                } else {
+                    CopyWay::PastCache
+                };
+            }
+            self.plain.clear();
+            self.past.clear();
+        } else if self.n >= COPY_CHECK_EVERY {
+            self.n = 0;
+        }
+    }
+
+    /// The way kept between trials.
+    pub(super) fn way(&self) -> CopyWay {
+        self.way
+    }
+
+    /// Copies with `copy` (which returns how many values it copied) the way the trial says,
+    /// timed if it says so.
+    pub(super) fn copy(&mut self, copy: impl FnOnce(CopyWay) -> usize) {
+        let (way, timed) = self.next();
+        let t = if timed {
+            let t0 = std::time::Instant::now();
+            let n = copy(way);
+            Some(t0.elapsed().as_nanos() as f32 / n.max(1) as f32)
+        } else {
+            copy(way);
+            None
+        };
+        self.done(way, t);
+    }
+}
+
+/// The median of `x` (sorted in place; the upper of the two middle values), None if empty.
+fn median(x: &mut [f32]) -> Option<f32> {
+    x.sort_unstable_by(f32::total_cmp);
+    x.get(x.len() / 2).copied()
 }
 
 #[cfg(test)]
 mod tests {
-    use super::{SourcedRun, copy_past_cache, sourced_runs};
+    use super::{
+        COPY_CHECK_EVERY, COPY_TRIAL_BLOCK, COPY_TRIAL_WARM, CopyTrial, CopyWay, SourcedRun,
+        copy_for_other_core, sourced_runs,
+    };
 
     /// Runs are cut where a component's outputs end, empty regions are skipped, and every
     /// input keeps its source slot.
@@ -404,16 +536,19 @@ mod tests {
     }
 
     /// Every length (below and above the streaming threshold, odd and even) at both alignments
-    /// of source and destination is copied exactly, with nothing written outside.
+    /// of source and destination is copied exactly either way, with nothing written outside.
     #[test]
-    fn copies_past_the_cache_exactly() {
+    fn copies_for_the_other_core_exactly() {
         let src: Vec<f64> = (0..300)
             .map(|k| (k as f64).sin() * 1e-7 + k as f64)
             .collect();
-        for n in [0usize, 1, 2, 31, 32, 33, 64, 99, 257] {
+        let cases = [0usize, 1, 2, 31, 32, 33, 64, 99, 257]
+            .into_iter()
+            .flat_map(|n| [CopyWay::Plain, CopyWay::PastCache].map(|w| (n, w)));
+        for (n, way) in cases {
             for (so, d_off) in (0..2).flat_map(|so| (0..9).map(move |d| (so, d))) {
                 let mut dst = vec![f64::NAN; n + 11];
-                copy_past_cache(&mut dst[d_off..d_off + n], &src[so..so + n]);
+                copy_for_other_core(&mut dst[d_off..d_off + n], &src[so..so + n], way);
                 assert!(dst[..d_off].iter().all(|x| x.is_nan()), "{n} {so} {d_off}");
                 assert!(
                     dst[d_off + n..].iter().all(|x| x.is_nan()),
@@ -426,5 +561,70 @@ mod tests {
                 assert!(same, "{n} {so} {d_off}");
             }
         }
+    }
+
+    /// The trial runs its four blocks (plain, past the cache twice, plain), times all but each
+    /// block's first copies, keeps the way whose median is lower (a tie keeps the copy past
+    /// the cache) until the next trial, and starts again after [`COPY_CHECK_EVERY`] copies.
+    /// The medians, not the sums, decide: a few long copies on one side do not.
+    #[test]
+    fn the_copy_trial_runs_in_blocks_and_keeps_the_cheaper_by_medians() {
+        // `cost(way, k)`: the time per value the k-th copy of a trial takes that way.
+        let trial = |t: &mut CopyTrial, cost: &dyn Fn(CopyWay, u32) -> f32| {
+            let mut ways = Vec::new();
+            for k in 0..4 * COPY_TRIAL_BLOCK {
+                let (way, timed) = t.next();
+                assert_eq!(timed, k % COPY_TRIAL_BLOCK >= COPY_TRIAL_WARM, "copy {k}");
+                ways.push(way);
+                t.done(way, timed.then(|| cost(way, k)));
+            }
+            let b = COPY_TRIAL_BLOCK as usize;
+            let blocks: Vec<CopyWay> = ways.chunks(b).map(|c| c[0]).collect();
+            assert!(ways.chunks(b).all(|c| c.iter().all(|&w| w == c[0])));
+            assert_eq!(
+                blocks,
+                [
+                    CopyWay::Plain,
+                    CopyWay::PastCache,
+                    CopyWay::PastCache,
+                    CopyWay::Plain
+                ]
+            );
+        };
+        let mut t = CopyTrial::default();
+        assert_eq!(t.way(), CopyWay::PastCache);
+        // Plain cheaper by its median, though three of its copies are very long (their sum is
+        // the larger).
+        trial(&mut t, &|w, k| match w {
+            CopyWay::Plain if k % 7 == 5 => 100.0,
+            CopyWay::Plain => 0.3,
+            CopyWay::PastCache => 0.6,
+        });
+        assert_eq!(t.way(), CopyWay::Plain);
+        // Kept until the next trial.
+        for _ in 4 * COPY_TRIAL_BLOCK..COPY_CHECK_EVERY {
+            assert_eq!(t.next(), (CopyWay::Plain, false));
+            t.done(CopyWay::Plain, None);
+        }
+        // A tie keeps the copy past the cache.
+        trial(&mut t, &|_, _| 0.5);
+        assert_eq!(t.way(), CopyWay::PastCache);
+        for _ in 4 * COPY_TRIAL_BLOCK..COPY_CHECK_EVERY {
+            t.done(t.next().0, None);
+        }
+        trial(&mut t, &|w, _| if w == CopyWay::Plain { 0.2 } else { 0.25 });
+        assert_eq!(t.way(), CopyWay::Plain);
+        // `copy` copies the way it is told, once per call.
+        let mut t = CopyTrial::default();
+        let mut seen = Vec::new();
+        for _ in 0..4 * COPY_TRIAL_BLOCK {
+            t.copy(|w| {
+                seen.push(w);
+                1476
+            });
+        }
+        assert_eq!(seen.len(), 4 * COPY_TRIAL_BLOCK as usize);
+        assert_eq!(seen[0], CopyWay::Plain);
+        assert_eq!(seen[COPY_TRIAL_BLOCK as usize], CopyWay::PastCache);
     }
 }

@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use super::definition::{Order, System, Value};
 use super::init;
-use super::ports::{Port, Ports, SourcedRun, Values, sourced_runs};
+use super::ports::{CopyTrial, Port, Ports, SourcedRun, Values, sourced_runs};
 use super::simulation::{KeptSink, Late, Memo, MemoPlan, Recorded, RecordedOf, Simulation};
 use super::step::Running;
 use super::threads::Lookahead;
@@ -319,6 +319,7 @@ impl Simulation {
                 seen: vec![0; n],
             },
             memo_steps: 0,
+            copy_trial: CopyTrial::default(),
             set_unchanged_inputs: system.set_unchanged_inputs,
             stale: vec![false; n],
             every: comps.iter().map(|r| r.every as u64).collect(),

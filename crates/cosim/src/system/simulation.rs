@@ -4,7 +4,7 @@
 //! [`Simulation::step`] (`step.rs`).
 
 use super::definition::Order;
-use super::ports::{SourcedRun, Values};
+use super::ports::{CopyTrial, SourcedRun, Values};
 use super::step::Running;
 use super::threads::{InFlight, Lookahead, SchedulerParams};
 use super::wiring::Kind;
@@ -149,6 +149,8 @@ pub struct Simulation {
     pub(super) memo: Memo,
     /// Kept sinks' steps that took inputs from the memo.
     pub(super) memo_steps: u64,
+    /// How the master copies the inputs of the steps it hands to the look-ahead thread.
+    pub(super) copy_trial: CopyTrial,
     /// Whether unchanged inputs are set at every step too ([`super::System::set_unchanged_inputs`]).
     pub(super) set_unchanged_inputs: bool,
     /// Per lazy component, whether its ports hold due outputs not yet copied to `outputs`

@@ -8,7 +8,9 @@
 use std::time::Instant;
 
 use super::definition::Order;
-use super::ports::{Ports, SourcedRun, Values, Visible, copy_past_cache, gather_real_past_cache};
+use super::ports::{
+    Ports, SourcedRun, Values, Visible, copy_for_other_core, gather_real_for_other_core,
+};
 use super::queue::TryRecv;
 use super::simulation::Simulation;
 use super::threads::{self, Flight, InFlight, Job, Kept, KeptStep, LOOKAHEAD_SLOTS, Reply, Work};
@@ -314,8 +316,11 @@ impl Simulation {
             // The thread steps it while the master moves on.
             comp.ports.gather_other_kinds(&self.outputs);
             let (comps, stale, shared) = (&self.comps, &self.stale, &self.outputs.real);
-            gather_real_past_cache(&mut comp.ports.real.in_buf, &self.real_runs[i], |r| {
-                source_values(comps, stale, shared, r)
+            let (dst, runs) = (&mut comp.ports.real.in_buf, &self.real_runs[i]);
+            self.copy_trial.copy(|way| {
+                gather_real_for_other_core(dst, runs, way, |r| {
+                    source_values(comps, stale, shared, r)
+                })
             });
             let flight = InFlight {
                 index: i,
@@ -452,13 +457,26 @@ impl Simulation {
         self.memo_steps += u64::from(plan.is_some());
         let covered = plan.map(|p| &sink.plans[p].covered[..]);
         let (comps, stale) = (&self.comps, &self.stale);
-        for (k, r) in runs.iter().enumerate() {
-            if !covered.is_some_and(|c| c[k]) {
-                copy_past_cache(
-                    &mut inputs[r.dst..r.dst + r.n],
-                    source_values(comps, stale, shared, r),
-                );
+        let mut copy = |way| {
+            let mut n = 0;
+            for (k, r) in runs.iter().enumerate() {
+                if !covered.is_some_and(|c| c[k]) {
+                    copy_for_other_core(
+                        &mut inputs[r.dst..r.dst + r.n],
+                        source_values(comps, stale, shared, r),
+                        way,
+                    );
+                    n += r.n;
+                }
             }
+            n
+        };
+        // Only copies of many values are worth timing for the trial (a memo step copies few or
+        // none).
+        if plan.is_none() {
+            self.copy_trial.copy(copy);
+        } else {
+            copy(self.copy_trial.way());
         }
         let recorded = sink.free_recorded.pop().unwrap_or_default();
         let step = KeptStep::new(i, t, h, left, inputs, recorded, plan);
