@@ -360,9 +360,9 @@ pub(super) enum CopyWay {
 /// Measured (the master's hand-over of the TMT mirror's 1476 displacements for the edge
 /// sensors' step, a buffer the look-ahead thread read a step earlier): on the AMD EPYC VM of
 /// the earlier rounds of issue 18 a plain copy took about 4 us, nearly all of it waiting for
-/// those lines, and the non-temporal one about 0.3 us; on the Intel VM of its twentieth round
-/// the plain copy took about 0.45 us and the non-temporal one about 0.9 us, most of it the
-/// fence waiting for the stores to reach memory (BENCHMARKS.md).
+/// those lines, and the non-temporal one about 0.3 us; on the Intel VM of its twentieth round,
+/// its stores drained, the plain copy took 0.46-0.77 ns per value (0.7-1.1 us) and the
+/// non-temporal one 0.85-0.88 ns (1.25-1.3 us) in [`CopyTrial`]'s trials (BENCHMARKS.md).
 pub(super) fn copy_for_other_core(dst: &mut [f64], src: &[f64], way: CopyWay) {
     assert_eq!(dst.len(), src.len(), "copy_for_other_core: lengths differ");
     #[cfg(target_arch = "x86_64")]
@@ -481,12 +481,15 @@ impl CopyTrial {
     }
 
     /// Copies with `copy` (which returns how many values it copied) the way the trial says,
-    /// timed if it says so.
+    /// timed if it says so. A timed copy ends with a full fence, so that its time includes
+    /// the stores still on their way to the other core's lines (a plain copy's stores leave
+    /// the core after the loop; what follows would otherwise pay for them).
     pub(super) fn copy(&mut self, copy: impl FnOnce(CopyWay) -> usize) {
         let (way, timed) = self.next();
         let t = if timed {
             let t0 = std::time::Instant::now();
             let n = copy(way);
+            std::sync::atomic::fence(std::sync::atomic::Ordering::SeqCst);
             Some(t0.elapsed().as_nanos() as f32 / n.max(1) as f32)
         } else {
             copy(way);
