@@ -15,7 +15,7 @@
 //! | edge sensors | 1 ms | arithmetic: one multiply-add per non-zero of `y = H z`, `gap = g0 + G z` at the peak rate; memory: the non-zeros and `z` read once (a plain CSR product with the same non-zeros is timed too, for scale, in the JSON) |
 //! | optics | 1 ms | metrics: one dot-product pass over `z`; PSSN: the FFTs of one evaluation (`m1::optics::pssn`), per step |
 //! | wind | 10 ms (100 Hz) | streaming the table entries one sample interpolates and the forces it writes |
-//! | master | 1 ms | an estimate of the data work on its thread: the finite check's read of the Real outputs of the steps it takes, a copy of the mirror's displacement per step handed to the look-ahead thread without it, a cache line's round trip between the cores per step handed over (the fractions from the runs below); its own time from `m1cs run` (below) |
+//! | master | 1 ms | an estimate of the data work on its thread: the finite check's read of the Real outputs of the steps it takes, a copy of the mirror's displacement per step handed to the look-ahead thread without it (into a buffer the other core read last, the cheaper way: values that must reach the other core), a cache line's round trip between the cores per step handed over (the fractions from the runs below); its own time from `m1cs run` (below) |
 //!
 //! Each measurement runs in `BLOCKS` blocks of equal length (about 1.5 s in all unless
 //! `--steps` fixes the steps per block) and reports the median time per step and the minimum.
@@ -40,6 +40,7 @@ use std::hint::black_box;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
+use cosim::system::{CopyWay, copy_for_other_core};
 use faer::sparse::SparseColMat;
 use fmu::{Instance, Model};
 use m1::aperture::layout::Layout;
@@ -930,6 +931,57 @@ fn wind(layout: &str, steps: Option<usize>, arch: pulp::Arch, rows: &mut Vec<Row
     });
 }
 
+/// The master's copy of `n` values into a buffer that a thread on the other core has just
+/// read, its stores drained (a full fence), the way `way` says (as the master hands a step's
+/// inputs to its look-ahead thread: into the buffer of the previous hand-over, which that
+/// thread read): [`CROSS_CORE_COPIES`] copies, each after the other thread read the buffer;
+/// their median and minimum (s per copy).
+fn cross_core_copy(n: usize, way: CopyWay) -> Stats {
+    use std::sync::Mutex;
+    use std::sync::atomic::{AtomicU64, Ordering, fence};
+    let buf = Mutex::new(vec![0.0f64; n]);
+    // Odd: the reader's turn to read the buffer; even: the writer's to copy into it.
+    let turn = AtomicU64::new(0);
+    let src: Vec<f64> = (0..n).map(|i| i as f64).collect();
+    let mut t = Vec::with_capacity(CROSS_CORE_COPIES);
+    std::thread::scope(|s| {
+        s.spawn(|| {
+            for r in 0..CROSS_CORE_COPIES as u64 {
+                while turn.load(Ordering::Acquire) != 2 * r + 1 {
+                    std::hint::spin_loop();
+                }
+                let sum: f64 = buf.lock().unwrap().iter().sum();
+                black_box(sum);
+                turn.store(2 * r + 2, Ordering::Release);
+            }
+        });
+        for r in 0..CROSS_CORE_COPIES as u64 {
+            turn.store(2 * r + 1, Ordering::Release);
+            while turn.load(Ordering::Acquire) != 2 * r + 2 {
+                std::hint::spin_loop();
+            }
+            let mut b = buf.lock().unwrap();
+            let t0 = Instant::now();
+            copy_for_other_core(&mut b, black_box(&src), way);
+            fence(Ordering::SeqCst);
+            t.push(t0.elapsed().as_secs_f64());
+        }
+    });
+    stats_of(&t).expect("copies")
+}
+
+/// Copies timed by [`cross_core_copy`].
+const CROSS_CORE_COPIES: usize = 4000;
+
+/// [`cross_core_copy`]'s times for the JSON (one sample per copy, not blocks of steps).
+fn copies_json(s: Stats) -> Value {
+    json!({
+        "median_us": s.median * 1e6,
+        "min_us": s.min * 1e6,
+        "copies": s.steps,
+    })
+}
+
 /// The standard system's rates in base steps (`m1cs run`): the wind at 100 Hz, the controller
 /// at 20 Hz, the mirror, the edge sensors and the optics at every 1 ms step.
 const WIND_EVERY: f64 = 10.0;
@@ -942,8 +994,10 @@ const CONTROLLER_EVERY: f64 = 50.0;
 ///   at 100 Hz and `controller.u_cmd` at 20 Hz (the optics always step on the look-ahead
 ///   thread, and a check runs on the thread that steps the component);
 /// - a copy of `mirror.z` for each step it hands over whose inputs the look-ahead thread does
-///   not already hold: every sensors step handed over, and every optics step not taken from the
-///   memo;
+///   not already hold (every sensors step handed over, and every optics step not taken from the
+///   memo), into a buffer the other core read last, the cheaper of the two ways the master
+///   chooses between ([`cross_core_copy`]): the values must reach the other core, and the
+///   lines they go into are that core's;
 /// - a cache line's round trip between the cores per step handed over (its message and the
 ///   reply; the master does not always wait for it, so this term is the estimate's loosest).
 ///
@@ -968,14 +1022,14 @@ fn master(
         })
     };
     let (read_na, read_ns) = (read(na), read(ns));
-    let src: Vec<f64> = (0..na).map(|i| i as f64).collect();
-    let mut dst = vec![0.0; na];
-    let copy_na = measure(steps, 1, |k| {
-        for _ in 0..k {
-            dst.copy_from_slice(black_box(&src));
-            black_box(&dst);
-        }
-    });
+    let plain = cross_core_copy(na, CopyWay::Plain);
+    let past = cross_core_copy(na, CopyWay::PastCache);
+    // The master copies the way its trial finds cheaper.
+    let copy_na = if plain.median <= past.median {
+        plain
+    } else {
+        past
+    };
     let trip = m1::linalg::pair::round_trip_ns() * 1e-9;
     let mut failure = None;
     let (time, runs) = match master_runs(layout, fmu_dir) {
@@ -1019,10 +1073,12 @@ fn master(
         basis: format!(
             "estimate: the data work on its thread, the finite check's read of {outputs:.0} \
              outputs ({:.2} of the sensors' steps handed over), {copies_na:.2} copies of z for \
-             the look-ahead thread ({:.2} of the optics' steps from its memo) and \
+             the look-ahead thread into lines its core read last ({:.2} us each, the cheaper \
+             way; {:.2} of the optics' steps from its memo) and \
              {handed:.2} hand-overs at a {:.0} ns round trip; the time: master_share x loop \
              time / steps of `m1cs run --json --no-plots` ({}){}",
             sensors_handed,
+            copy_na.median * 1e6,
             memo,
             trip * 1e9,
             match runs.len() {
@@ -1042,7 +1098,9 @@ fn master(
             "optics_steps_from_memo": memo,
             "read_na": read_na.json(),
             "read_ns": read_ns.json(),
-            "copy_na": copy_na.json(),
+            "copy_na_to_the_other_core": copies_json(copy_na),
+            "copy_na_plain": copies_json(plain),
+            "copy_na_past_the_cache": copies_json(past),
             "round_trip_ns": trip * 1e9,
             "na": na,
             "ns": ns,

@@ -159,6 +159,7 @@ mod wiring;
 
 pub use background::BackgroundSink;
 pub use definition::{Component, Connection, Order, System, Value};
+pub use ports::{CopyWay, copy_for_other_core};
 pub use run::{CsvSink, Ended, Failure, Report, Results, RunOptions, Sink, Timing, run, run_into};
 pub use simulation::{Recorded, Simulation};
 pub use threads::SchedulerParams;

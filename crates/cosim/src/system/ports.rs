@@ -346,7 +346,7 @@ pub(super) fn gather_real_for_other_core<'a>(
 /// last ([`copy_for_other_core`]). Which is cheaper for the master depends on the machine, so
 /// [`CopyTrial`] measures both now and then.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(super) enum CopyWay {
+pub enum CopyWay {
     /// A plain copy: the stores first take the buffer's cache lines back from the other core.
     Plain,
     /// On x86-64, non-temporal stores: the lines go to memory without being taken back (the
@@ -363,7 +363,10 @@ pub(super) enum CopyWay {
 /// those lines, and the non-temporal one about 0.3 us; on the Intel VM of its twentieth round,
 /// its stores drained, the plain copy took 0.46-0.77 ns per value (0.7-1.1 us) and the
 /// non-temporal one 0.85-0.88 ns (1.25-1.3 us) in [`CopyTrial`]'s trials (BENCHMARKS.md).
-pub(super) fn copy_for_other_core(dst: &mut [f64], src: &[f64], way: CopyWay) {
+///
+/// # Panics
+/// If the lengths differ.
+pub fn copy_for_other_core(dst: &mut [f64], src: &[f64], way: CopyWay) {
     assert_eq!(dst.len(), src.len(), "copy_for_other_core: lengths differ");
     #[cfg(target_arch = "x86_64")]
     {
