@@ -344,7 +344,8 @@ pub(super) fn gather_real_for_other_core<'a>(
 
 /// How the master copies a step's inputs into a buffer that the look-ahead thread's core read
 /// last ([`copy_for_other_core`]). Which is cheaper for the master depends on the machine, so
-/// [`CopyTrial`] measures both now and then.
+/// the master measures both now and then (a trial of a few dozen copies every 4096, the
+/// cheaper by its median kept until the next).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum CopyWay {
     /// A plain copy: the stores first take the buffer's cache lines back from the other core.
@@ -362,7 +363,8 @@ pub enum CopyWay {
 /// the earlier rounds of issue 18 a plain copy took about 4 us, nearly all of it waiting for
 /// those lines, and the non-temporal one about 0.3 us; on the Intel VM of its twentieth round,
 /// its stores drained, the plain copy took 0.46-0.77 ns per value (0.7-1.1 us) and the
-/// non-temporal one 0.85-0.88 ns (1.25-1.3 us) in [`CopyTrial`]'s trials (BENCHMARKS.md).
+/// non-temporal one 0.85-0.88 ns (1.25-1.3 us) in the master's trials, and 1.15 and 1.16 us
+/// in the floors bench (`benches/floors.rs`, `cross_core_copy`; BENCHMARKS.md).
 ///
 /// # Panics
 /// If the lengths differ.
