@@ -922,6 +922,58 @@ fn gauss_seidel_lookahead_changes_no_value() {
     );
 }
 
+/// A slower component's step handed to the look-ahead thread is waited for by its readers only
+/// once its outputs are due: a (every 5 base steps, 0.5 s per step) is read by b (every step);
+/// c (every step, not reading a) comes after a, so a goes to the thread at base step 5 (at 0
+/// its step time is not known yet). b's turns at base steps 6 to 8 read a's previous outputs
+/// (a's step gives its own at base step 10) and go on: a's step is still under way after them
+/// (before, each waited for it); b's turn at base step 9, whose step ends when a's outputs are
+/// due, waits for it. The values are the sequential run's.
+#[test]
+fn a_slower_source_on_the_lookahead_thread_is_waited_for_when_its_outputs_are_due() {
+    let path = tiny_fmu("slow_source", &tiny_xml(), &[], true);
+    let own_a = path.with_file_name("tiny_slow_a.fmu");
+    std::fs::copy(&path, &own_a).unwrap();
+    let sys = System::new(0.011, 0.001)
+        .component("b", &path)
+        .component("a", &own_a)
+        .every(5)
+        .parameter("a", "u", Value::Real(1.5))
+        .parameter("a", "busy", Value::Real(0.5))
+        .component("c", &path)
+        .parameter("c", "u", Value::Real(-0.25))
+        .connect("a.y", "b.u")
+        .order(Order::GaussSeidel);
+    // a's outputs are not recorded (a recorded component stays on the master's thread unless
+    // the rows can wait for it, `run`'s choice); b shows them.
+    let record = ["b.y".to_string(), "c.y".to_string()];
+    let rows = |lookahead: Option<f64>| {
+        let mut sim = cosim::Simulation::new(&sys, &record).unwrap();
+        sim.set_lookahead(lookahead).unwrap();
+        let (mut out, mut row) = (Vec::new(), [0.0; 2]);
+        let mut under_way = Vec::new();
+        while !sim.finished() {
+            sim.step().unwrap();
+            sim.recorded_values(&mut row);
+            out.extend_from_slice(&row);
+            under_way.push(sim.in_flight_since());
+        }
+        sim.settle().unwrap();
+        (out, under_way, sim.lookahead_steps())
+    };
+    let (plain, _, none) = rows(None);
+    let (ahead, under_way, steps) = rows(Some(0.0));
+    assert_eq!(none, 0);
+    assert_eq!(
+        steps, 2,
+        "a's steps at base steps 5 and 10 go to the thread"
+    );
+    assert_eq!(under_way[5..9], [Some(5); 4], "{under_way:?}");
+    assert_ne!(under_way[9], Some(5), "{under_way:?}");
+    assert_eq!(plain, ahead, "the look-ahead changed a value");
+    assert!(plain.iter().any(|&x| x != 0.0));
+}
+
 /// The memo follows the look-ahead thread: a (every 3 base steps) feeds b (every 3, the only
 /// instance of its FMU, handed to the thread with its inputs kept there as the memo) and e
 /// (every step, a sink kept there), so that e's steps between a's take a.y from the memo. The

@@ -244,13 +244,19 @@ impl Simulation {
                 continue;
             }
             // Wait for the components in flight up to the last that is this one (its previous
-            // step) or that it reads: replies come in the order the steps went. A kept sink's
-            // steps are not waited for: nobody reads it, and its steps queue there.
-            let sources = &self.sources[i];
+            // step) or that it reads and whose outputs are visible to this step: replies come
+            // in the order the steps went. A source's step whose outputs become visible only
+            // later (a slower component's: the controller's at 20 Hz gives its command 50 base
+            // steps on) is not waited for: until then its readers read its previous outputs,
+            // in the shared buffer; a reader's turn once they are due waits for it (and it is
+            // published when it comes back, `publish_due`). A kept sink's steps are not waited
+            // for: nobody reads it, and its steps queue there.
+            let (sources, visible) = (&self.sources[i], self.visible);
             let wait = self.lookahead.as_ref().and_then(|l| {
                 l.in_flight.iter().rposition(|f| {
                     f.what == Flight::Step
-                        && (f.index == i || sources.binary_search(&f.index).is_ok())
+                        && (f.index == i
+                            || (f.due <= visible && sources.binary_search(&f.index).is_ok()))
                 })
             });
             if let Some(p) = wait {
@@ -288,13 +294,16 @@ impl Simulation {
             && next().is_some_and(|j| j != i && self.sources[j].binary_search(&i).is_err());
         if defer {
             // Not behind a kept sink's steps still under way there (the optics' PSSN takes
-            // milliseconds): its next turn would wait for them. What has come back is taken
-            // first.
+            // milliseconds), nor behind a slower component's step whose outputs are not due by
+            // the end of this one (the controller's, tens of microseconds): its next turn would
+            // wait for them. What has come back is taken first.
             self.collect_ready()?;
+            let visible = self.visible;
             defer = self.lookahead.as_ref().is_some_and(|l| {
-                !l.in_flight
-                    .iter()
-                    .any(|f| matches!(f.what, Flight::Keep | Flight::KeptStep))
+                !l.in_flight.iter().any(|f| {
+                    matches!(f.what, Flight::Keep | Flight::KeptStep)
+                        || (f.what == Flight::Step && f.due > visible)
+                })
             });
         }
         self.pending[i] = Some(at);
