@@ -230,12 +230,14 @@ impl Simulation {
         exit_initialization(&mut comps)?;
         let stay_on_master = stay_on_master(&fmu_of);
         let recorded_of = recorded_of(comps.len(), &rec_local);
+        let slots: Vec<(Kind, usize)> = rec_local
+            .iter()
+            .map(|r| (r.kind, offsets[r.kind as usize][r.component] + r.slot))
+            .collect();
         let recorded = Recorded {
             columns: rec_local.iter().map(|r| r.column.clone()).collect(),
-            slots: rec_local
-                .iter()
-                .map(|r| (r.kind, offsets[r.kind as usize][r.component] + r.slot))
-                .collect(),
+            runs: Recorded::runs_of(&slots),
+            slots,
         };
         let mut sim = Self::assemble(
             system,

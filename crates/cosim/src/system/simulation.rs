@@ -18,6 +18,32 @@ pub struct Recorded {
     pub columns: Vec<String>,
     /// Per column, its kind and global slot.
     pub(super) slots: Vec<(Kind, usize)>,
+    /// The columns as runs `(first column, first slot, length)`: Real columns of consecutive
+    /// slots in one run (an array output recorded whole, such as a mirror's 1476
+    /// displacements, is one copy per row), each other column a run of its own
+    /// ([`Recorded::runs_of`]).
+    pub(super) runs: Vec<(usize, usize, usize)>,
+}
+
+impl Recorded {
+    /// [`Recorded::runs`] of `slots`.
+    pub(super) fn runs_of(slots: &[(Kind, usize)]) -> Vec<(usize, usize, usize)> {
+        let mut runs: Vec<(usize, usize, usize)> = Vec::new();
+        for (c, &(kind, slot)) in slots.iter().enumerate() {
+            match runs.last_mut() {
+                Some((c0, s0, n))
+                    if kind == Kind::Real
+                        && slots[*c0].0 == Kind::Real
+                        && *c0 + *n == c
+                        && *s0 + *n == slot =>
+                {
+                    *n += 1;
+                }
+                _ => runs.push((c, slot, 1)),
+            }
+        }
+        runs
+    }
 }
 
 /// Per component, its recorded outputs: (column, kind, slot among its outputs of that kind).
@@ -304,10 +330,21 @@ impl Simulation {
         &self.recorded.columns
     }
 
-    /// The current values of the recorded columns, into `out`.
+    /// The current values of the recorded columns, into `out` (as many as there are columns
+    /// at the most): a run of Real columns of consecutive slots in one copy.
     pub fn recorded_values(&self, out: &mut [f64]) {
-        for (o, &(k, s)) in out.iter_mut().zip(&self.recorded.slots) {
-            *o = self.outputs.number(k, s);
+        let n = out.len().min(self.recorded.slots.len());
+        for &(c, s, len) in &self.recorded.runs {
+            if c >= n {
+                break;
+            }
+            let len = len.min(n - c);
+            let (kind, _) = self.recorded.slots[c];
+            if kind == Kind::Real {
+                out[c..c + len].copy_from_slice(&self.outputs.real[s..s + len]);
+            } else {
+                out[c] = self.outputs.number(kind, s);
+            }
         }
     }
 
@@ -362,7 +399,7 @@ impl Simulation {
 
 #[cfg(test)]
 mod tests {
-    use super::{MemoPlan, SourcedRun};
+    use super::{Kind, MemoPlan, Recorded, SourcedRun};
 
     fn run(slot: usize, comp: usize, at: usize, dst: usize, n: usize) -> SourcedRun {
         SourcedRun {
@@ -394,5 +431,34 @@ mod tests {
         assert_eq!(plan.runs, [(5, 0, 5), (0, 9, 1)]);
         // Nothing in common: no plan.
         assert!(MemoPlan::new(7, &sink[3..], &memo).is_none());
+    }
+
+    /// Real columns of consecutive slots make one run; a gap in the slots, a column of another
+    /// kind or a Real column after one makes a new run; other kinds are one column a run.
+    #[test]
+    fn recorded_columns_run_over_consecutive_real_slots() {
+        let slots = [
+            (Kind::Real, 10),
+            (Kind::Real, 11),
+            (Kind::Real, 12),
+            (Kind::Real, 20),
+            (Kind::Integer, 21),
+            (Kind::Integer, 22),
+            (Kind::Real, 13),
+            (Kind::Real, 14),
+            (Kind::Boolean, 0),
+        ];
+        assert_eq!(
+            Recorded::runs_of(&slots),
+            [
+                (0, 10, 3),
+                (3, 20, 1),
+                (4, 21, 1),
+                (5, 22, 1),
+                (6, 13, 2),
+                (8, 0, 1)
+            ]
+        );
+        assert!(Recorded::runs_of(&[]).is_empty());
     }
 }
