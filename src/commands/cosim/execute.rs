@@ -135,12 +135,13 @@ struct RunSink<'a> {
 
 /// The mirror displacement kept for the figures (their spectra and maps over the second half of
 /// a run), apart from the metrics' table and only over that half: a 5 s TMT run's 29.5 MB
-/// instead of 59 MB, each row's displacement copied in one pass, into room that the runs of one
-/// invocation share (the pages the first run touched are not faulted in again; a page fault
-/// costs 0.8-2 us on the project's VMs). Before, each row's 1476 values were gathered one by
-/// one into the whole run's table, and the master's share of the default run (with its
-/// figures) was 13 % (twentieth round of issue 18). The half is that of the rows the run is to
-/// give: a run stopped before it has no figures of the displacement.
+/// instead of 59 MB, each row's displacement copied in one pass. Its room is written once
+/// before the run, as `cosim::system::Results` does with its own, so that the step loop takes
+/// no page fault on it (0.8-2 us each on the project's VMs), and the runs of one invocation
+/// share it. Before, each row's 1476 values were gathered one by one into the whole run's
+/// table, and with the figures (the default run) the master's share of the loop was 13 %
+/// (twentieth round of issue 18). The half is that of the rows the run is to give: a run
+/// stopped before it has no figures of the displacement.
 #[derive(Default)]
 struct FigureZ {
     /// The displacement's columns in a row.
@@ -150,16 +151,27 @@ struct FigureZ {
     rows: usize,
     /// The rows kept, one after the other.
     values: Vec<f64>,
+    /// How many values of the room have been written (their pages mapped).
+    written: usize,
 }
 
 impl FigureZ {
     /// Keeps the columns `columns` of the rows from the second half of `rows` on (the room of
-    /// an earlier run kept).
+    /// an earlier run kept, written now where it has not been).
     fn start(&mut self, columns: Vec<usize>, rows: usize) {
+        let n = (rows - rows / 2) * columns.len();
         self.from_row = rows / 2;
         self.rows = 0;
         self.values.clear();
-        self.values.reserve_exact((rows - rows / 2) * columns.len());
+        if self.values.capacity() < n {
+            self.values = Vec::with_capacity(n);
+            self.written = 0;
+        }
+        if self.written < n {
+            self.values.resize(n, 0.0);
+            self.values.clear();
+            self.written = n;
+        }
         self.columns = columns;
     }
 
