@@ -395,6 +395,7 @@ pub fn copy_for_other_core(dst: &mut [f64], src: &[f64], way: CopyWay) {
             return;
         }
     }
+    #[cfg(not(target_arch = "x86_64"))]
     let _ = way;
     dst.copy_from_slice(src);
 }
