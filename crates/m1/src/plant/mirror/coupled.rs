@@ -297,6 +297,8 @@ pub struct CoupledMirror {
     pub(super) cols: Vec<f64>,
     /// The free part's cell force per channel (piston channels, then tilt), per step.
     pub(super) free_force: Vec<f64>,
+    /// The free part's mirror position per channel (piston channels, then tilt), per step.
+    pub(super) free_z: Vec<f64>,
 }
 
 /// The timed steps of each side of a trial: two blocks, each after its first steps.
@@ -525,7 +527,14 @@ impl CoupledMirror {
             cell_d,
             e,
             basis: v,
-            free: SegmentArray::new(n, model.clone())?,
+            free: {
+                // Only combinations of its states are read between changes of its inputs: its
+                // steps on unchanged inputs are left pending (most steps in the standard
+                // systems, whose inputs change at the 100 Hz wind's steps).
+                let mut free = SegmentArray::new(n, model.clone())?;
+                free.set_deferred(true);
+                free
+            },
             zeros: vec![0.0; na],
             model,
             structure,
@@ -591,6 +600,7 @@ impl CoupledMirror {
             out: vec![0.0; 3 * na],
             cols: vec![0.0; r],
             free_force: vec![0.0; na],
+            free_z: vec![0.0; na],
         };
         mirror.set_gram_packed(r >= PACKED_GRAM_MIN_MODES);
         Ok(mirror)
@@ -757,9 +767,11 @@ impl CoupledMirror {
     }
 
     /// The multiply-adds a communication step of `h` seconds cannot avoid in this scheme, by
-    /// part: `(name, multiply-adds, single precision)`. Zero coefficients of the channel maps
-    /// are not counted (the kernels skip most of them), nor are the O(r) per-mode updates and
-    /// the O(na) conversions and copies. Their sum at the machine's peak rate of fused
+    /// part: `(name, multiply-adds, single precision)`, when the command and the wind forces
+    /// change every `inputs_every` steps (at least 1; the standard systems' 100 Hz wind
+    /// changes them every 10 steps of 1 ms). Zero coefficients of the channel maps are not
+    /// counted (the kernels skip most of them), nor are the O(r) per-mode updates and the
+    /// O(na) conversions and copies. Their sum at the machine's peak rate of fused
     /// multiply-adds is the step's arithmetic floor (a benchmark's; at TMT size with 60
     /// modes the arithmetic, not the memory traffic, bounds a step).
     ///
@@ -768,6 +780,7 @@ impl CoupledMirror {
     pub fn multiply_adds_per_step(
         &self,
         h: f64,
+        inputs_every: u64,
     ) -> Result<Vec<(&'static str, u64, bool)>, M1Error> {
         let samples = self.ticks_in(h)?;
         let ticks = samples * u64::from(self.substeps);
@@ -779,7 +792,8 @@ impl CoupledMirror {
         for (kind, ch) in [Channel::Piston, Channel::Tilt].into_iter().enumerate() {
             let (p, s) = self.model.closed_loop(ch);
             let (p, s) = propagate(&p, &s, samples);
-            free += channels[kind] * (nnz(p.as_slice()) + nnz(s.as_slice()) + N_STATE as u64);
+            let per_channel = free_part_multiply_adds(&p, &s, inputs_every.max(1));
+            free += (channels[kind] * per_channel).div_ceil(inputs_every.max(1));
             // Per coupled tick and mode: the cell-driven part's map with its ramp input and
             // force row, the ramp (the first tick of a servo period samples, the others hold
             // the drive).
@@ -805,7 +819,8 @@ impl CoupledMirror {
         let na = self.na as u64;
         Ok(vec![
             (
-                "free part: channel maps in actuator space, per step",
+                "free part: channel maps in actuator space (the steps on unchanged inputs \
+                 pending, the mirror's position read from them), per step",
                 free,
                 false,
             ),
@@ -1127,4 +1142,53 @@ mod tests {
             "slower two threads: one kept"
         );
     }
+}
+
+/// The free part's multiply-adds per channel over one period of `every` steps whose inputs
+/// change at its first ([`SegmentArray::set_deferred`]), in the steady state, with the step map
+/// `(p, s)`: the step that brings new inputs applies the pending steps with it in one pass, the
+/// others read the mirror's position from the pending map's row (one pass of the whole map
+/// when the table of its powers ends), and every step projects its inputs onto the channel
+/// (`N_STATE`, as counted before the steps were left pending).
+fn free_part_multiply_adds(p: &Phi, s: &Gamma, every: u64) -> u64 {
+    use crate::plant::segment::MAX_PENDING_STEPS;
+    let nnz = |m: &[f64]| m.iter().filter(|v| **v != 0.0).count() as u64;
+    let mp = state::MIRROR_POS;
+    // (P^k, S_k) for k = 1..=MAX_PENDING_STEPS + 1.
+    let mut powers = vec![(*p, *s)];
+    while powers.len() <= MAX_PENDING_STEPS {
+        let (pk, sk) = powers[powers.len() - 1];
+        powers.push((p * pk, p * sk + s));
+    }
+    let row = |k: usize| {
+        let (pk, sk) = &powers[k - 1];
+        nnz(pk.row(mp).transpose().as_slice()) + nnz(sk.row(mp).transpose().as_slice())
+    };
+    let (mut pending, mut total) = (0usize, 0u64);
+    // Two periods: the second one's count is the steady state's.
+    for period in 0..2 {
+        let mut count = 0;
+        for j in 0..every {
+            count += N_STATE as u64;
+            if j > 0 && pending < MAX_PENDING_STEPS {
+                pending += 1;
+                count += row(pending);
+            } else if j > 0 {
+                let (pk, sk) = &powers[pending - 1];
+                count += nnz(pk.as_slice()) + nnz(sk.as_slice()) + row(1);
+                pending = 1;
+            } else if pending == 0 {
+                count += nnz(p.as_slice()) + nnz(s.as_slice());
+            } else {
+                let (pn1, _) = &powers[pending];
+                let held = p * powers[pending - 1].1;
+                count += nnz(pn1.as_slice()) + nnz(held.as_slice()) + nnz(s.as_slice());
+                pending = 0;
+            }
+        }
+        if period == 1 {
+            total = count;
+        }
+    }
+    total
 }

@@ -40,7 +40,11 @@
 //! the mode shapes (the seed paper's change-of-basis argument): the part of every channel's
 //! state driven by the cell motion is $\Phi_k \xi_k$, with $\xi_k$ ($r \times 10$ per channel kind)
 //! stepped by the same per-tick maps on the modal coordinates. The part driven by the command and
-//! the wind is stepped per communication step in actuator space, and its projection on the modes
+//! the wind is stepped per communication step in actuator space (its steps on unchanged inputs
+//! left pending, [`crate::plant::segment::SegmentArray::set_deferred`]: between changes of the
+//! inputs, every tenth step in the standard systems, a step reads the mirror's position from the
+//! pending map's row, 15 multiply-adds per channel instead of the whole map's 134; TMT at 60
+//! modes, 33 -> 27 us per mirror step, BENCHMARKS.md twenty-first round), and its projection on the modes
 //! by the ticks' maps composed over a chunk of up to ten ticks (`FREE_CHUNK_TICKS`): one pass
 //! gives the projected states at the chunk's end and each tick's modal force and drive change
 //! (TMT, 300 modes: 6 % of the step; Keck with two sub-steps per servo period: 20 %). A tick then costs $O(r^2)$ (the coupled solve's products below and $O(r)$ axpys

@@ -55,6 +55,8 @@ fn every_step_ends_consistent() {
         for k in 0..40 {
             let p = 1e-9 * (k as f64 * 0.3).sin();
             m.advance(m.tick_period(), &u_cmd, &fw, p).expect("tick");
+            // The free part's states with its pending steps (its inputs are held here).
+            m.free.settle();
             // Channel states X = x_free + Phi_c xi; f = c X + d z_cell, channel by channel.
             let v = m.basis;
             let z = m.cell_displacement().to_vec();
@@ -356,8 +358,8 @@ fn coupling_precision_single_matches_double() {
 fn multiply_adds_follow_the_step_and_the_maps() {
     let (m, _) = keck(SegmentModel::voice_coil(), 30);
     let ts = m.tick_period();
-    let one = m.multiply_adds_per_step(5.0 * ts).expect("5 ticks");
-    let two = m.multiply_adds_per_step(10.0 * ts).expect("10 ticks");
+    let one = m.multiply_adds_per_step(5.0 * ts, 1).expect("5 ticks");
+    let two = m.multiply_adds_per_step(10.0 * ts, 1).expect("10 ticks");
     assert_eq!(one.len(), two.len());
     let (r, na) = (m.structure().n_modes() as u64, m.n_actuators() as u64);
     for (a, b) in one.iter().zip(&two) {
@@ -390,7 +392,31 @@ fn multiply_adds_follow_the_step_and_the_maps() {
         composed < 2 * r * 5 * 12 * 14 && composed > 2 * r * 22,
         "{composed}"
     );
-    assert!(m.multiply_adds_per_step(2.5 * ts).is_err());
+    // With the inputs changing every tenth step, the free part's steps between are left
+    // pending: per channel and step, its 12 inputs' terms and the mirror position's row of the
+    // pending map (at most 12 + 3), and a tenth of the pass that applies them (at most
+    // 12 x (12 + 6)), against the whole map at every step.
+    let held = m.multiply_adds_per_step(5.0 * ts, 10).expect("5 ticks");
+    let free = |parts: &[(&str, u64, bool)]| {
+        parts
+            .iter()
+            .find(|p| p.0.starts_with("free part"))
+            .map(|p| p.1)
+            .expect("free part")
+    };
+    let (every, tenth) = (free(&one), free(&held));
+    let channels = na;
+    assert!(
+        tenth < every / 3 && tenth <= channels * (12 + 15 + 216u64.div_ceil(10)),
+        "{tenth} of {every}"
+    );
+    assert!(tenth > channels * 12, "{tenth}");
+    for (a, b) in one.iter().zip(&held) {
+        if !a.0.starts_with("free part") {
+            assert_eq!(a, b);
+        }
+    }
+    assert!(m.multiply_adds_per_step(2.5 * ts, 1).is_err());
 }
 
 /// The held inputs' projection on the modes is kept while the inputs do not change and

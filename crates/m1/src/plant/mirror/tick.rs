@@ -11,7 +11,7 @@ use crate::linalg::kernels::{axpy, rows_dot, rows_dot_f32, rows_dot2_f32, rows_m
 use crate::linalg::pair::{LazyPair, Pair};
 use crate::linalg::symmetric::{BLOCK, SymPacked32, add_columns, sym_dot_f32, sym_dot_rows_f32};
 use crate::plant::segment::{N_STATE, state};
-use nalgebra::SVector;
+use nalgebra::{SMatrix, SVector};
 
 impl CoupledMirror {
     /// One coupled tick, entirely on the modes: the segments' response to the cell motion is
@@ -438,10 +438,18 @@ impl CoupledMirror {
             }
             .with_simd(simd),
         }
+        // The free part's mirror position (its steps may be pending: `SegmentArray::set_deferred`).
+        let mut free_z = std::mem::take(&mut self.free_z);
+        {
+            let mut pos = SMatrix::<f64, 1, N_STATE>::zeros();
+            pos[mp] = 1.0;
+            let (zp, zt) = free_z[..3 * n].split_at_mut(n);
+            self.free.combination(0, &pos, zp);
+            self.free.combination(1, &pos, zt);
+        }
         // Channel values (rows: piston channels, then tilt) to actuators, segment by segment.
         let v = self.basis;
-        let [xp, xt] = self.free.state();
-        let (xp, xt) = (&xp[mp * n..(mp + 1) * n], &xt[mp * 2 * n..(mp + 1) * 2 * n]);
+        let (xp, xt) = (&free_z[..n], &free_z[n..3 * n]);
         let (op, ot) = (&outs[..n], &outs[n..3 * n]);
         for ((((z, p), t), oq), ou) in self.z_mirror[..3 * n]
             .chunks_exact_mut(3)
@@ -456,6 +464,7 @@ impl CoupledMirror {
             }
         }
         self.out = outs;
+        self.free_z = free_z;
         self.cell_stale = true;
     }
 
@@ -498,16 +507,12 @@ impl CoupledMirror {
             }
             .with_simd(simd);
         }
-        // The free part's cell force per channel (rows as the channels), a run of axpys over
-        // its state-major states (summed in the order of the states).
+        // The free part's cell force per channel (rows as the channels; its steps may be
+        // pending: `SegmentArray::set_deferred`).
         let mut free_f = std::mem::take(&mut self.free_force);
         for (k, (off, cnt)) in [(0, n), (n, 2 * n)].into_iter().enumerate() {
-            let x = self.free.state()[k];
-            let dst = &mut free_f[off..off + cnt];
-            dst.fill(0.0);
-            for s in 0..S {
-                axpy(dst, self.cell_c[k][s], &x[s * cnt..(s + 1) * cnt]);
-            }
+            self.free
+                .combination(k, &self.cell_c[k], &mut free_f[off..off + cnt]);
         }
         // Channel values (rows: piston channels, then tilt) to actuators, segment by segment.
         let v = self.basis;

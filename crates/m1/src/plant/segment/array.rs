@@ -9,7 +9,7 @@ use super::model::SegmentModel;
 use super::sampled::propagate;
 use super::{Channel, Gamma, N_IN, N_STATE, Phi, modal_basis, state};
 use crate::M1Error;
-use crate::linalg::kernels::state_map;
+use crate::linalg::kernels::{rows_map, state_map};
 
 /// Propagators of both channel kinds for one step size.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -17,6 +17,22 @@ struct StepMaps {
     ticks: u64,
     p: [Phi; 2],
     s: [Gamma; 2],
+}
+
+/// Most whole steps on unchanged inputs that a deferring array ([`SegmentArray::set_deferred`])
+/// leaves pending before it applies them: the size of its table of step maps' powers. The
+/// standard systems' inputs change at most every tenth 1 ms step (the 100 Hz wind).
+pub const MAX_PENDING_STEPS: usize = 16;
+
+/// Whole steps taken on unchanged inputs and not yet applied to the states
+/// ([`SegmentArray::set_deferred`]): the channels' states are `P^n x + S_n w` with `n` the
+/// pending steps, `(P^n, S_n)` the `n`-step map of the step map `(P, S)` (of `StepMaps`).
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+struct Pending {
+    on: bool,
+    steps: usize,
+    /// Per kind, `(P^n, S_n)` for `n = 1, 2, ...` as far as used, for the current step map.
+    powers: [Vec<(Phi, Gamma)>; 2],
 }
 
 /// All segments of a mirror, stepped together.
@@ -42,6 +58,10 @@ pub struct SegmentArray {
     next: [Vec<f64>; 2],
     /// Modal inputs by kind: `w[kind][l * n + c]`.
     w: [Vec<f64>; 2],
+    /// Scratch for the next step's inputs (compared with `w` by a deferring array).
+    w_next: [Vec<f64>; 2],
+    /// The steps left pending (a deferring array only).
+    pending: Pending,
 }
 
 impl SegmentArray {
@@ -69,8 +89,104 @@ impl SegmentArray {
             x: counts.map(|n| vec![0.0; N_STATE * n]),
             next: counts.map(|n| vec![0.0; N_STATE * n]),
             w: counts.map(|n| vec![0.0; N_IN * n]),
+            w_next: counts.map(|n| vec![0.0; N_IN * n]),
+            pending: Pending::default(),
             model,
         })
+    }
+
+    /// Whether whole steps on unchanged inputs are left pending (off by default): the states
+    /// then stay as they were when the inputs last changed (or [`MAX_PENDING_STEPS`] steps
+    /// ago), and the steps since are applied at once, by the power of the step map: with the
+    /// step that brings new inputs (one pass over the states with both sets of inputs), or
+    /// when the step differs, or when [`Self::settle`] is called. A step whose inputs have not
+    /// changed writes no state, and what the caller needs of them comes from
+    /// [`Self::combination`] (one dot product of the pending map's row per channel, against a
+    /// full map of the states per step). Inputs that change at every step are stepped as
+    /// without it, to the bit. Otherwise the values are those of stepping every time, to
+    /// rounding (the pending map's products are summed in another order). For a caller that
+    /// reads only combinations of the states between changes of its inputs: the coupled
+    /// mirror's free part (the mirror's displacement every step, the cell's force when read).
+    pub fn set_deferred(&mut self, on: bool) {
+        if !on {
+            self.settle();
+        }
+        self.pending.on = on;
+    }
+
+    /// Applies the pending steps ([`Self::set_deferred`]) to the states: afterwards
+    /// [`Self::state`] is current.
+    pub fn settle(&mut self) {
+        let n = std::mem::take(&mut self.pending.steps);
+        if n > 0 {
+            let maps = [0, 1].map(|k| self.pending.powers[k][n - 1]);
+            self.apply(&maps);
+        }
+    }
+
+    /// Whole steps pending ([`Self::set_deferred`]).
+    pub fn pending_steps(&self) -> usize {
+        self.pending.steps
+    }
+
+    /// `c x_j` for every channel `j` of kind `kind` (0 piston, 1 tilt), `x_j` its current
+    /// state (with the pending steps: [`Self::set_deferred`]), into `out` (one per channel of
+    /// the kind: `n` piston or `2n` tilt).
+    ///
+    /// # Panics
+    /// If `kind` is not 0 or 1 or `out` is shorter than the kind's channels (programming
+    /// errors).
+    pub fn combination(&self, kind: usize, c: &SMatrix<f64, 1, N_STATE>, out: &mut [f64]) {
+        let x = &self.x[kind];
+        let n = x.len() / N_STATE;
+        let out = &mut out[..n];
+        let steps = self.pending.steps;
+        let one = c
+            .iter()
+            .position(|&v| v != 0.0)
+            .filter(|&s| c[s] == 1.0 && c.iter().filter(|&&v| v != 0.0).count() == 1);
+        if steps == 0 {
+            match one {
+                // A single state: a copy.
+                Some(st) => out.copy_from_slice(&x[st * n..(st + 1) * n]),
+                None => {
+                    out.fill(0.0);
+                    for (st, &cs) in c.iter().enumerate() {
+                        if cs != 0.0 {
+                            crate::linalg::kernels::axpy(out, cs, &x[st * n..(st + 1) * n]);
+                        }
+                    }
+                }
+            }
+            return;
+        }
+        let (p, g) = &self.pending.powers[kind][steps - 1];
+        let a = c * p;
+        let b = c * g;
+        pulp::Arch::new().dispatch(Combination {
+            a: [std::array::from_fn(|j| a[j])],
+            b: [std::array::from_fn(|l| b[l])],
+            n,
+            x,
+            w: &self.w[kind],
+            out,
+        });
+    }
+
+    /// `(P^n, S_n)` of the current step map for `n` of `1..=MAX_PENDING_STEPS` steps, made
+    /// once per step map.
+    fn extend_powers(&mut self, n: usize) {
+        for k in 0..2 {
+            let (p1, s1) = (self.maps.p[k], self.maps.s[k]);
+            let pw = &mut self.pending.powers[k];
+            while pw.len() < n {
+                pw.push(match pw.last() {
+                    None => (p1, s1),
+                    // n + 1 steps: n, then one more.
+                    Some((p, s)) => (p1 * p, p1 * s + s1),
+                });
+            }
+        }
     }
 
     /// Number of segments.
@@ -94,6 +210,7 @@ impl SegmentArray {
             x.fill(0.0);
         }
         self.phase = 0.0;
+        self.pending.steps = 0;
     }
 
     fn check_len(what: &'static str, v: &[f64], n: usize) -> Result<(), M1Error> {
@@ -142,10 +259,51 @@ impl SegmentArray {
                 reason: "must be finite and >= 0",
             });
         }
-        self.load_inputs(u_cmd, z_cell, f_wind);
         let ts = self.model.servo_period();
         // Sample instants closer than this are the same instant (rounding of step sums).
         let eps = 1e-9 * ts;
+        if self.pending.on {
+            // The new inputs beside the held ones: a step of the same length on the same
+            // inputs from a servo sample is left pending.
+            let changed = self.load_next(u_cmd, z_cell, f_wind);
+            let whole = (h + eps) / ts;
+            let ticks = whole.floor();
+            let regular = self.phase == 0.0
+                && ticks >= 1.0
+                && h - ticks * ts <= eps
+                && ticks as u64 == self.maps.ticks;
+            if regular && !changed && self.pending.steps < MAX_PENDING_STEPS {
+                self.pending.steps += 1;
+                self.extend_powers(self.pending.steps);
+                return Ok(());
+            }
+            if regular && changed {
+                // The pending steps on the held inputs and this one on the new, in one pass:
+                // x <- P^(n+1) x + P S_n w + S w_next (a plain step when none is pending).
+                let n = std::mem::take(&mut self.pending.steps);
+                if n == 0 {
+                    std::mem::swap(&mut self.w, &mut self.w_next);
+                    let maps = [0, 1].map(|k| (self.maps.p[k], self.maps.s[k]));
+                    self.apply(&maps);
+                } else {
+                    self.extend_powers(n + 1);
+                    self.apply_across(n);
+                    std::mem::swap(&mut self.w, &mut self.w_next);
+                }
+                return Ok(());
+            }
+            self.settle();
+            if changed {
+                std::mem::swap(&mut self.w, &mut self.w_next);
+            }
+            if regular {
+                // As many steps pending as the table holds: one more, from them.
+                self.pending.steps = 1;
+                return Ok(());
+            }
+        } else {
+            self.load_inputs(u_cmd, z_cell, f_wind);
+        }
         let mut rest = h;
         if self.phase > 0.0 {
             // Finish the servo period under way: plant only, drive held.
@@ -172,6 +330,8 @@ impl SegmentArray {
                     p: [p0, p1],
                     s: [s0, s1],
                 };
+                // (No step is pending here: the pending ones were applied above.)
+                self.pending.powers = Default::default();
             }
             let maps = [
                 (self.maps.p[0], self.maps.s[0]),
@@ -189,6 +349,37 @@ impl SegmentArray {
         Ok(())
     }
 
+    /// `x <- P^(n+1) x + P S_n w + S w_next` per kind, in one pass: `n` pending steps on the
+    /// held inputs `w`, then one step of the step map `(P, S)` on the new ones, `w_next`.
+    fn apply_across(&mut self, n: usize) {
+        for k in 0..2 {
+            let (p1, s1) = (self.maps.p[k], self.maps.s[k]);
+            let (pn1, _) = self.pending.powers[k][n];
+            let held = p1 * self.pending.powers[k][n - 1].1;
+            let cnt = self.x[k].len() / N_STATE;
+            let a: [[f64; N_STATE]; N_STATE] =
+                std::array::from_fn(|i| std::array::from_fn(|j| pn1[(i, j)]));
+            let b: [[f64; 2 * N_IN]; N_STATE] = std::array::from_fn(|i| {
+                std::array::from_fn(|l| {
+                    if l < N_IN {
+                        held[(i, l)]
+                    } else {
+                        s1[(i, l - N_IN)]
+                    }
+                })
+            });
+            pulp::Arch::new().dispatch(ApplyAcross {
+                a: &a,
+                b: &b,
+                n: cnt,
+                x: &self.x[k],
+                w: [&self.w[k], &self.w_next[k]],
+                next: &mut self.next[k],
+            });
+            std::mem::swap(&mut self.x[k], &mut self.next[k]);
+        }
+    }
+
     /// Applies one linear map per channel kind to every channel: X <- P X + S w, in one pass
     /// over the states ([`ApplyMaps`], compiled for the processor's vector instructions).
     fn apply(&mut self, maps: &[(Phi, Gamma); 2]) {
@@ -204,6 +395,17 @@ impl SegmentArray {
             });
             std::mem::swap(&mut self.x[k], &mut self.next[k]);
         }
+    }
+
+    /// [`Self::load_inputs`] into `w_next`, saying whether it differs from `w` (to the bit).
+    fn load_next(&mut self, u_cmd: &[f64], z_cell: &[f64], f_wind: &[f64]) -> bool {
+        std::mem::swap(&mut self.w, &mut self.w_next);
+        self.load_inputs(u_cmd, z_cell, f_wind);
+        std::mem::swap(&mut self.w, &mut self.w_next);
+        self.w
+            .iter()
+            .zip(&self.w_next)
+            .any(|(a, b)| a.iter().zip(b).any(|(x, y)| x.to_bits() != y.to_bits()))
     }
 
     /// Projects actuator-space inputs onto the channels: q = V^T a per segment.
@@ -279,7 +481,8 @@ impl SegmentArray {
         [&self.w[0], &self.w[1]]
     }
 
-    /// The full state, by kind (piston, tilt), for checkpoints.
+    /// The full state, by kind (piston, tilt), for checkpoints: the current one unless steps
+    /// are pending ([`Self::set_deferred`], [`Self::settle`]).
     pub fn state(&self) -> [&[f64]; 2] {
         [&self.x[0], &self.x[1]]
     }
@@ -308,5 +511,50 @@ impl pulp::WithSimd for ApplyMaps<'_> {
         let b: [[f64; N_IN]; N_STATE] = std::array::from_fn(|i| std::array::from_fn(|l| s[(i, l)]));
         let u: [&[f64]; N_IN] = std::array::from_fn(|l| &self.w[l * n..(l + 1) * n]);
         state_map::<S, N_STATE, N_IN>(simd, &a, &b, self.x, u, n, self.next, None);
+    }
+}
+
+/// `out_c = a x_c + b w_c` over `n` channels stored by state (one row of [`state_map`]'s
+/// maps), a SIMD operation for [`pulp::Arch::dispatch`].
+struct Combination<'a> {
+    a: [[f64; N_STATE]; 1],
+    b: [[f64; N_IN]; 1],
+    n: usize,
+    x: &'a [f64],
+    w: &'a [f64],
+    out: &'a mut [f64],
+}
+
+impl pulp::WithSimd for Combination<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
+        let n = self.n;
+        let u: [&[f64]; N_IN] = std::array::from_fn(|l| &self.w[l * n..(l + 1) * n]);
+        rows_map::<S, N_STATE, N_IN>(simd, &self.a, &self.b, self.x, u, n, self.out);
+    }
+}
+
+/// `next = A x + B [w; w_next]` for `n` channels stored by state ([`SegmentArray::apply_across`]),
+/// a SIMD operation for [`pulp::Arch::dispatch`]: one pass of [`state_map`] with both input sets.
+struct ApplyAcross<'a> {
+    a: &'a [[f64; N_STATE]; N_STATE],
+    b: &'a [[f64; 2 * N_IN]; N_STATE],
+    n: usize,
+    x: &'a [f64],
+    w: [&'a [f64]; 2],
+    next: &'a mut [f64],
+}
+
+impl pulp::WithSimd for ApplyAcross<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
+        let n = self.n;
+        let u: [&[f64]; 2 * N_IN] =
+            std::array::from_fn(|l| &self.w[l / N_IN][(l % N_IN) * n..(l % N_IN + 1) * n]);
+        state_map::<S, N_STATE, { 2 * N_IN }>(simd, self.a, self.b, self.x, u, n, self.next, None);
     }
 }

@@ -80,7 +80,7 @@ mod sampled;
 #[cfg(test)]
 mod tests;
 
-pub use array::SegmentArray;
+pub use array::{MAX_PENDING_STEPS, SegmentArray};
 pub use model::{ChannelPlant, SegmentModel};
 pub use params::{ActuatorParams, Drive, SegmentParams, ServoParams, Shunt};
 pub use sampled::propagate;

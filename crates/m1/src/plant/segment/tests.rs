@@ -161,3 +161,116 @@ fn step_size_does_not_change_the_trajectory() {
         assert!(max_abs(&d) <= 1e-9 * max_abs(&a.x[k]));
     }
 }
+
+/// An array that leaves its steps on unchanged inputs pending gives the states and outputs of
+/// one that steps every time, to rounding: inputs held for 1, 3, 10 and 40 steps (more than
+/// `MAX_PENDING_STEPS`, so pending steps are applied when the table ends as well as with the
+/// step that changes the inputs), whole steps of two lengths and a misaligned one (applied at
+/// once: no step of another length is left pending), the combinations of the states read
+/// between steps (the mirror position and the cell force, with pending steps and without),
+/// and the states after `settle`. Steps are pending where they should be, and none after a
+/// change of the step.
+#[test]
+fn pending_steps_give_the_stepped_trajectory() {
+    use super::array::MAX_PENDING_STEPS;
+    let model = SegmentModel::voice_coil();
+    let (n, na) = (4, 12);
+    let mut plain = SegmentArray::new(n, model.clone()).expect("valid");
+    let mut lazy = SegmentArray::new(n, model.clone()).expect("valid");
+    lazy.set_deferred(true);
+    let ts = model.servo_period();
+    let mut pos = SMatrix::<f64, 1, N_STATE>::zeros();
+    pos[state::MIRROR_POS] = 1.0;
+    let (force, _) = model.cell_force_map(Channel::Tilt);
+    let mut k = 0usize;
+    let mut worst = 0.0f64;
+    for (hold, h) in [
+        (1, 5.0 * ts),
+        (3, 5.0 * ts),
+        (10, 5.0 * ts),
+        (40, 5.0 * ts),
+        (4, 2.0 * ts),
+        (1, 0.7 * ts),
+        (6, 5.0 * ts),
+    ] {
+        let u: Vec<f64> = (0..na).map(|i| 1e-6 * ((i + k) as f64).sin()).collect();
+        let zc: Vec<f64> = (0..na).map(|i| 1e-7 * ((i * 3 + k) as f64).cos()).collect();
+        let fw: Vec<f64> = (0..na).map(|i| ((i + 2 * k) as f64 * 0.3).cos()).collect();
+        for step in 0..hold {
+            plain.advance(h, &u, &zc, &fw).expect("plain");
+            lazy.advance(h, &u, &zc, &fw).expect("lazy");
+            k += 1;
+            // A whole step from a servo sample is left pending (at most the table's length);
+            // the misaligned step and the one after it (from mid-period) are applied.
+            let whole = (h / ts - (h / ts).round()).abs() < 1e-9 && plain.phase == 0.0;
+            if whole && step > 0 {
+                assert!(lazy.pending_steps() >= 1, "step {k}");
+            }
+            assert!(lazy.pending_steps() <= MAX_PENDING_STEPS);
+            if !whole {
+                assert_eq!(lazy.pending_steps(), 0, "step {k}");
+            }
+            for (kind, c) in [(0, pos), (1, pos), (1, force)] {
+                let cnt = if kind == 0 { n } else { 2 * n };
+                let (mut a, mut b) = (vec![0.0; cnt], vec![0.0; cnt]);
+                plain.combination(kind, &c, &mut a);
+                lazy.combination(kind, &c, &mut b);
+                let scale = max_abs(&a).max(1e-30);
+                let d: Vec<f64> = a.iter().zip(&b).map(|(x, y)| x - y).collect();
+                worst = worst.max(max_abs(&d) / scale);
+            }
+        }
+    }
+    assert!(
+        worst <= 1e-12,
+        "combinations differ by {worst:e} of their largest"
+    );
+    assert!(worst > 0.0, "the pending steps were never used");
+    lazy.settle();
+    assert_eq!(lazy.pending_steps(), 0);
+    for kind in 0..2 {
+        let d: Vec<f64> = plain.state()[kind]
+            .iter()
+            .zip(lazy.state()[kind])
+            .map(|(x, y)| x - y)
+            .collect();
+        assert!(
+            max_abs(&d) <= 1e-12 * max_abs(plain.state()[kind]),
+            "{}",
+            max_abs(&d)
+        );
+    }
+    // Its outputs in actuator order agree too (computed from the settled states).
+    let zc = vec![0.0; na];
+    let (mut za, mut fa, mut zb, mut fb) =
+        (vec![0.0; na], vec![0.0; na], vec![0.0; na], vec![0.0; na]);
+    plain.outputs(&zc, &mut za, &mut fa).expect("outputs");
+    lazy.outputs(&zc, &mut zb, &mut fb).expect("outputs");
+    for (a, b) in za.iter().zip(&zb).chain(fa.iter().zip(&fb)) {
+        assert!(
+            (a - b).abs() <= 1e-12 * max_abs(&za).max(max_abs(&fa)),
+            "{a} {b}"
+        );
+    }
+}
+
+/// Inputs that change at every step leave no step pending: the states are those of stepping
+/// without it, to the bit.
+#[test]
+fn inputs_changing_every_step_are_stepped_as_without_pending() {
+    let model = SegmentModel::piezo_damped_default();
+    let (n, na) = (3, 9);
+    let mut plain = SegmentArray::new(n, model.clone()).expect("valid");
+    let mut lazy = SegmentArray::new(n, model.clone()).expect("valid");
+    lazy.set_deferred(true);
+    let h = 5.0 * model.servo_period();
+    for k in 0..30 {
+        let u: Vec<f64> = (0..na).map(|i| 1e-6 * ((i + k) as f64).sin()).collect();
+        let fw: Vec<f64> = (0..na).map(|i| ((i * 5 + k) as f64).cos()).collect();
+        let zc = vec![0.0; na];
+        plain.advance(h, &u, &zc, &fw).expect("plain");
+        lazy.advance(h, &u, &zc, &fw).expect("lazy");
+        assert_eq!(lazy.pending_steps(), 0);
+        assert_eq!(plain.state(), lazy.state(), "step {k}");
+    }
+}
