@@ -1076,6 +1076,55 @@ fn store_f32(dst: &mut [f32], src: &[f64]) -> bool {
     !same
 }
 
+/// The free part's multiply-adds per channel over one period of `every` steps whose inputs
+/// change at its first ([`SegmentArray::set_deferred`]), in the steady state, with the step map
+/// `(p, s)`: the step that brings new inputs applies the pending steps with it in one pass, the
+/// others read the mirror's position from the pending map's row (one pass of the whole map
+/// when the table of its powers ends), and every step projects its inputs onto the channel
+/// (`N_STATE`, as counted before the steps were left pending).
+fn free_part_multiply_adds(p: &Phi, s: &Gamma, every: u64) -> u64 {
+    use crate::plant::segment::MAX_PENDING_STEPS;
+    let nnz = |m: &[f64]| m.iter().filter(|v| **v != 0.0).count() as u64;
+    let mp = state::MIRROR_POS;
+    // (P^k, S_k) for k = 1..=MAX_PENDING_STEPS + 1.
+    let mut powers = vec![(*p, *s)];
+    while powers.len() <= MAX_PENDING_STEPS {
+        let (pk, sk) = powers[powers.len() - 1];
+        powers.push((p * pk, p * sk + s));
+    }
+    let row = |k: usize| {
+        let (pk, sk) = &powers[k - 1];
+        nnz(pk.row(mp).transpose().as_slice()) + nnz(sk.row(mp).transpose().as_slice())
+    };
+    let (mut pending, mut total) = (0usize, 0u64);
+    // Two periods: the second one's count is the steady state's.
+    for period in 0..2 {
+        let mut count = 0;
+        for j in 0..every {
+            count += N_STATE as u64;
+            if j > 0 && pending < MAX_PENDING_STEPS {
+                pending += 1;
+                count += row(pending);
+            } else if j > 0 {
+                let (pk, sk) = &powers[pending - 1];
+                count += nnz(pk.as_slice()) + nnz(sk.as_slice()) + row(1);
+                pending = 1;
+            } else if pending == 0 {
+                count += nnz(p.as_slice()) + nnz(s.as_slice());
+            } else {
+                let (pn1, _) = &powers[pending];
+                let held = p * powers[pending - 1].1;
+                count += nnz(pn1.as_slice()) + nnz(held.as_slice()) + nnz(s.as_slice());
+                pending = 0;
+            }
+        }
+        if period == 1 {
+            total = count;
+        }
+    }
+    total
+}
+
 #[cfg(test)]
 mod tests {
     use super::{
@@ -1142,53 +1191,4 @@ mod tests {
             "slower two threads: one kept"
         );
     }
-}
-
-/// The free part's multiply-adds per channel over one period of `every` steps whose inputs
-/// change at its first ([`SegmentArray::set_deferred`]), in the steady state, with the step map
-/// `(p, s)`: the step that brings new inputs applies the pending steps with it in one pass, the
-/// others read the mirror's position from the pending map's row (one pass of the whole map
-/// when the table of its powers ends), and every step projects its inputs onto the channel
-/// (`N_STATE`, as counted before the steps were left pending).
-fn free_part_multiply_adds(p: &Phi, s: &Gamma, every: u64) -> u64 {
-    use crate::plant::segment::MAX_PENDING_STEPS;
-    let nnz = |m: &[f64]| m.iter().filter(|v| **v != 0.0).count() as u64;
-    let mp = state::MIRROR_POS;
-    // (P^k, S_k) for k = 1..=MAX_PENDING_STEPS + 1.
-    let mut powers = vec![(*p, *s)];
-    while powers.len() <= MAX_PENDING_STEPS {
-        let (pk, sk) = powers[powers.len() - 1];
-        powers.push((p * pk, p * sk + s));
-    }
-    let row = |k: usize| {
-        let (pk, sk) = &powers[k - 1];
-        nnz(pk.row(mp).transpose().as_slice()) + nnz(sk.row(mp).transpose().as_slice())
-    };
-    let (mut pending, mut total) = (0usize, 0u64);
-    // Two periods: the second one's count is the steady state's.
-    for period in 0..2 {
-        let mut count = 0;
-        for j in 0..every {
-            count += N_STATE as u64;
-            if j > 0 && pending < MAX_PENDING_STEPS {
-                pending += 1;
-                count += row(pending);
-            } else if j > 0 {
-                let (pk, sk) = &powers[pending - 1];
-                count += nnz(pk.as_slice()) + nnz(sk.as_slice()) + row(1);
-                pending = 1;
-            } else if pending == 0 {
-                count += nnz(p.as_slice()) + nnz(s.as_slice());
-            } else {
-                let (pn1, _) = &powers[pending];
-                let held = p * powers[pending - 1].1;
-                count += nnz(pn1.as_slice()) + nnz(held.as_slice()) + nnz(s.as_slice());
-                pending = 0;
-            }
-        }
-        if period == 1 {
-            total = count;
-        }
-    }
-    total
 }
