@@ -60,6 +60,11 @@ pub struct SegmentArray {
     w: [Vec<f64>; 2],
     /// Scratch for the next step's inputs (compared with `w` by a deferring array).
     w_next: [Vec<f64>; 2],
+    /// The inputs of the last step as given (actuator order: command, cell displacement, wind
+    /// forces), kept by a deferring array: inputs equal to them to the bit are not projected
+    /// onto the channels again.
+    #[serde(default)]
+    last: [Vec<f64>; N_IN],
     /// The steps left pending (a deferring array only).
     pending: Pending,
 }
@@ -90,6 +95,7 @@ impl SegmentArray {
             next: counts.map(|n| vec![0.0; N_STATE * n]),
             w: counts.map(|n| vec![0.0; N_IN * n]),
             w_next: counts.map(|n| vec![0.0; N_IN * n]),
+            last: Default::default(),
             pending: Pending::default(),
             model,
         })
@@ -265,7 +271,8 @@ impl SegmentArray {
         if self.pending.on {
             // The new inputs beside the held ones: a step of the same length on the same
             // inputs from a servo sample is left pending.
-            let changed = self.load_next(u_cmd, z_cell, f_wind);
+            let changed = !self.same_as_last([u_cmd, z_cell, f_wind])
+                && self.load_next(u_cmd, z_cell, f_wind);
             let whole = (h + eps) / ts;
             let ticks = whole.floor();
             let regular = self.phase == 0.0
@@ -397,6 +404,23 @@ impl SegmentArray {
         }
     }
 
+    /// Whether `inputs` are those of the last step to the bit; if not, they are kept as the
+    /// last ones. (Equal inputs project onto the same channel inputs.)
+    fn same_as_last(&mut self, inputs: [&[f64]; N_IN]) -> bool {
+        let same = self
+            .last
+            .iter()
+            .zip(inputs)
+            .all(|(last, now)| last.len() == now.len() && same_bits(last, now));
+        if !same {
+            for (last, now) in self.last.iter_mut().zip(inputs) {
+                last.clear();
+                last.extend_from_slice(now);
+            }
+        }
+        same
+    }
+
     /// [`Self::load_inputs`] into `w_next`, saying whether it differs from `w` (to the bit).
     fn load_next(&mut self, u_cmd: &[f64], z_cell: &[f64], f_wind: &[f64]) -> bool {
         std::mem::swap(&mut self.w, &mut self.w_next);
@@ -512,6 +536,24 @@ impl pulp::WithSimd for ApplyMaps<'_> {
         let u: [&[f64]; N_IN] = std::array::from_fn(|l| &self.w[l * n..(l + 1) * n]);
         state_map::<S, N_STATE, N_IN>(simd, &a, &b, self.x, u, n, self.next, None);
     }
+}
+
+/// Whether `a` and `b` (of the same length) hold the same values to the bit: their bits
+/// xor-ed and or-ed over sixteen lanes, so that the loop vectorises.
+fn same_bits(a: &[f64], b: &[f64]) -> bool {
+    let mut lanes = [0u64; 16];
+    let (ca, cb) = (a.chunks_exact(16), b.chunks_exact(16));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (x, y) in ca.zip(cb) {
+        for l in 0..16 {
+            lanes[l] |= x[l].to_bits() ^ y[l].to_bits();
+        }
+    }
+    let rest = ra
+        .iter()
+        .zip(rb)
+        .fold(0, |acc, (x, y)| acc | (x.to_bits() ^ y.to_bits()));
+    lanes.iter().fold(rest, |acc, l| acc | l) == 0
 }
 
 /// `out_c = a x_c + b w_c` over `n` channels stored by state (one row of [`state_map`]'s
