@@ -162,6 +162,15 @@ fn step_size_does_not_change_the_trajectory() {
     }
 }
 
+/// Two arrays of `n` segments at rest, the second leaving its steps on unchanged inputs
+/// pending.
+fn plain_and_deferred(n: usize, model: &SegmentModel) -> (SegmentArray, SegmentArray) {
+    let plain = SegmentArray::new(n, model.clone()).expect("valid");
+    let mut lazy = SegmentArray::new(n, model.clone()).expect("valid");
+    lazy.set_deferred(true);
+    (plain, lazy)
+}
+
 /// An array that leaves its steps on unchanged inputs pending gives the states and outputs of
 /// one that steps every time, to rounding: inputs held for 1, 3, 10 and 40 steps (more than
 /// `MAX_PENDING_STEPS`, so pending steps are applied when the table ends as well as with the
@@ -175,9 +184,7 @@ fn pending_steps_give_the_stepped_trajectory() {
     use super::array::MAX_PENDING_STEPS;
     let model = SegmentModel::voice_coil();
     let (n, na) = (4, 12);
-    let mut plain = SegmentArray::new(n, model.clone()).expect("valid");
-    let mut lazy = SegmentArray::new(n, model.clone()).expect("valid");
-    lazy.set_deferred(true);
+    let (mut plain, mut lazy) = plain_and_deferred(n, &model);
     let ts = model.servo_period();
     let mut pos = SMatrix::<f64, 1, N_STATE>::zeros();
     pos[state::MIRROR_POS] = 1.0;
@@ -260,9 +267,7 @@ fn pending_steps_give_the_stepped_trajectory() {
 fn inputs_changing_every_step_are_stepped_as_without_pending() {
     let model = SegmentModel::piezo_damped_default();
     let (n, na) = (3, 9);
-    let mut plain = SegmentArray::new(n, model.clone()).expect("valid");
-    let mut lazy = SegmentArray::new(n, model.clone()).expect("valid");
-    lazy.set_deferred(true);
+    let (mut plain, mut lazy) = plain_and_deferred(n, &model);
     let h = 5.0 * model.servo_period();
     for k in 0..30 {
         let u: Vec<f64> = (0..na).map(|i| 1e-6 * ((i + k) as f64).sin()).collect();
