@@ -44,7 +44,7 @@
 //! left pending, [`crate::plant::segment::SegmentArray::set_deferred`]: between changes of the
 //! inputs, every tenth step in the standard systems, a step reads the mirror's position from the
 //! pending map's row, 15 multiply-adds per channel instead of the whole map's 134, and inputs equal
-//! to the last step's are not projected onto the channels again; TMT at 60 modes, 33 -> 23-24 us
+//! to the last step's are not projected onto the channels again; TMT at 60 modes, a fifth less
 //! per mirror step, BENCHMARKS.md twenty-first round), and its projection on the modes
 //! by the ticks' maps composed over a chunk of up to ten ticks (`FREE_CHUNK_TICKS`): one pass
 //! gives the projected states at the chunk's end and each tick's modal force and drive change
