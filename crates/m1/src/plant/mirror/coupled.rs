@@ -983,6 +983,10 @@ impl CoupledMirror {
     /// 20 Hz and the wind at 100 Hz, so most 1 ms steps skip the pass.
     #[inline(always)]
     pub(super) fn project_inputs<S: pulp::Simd>(&mut self, simd: S) {
+        // Inputs given as at the last step, to the bit: their projection is the last one.
+        if self.free.inputs_unchanged() {
+            return;
+        }
         let r = self.r;
         let [p, t] = &mut self.w_proj;
         let (pu, pf) = input_columns(p, r);

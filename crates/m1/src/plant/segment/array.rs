@@ -65,6 +65,10 @@ pub struct SegmentArray {
     /// onto the channels again.
     #[serde(default)]
     last: [Vec<f64>; N_IN],
+    /// Whether the last step's inputs were those of the step before, to the bit (a deferring
+    /// array's; false otherwise).
+    #[serde(default)]
+    inputs_same: bool,
     /// The steps left pending (a deferring array only).
     pending: Pending,
 }
@@ -96,6 +100,7 @@ impl SegmentArray {
             w: counts.map(|n| vec![0.0; N_IN * n]),
             w_next: counts.map(|n| vec![0.0; N_IN * n]),
             last: Default::default(),
+            inputs_same: false,
             pending: Pending::default(),
             model,
         })
@@ -128,6 +133,13 @@ impl SegmentArray {
             let maps = [0, 1].map(|k| self.pending.powers[k][n - 1]);
             self.apply(&maps);
         }
+    }
+
+    /// Whether the last step's inputs were those of the step before, to the bit, so that the
+    /// channel inputs ([`Self::channel_inputs`]) did not change: known to a deferring array
+    /// only ([`Self::set_deferred`]; false otherwise).
+    pub fn inputs_unchanged(&self) -> bool {
+        self.inputs_same
     }
 
     /// Whole steps pending ([`Self::set_deferred`]).
@@ -271,8 +283,8 @@ impl SegmentArray {
         if self.pending.on {
             // The new inputs beside the held ones: a step of the same length on the same
             // inputs from a servo sample is left pending.
-            let changed = !self.same_as_last([u_cmd, z_cell, f_wind])
-                && self.load_next(u_cmd, z_cell, f_wind);
+            self.inputs_same = self.same_as_last([u_cmd, z_cell, f_wind]);
+            let changed = !self.inputs_same && self.load_next(u_cmd, z_cell, f_wind);
             let whole = (h + eps) / ts;
             let ticks = whole.floor();
             let regular = self.phase == 0.0
@@ -309,6 +321,7 @@ impl SegmentArray {
                 return Ok(());
             }
         } else {
+            self.inputs_same = false;
             self.load_inputs(u_cmd, z_cell, f_wind);
         }
         let mut rest = h;
