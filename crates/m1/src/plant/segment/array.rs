@@ -136,7 +136,7 @@ impl SegmentArray {
     }
 
     /// Whether the last step's inputs were those of the step before, to the bit, so that the
-    /// channel inputs ([`Self::channel_inputs`]) did not change: known to a deferring array
+    /// inputs on the channels did not change: known to a deferring array
     /// only ([`Self::set_deferred`]; false otherwise).
     pub fn inputs_unchanged(&self) -> bool {
         self.inputs_same
