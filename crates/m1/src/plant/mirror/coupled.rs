@@ -1084,8 +1084,9 @@ fn store_f32(dst: &mut [f32], src: &[f64]) -> bool {
 /// change at its first ([`SegmentArray::set_deferred`]), in the steady state, with the step map
 /// `(p, s)`: the step that brings new inputs applies the pending steps with it in one pass, the
 /// others read the mirror's position from the pending map's row (one pass of the whole map
-/// when the table of its powers ends), and every step projects its inputs onto the channel
-/// (`N_STATE`, as counted before the steps were left pending).
+/// when the table of its powers ends), and only the step whose inputs changed projects them
+/// onto the channel (`N_STATE`, as counted at every step before the steps were left pending:
+/// inputs equal to the last step's are not projected again).
 fn free_part_multiply_adds(p: &Phi, s: &Gamma, every: u64) -> u64 {
     use crate::plant::segment::MAX_PENDING_STEPS;
     let nnz = |m: &[f64]| m.iter().filter(|v| **v != 0.0).count() as u64;
@@ -1105,7 +1106,9 @@ fn free_part_multiply_adds(p: &Phi, s: &Gamma, every: u64) -> u64 {
     for period in 0..2 {
         let mut count = 0;
         for j in 0..every {
-            count += N_STATE as u64;
+            if j == 0 {
+                count += N_STATE as u64;
+            }
             if j > 0 && pending < MAX_PENDING_STEPS {
                 pending += 1;
                 count += row(pending);

@@ -393,8 +393,8 @@ fn multiply_adds_follow_the_step_and_the_maps() {
         "{composed}"
     );
     // With the inputs changing every tenth step, the free part's steps between are left
-    // pending: per channel and step, its 12 inputs' terms and the mirror position's row of the
-    // pending map (at most 12 + 3), and a tenth of the pass that applies them (at most
+    // pending: per channel and step, the mirror position's row of the pending map (at most
+    // 12 + 3), and a tenth of the inputs' 12 terms and of the pass that applies them (at most
     // 12 x (12 + 6)), against the whole map at every step.
     let held = m.multiply_adds_per_step(5.0 * ts, 10).expect("5 ticks");
     let free = |parts: &[(&str, u64, bool)]| {

@@ -58,7 +58,8 @@ pub struct SegmentArray {
     next: [Vec<f64>; 2],
     /// Modal inputs by kind: `w[kind][l * n + c]`.
     w: [Vec<f64>; 2],
-    /// Scratch for the next step's inputs (compared with `w` by a deferring array).
+    /// A deferring array's new inputs, beside the held ones in `w` until the pending steps on
+    /// those are applied.
     w_next: [Vec<f64>; 2],
     /// The inputs of the last step as given (actuator order: command, cell displacement, wind
     /// forces), kept by a deferring array: inputs equal to them to the bit are not projected
@@ -159,11 +160,11 @@ impl SegmentArray {
         let n = x.len() / N_STATE;
         let out = &mut out[..n];
         let steps = self.pending.steps;
-        let one = c
-            .iter()
-            .position(|&v| v != 0.0)
-            .filter(|&s| c[s] == 1.0 && c.iter().filter(|&&v| v != 0.0).count() == 1);
         if steps == 0 {
+            let one = c
+                .iter()
+                .position(|&v| v != 0.0)
+                .filter(|&s| c[s] == 1.0 && c.iter().filter(|&&v| v != 0.0).count() == 1);
             match one {
                 // A single state: a copy.
                 Some(st) => out.copy_from_slice(&x[st * n..(st + 1) * n]),
@@ -284,7 +285,10 @@ impl SegmentArray {
             // The new inputs beside the held ones: a step of the same length on the same
             // inputs from a servo sample is left pending.
             self.inputs_same = self.same_as_last([u_cmd, z_cell, f_wind]);
-            let changed = !self.inputs_same && self.load_next(u_cmd, z_cell, f_wind);
+            let changed = !self.inputs_same;
+            if changed {
+                self.load_next(u_cmd, z_cell, f_wind);
+            }
             let whole = (h + eps) / ts;
             let ticks = whole.floor();
             let regular = self.phase == 0.0
@@ -434,15 +438,11 @@ impl SegmentArray {
         same
     }
 
-    /// [`Self::load_inputs`] into `w_next`, saying whether it differs from `w` (to the bit).
-    fn load_next(&mut self, u_cmd: &[f64], z_cell: &[f64], f_wind: &[f64]) -> bool {
+    /// [`Self::load_inputs`] into `w_next` (`w` keeps the held inputs).
+    fn load_next(&mut self, u_cmd: &[f64], z_cell: &[f64], f_wind: &[f64]) {
         std::mem::swap(&mut self.w, &mut self.w_next);
         self.load_inputs(u_cmd, z_cell, f_wind);
         std::mem::swap(&mut self.w, &mut self.w_next);
-        self.w
-            .iter()
-            .zip(&self.w_next)
-            .any(|(a, b)| a.iter().zip(b).any(|(x, y)| x.to_bits() != y.to_bits()))
     }
 
     /// Projects actuator-space inputs onto the channels: q = V^T a per segment.
