@@ -19,6 +19,7 @@
 //! bits between processors with different vector widths.
 
 use pulp::Simd;
+use serde::{Deserialize, Serialize};
 
 /// Rows of [`state_map`] computed together: independent chains of fused multiply-adds in
 /// flight (four hide the latency of one addition behind the others on the project's machine).
@@ -596,9 +597,9 @@ pub fn real_times_complex(a: &[f64], m: usize, k: usize, x: [&[f64]; 2], y: [&mu
 /// every state `NS` times. The rows are computed [`ROW_GROUP`] at a time, so that as many
 /// independent chains of fused multiply-adds are in flight (one row's chain alone waits on the
 /// latency of each addition), and a source (state or input) whose coefficients are zero for
-/// every row of a group is skipped: the segment channels' maps have whole zero columns (the
-/// drive, an absent shunt) and sparse servo rows (the voice coil's: 66 of 144 entries
-/// non-zero). Each output
+/// every row of a group is skipped (`masks`, the map's [`SourceMasks::of`]): the segment
+/// channels' maps have whole zero columns (the drive, an absent shunt) and sparse servo rows
+/// (the voice coil's: 66 of 144 entries non-zero). Each output
 /// is summed in the order of `a`'s columns, then `b`'s, with fused multiply-adds where the
 /// instruction set has them (never emulated in software); a skipped term is an exact zero for
 /// finite states, so the result is the dense sum's.
@@ -611,6 +612,7 @@ pub fn state_map<S: Simd, const NS: usize, const NI: usize>(
     simd: S,
     a: &[[f64; NS]; NS],
     b: &[[f64; NI]; NS],
+    masks: &SourceMasks,
     x: &[f64],
     u: [&[f64]; NI],
     n: usize,
@@ -630,7 +632,11 @@ pub fn state_map<S: Simd, const NS: usize, const NI: usize>(
     let xh: [&[S::f64s]; NS] = std::array::from_fn(|j| &S::as_simd_f64s(xs[j]).0[..m]);
     let uh: [&[S::f64s]; NI] = std::array::from_fn(|l| &S::as_simd_f64s(us[l]).0[..m]);
     let groups = NS.div_ceil(G);
-    let (use_x, use_u) = group_masks(a, b);
+    debug_assert_eq!(
+        *masks,
+        SourceMasks::of(a, b),
+        "state_map: masks of another map"
+    );
     let (w, mut d) = match dot {
         Some((w, d)) => (Some(w), Some(d)),
         None => (None, None),
@@ -648,7 +654,7 @@ pub fn state_map<S: Simd, const NS: usize, const NI: usize>(
             let uv: [S::f64s; NI] = at_column(&uh, c, zero);
             let mut dacc = zero;
             for g in 0..groups {
-                let acc = group_sums(simd, a, b, g, (&use_x[g], &use_u[g]), &xv, &uv);
+                let acc = group_sums(simd, a, b, g, masks, &xv, &uv);
                 for (r, acc) in acc.into_iter().enumerate() {
                     let i = G * g + r;
                     if i < NS {
@@ -671,7 +677,7 @@ pub fn state_map<S: Simd, const NS: usize, const NI: usize>(
         let uv: [S::f64s; NI] = partial_at(simd, &us, tail);
         let mut dacc = simd.splat_f64s(0.0);
         for g in 0..groups {
-            let acc = group_sums(simd, a, b, g, (&use_x[g], &use_u[g]), &xv, &uv);
+            let acc = group_sums(simd, a, b, g, masks, &xv, &uv);
             for (r, acc) in acc.into_iter().enumerate() {
                 let i = G * g + r;
                 if i < NS {
@@ -708,24 +714,43 @@ fn columns<'a, const NS: usize, const NI: usize>(
 /// Groups of [`ROW_GROUP`] rows of the maps of [`state_map`] and [`rows_map`], at most.
 const MAX_GROUPS: usize = ROWS_MAP_MAX / ROW_GROUP;
 
-/// Which sources (states, inputs) each group of [`ROW_GROUP`] rows of `[a b]` reads: `[g][j]`.
-#[inline(always)]
-#[allow(clippy::type_complexity)]
-fn group_masks<const NS: usize, const NI: usize>(
-    a: &[[f64; NS]],
-    b: &[[f64; NI]],
-) -> ([[bool; NS]; MAX_GROUPS], [[bool; NI]; MAX_GROUPS]) {
-    let mut use_x = [[false; NS]; MAX_GROUPS];
-    let mut use_u = [[false; NI]; MAX_GROUPS];
-    for (i, (ai, bi)) in a.iter().zip(b).enumerate() {
-        for (j, v) in ai.iter().enumerate() {
-            use_x[i / ROW_GROUP][j] |= *v != 0.0;
+/// Which sources (the states, then the inputs) each group of [`ROW_GROUP`] rows of a map
+/// `[a b]` reads with a non-zero coefficient, a bit per source (bit `j` state `j`, bit
+/// `NS + l` input `l`): what [`state_map`] and [`rows_map`] skip. Made once per map
+/// ([`Self::of`]) and kept with it: found again at every pass, they cost as much as a fifth of
+/// the coupled mirror's passes over its 60 modes (BENCHMARKS.md, twenty-second round).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SourceMasks([u64; MAX_GROUPS]);
+
+impl SourceMasks {
+    /// The sources each group of rows of `[a b]` reads (`a` and `b` of the same length, at most
+    /// [`ROWS_MAP_MAX`] rows, `NS + NI` at most 64 sources).
+    ///
+    /// # Panics
+    /// If the map is larger than that (a programming error).
+    pub fn of<const NS: usize, const NI: usize>(a: &[[f64; NS]], b: &[[f64; NI]]) -> Self {
+        const { assert!(NS + NI <= 64, "SourceMasks: more than 64 sources") };
+        assert!(
+            a.len() == b.len() && a.len() <= ROWS_MAP_MAX,
+            "SourceMasks: {} and {} rows",
+            a.len(),
+            b.len()
+        );
+        let mut m = [0u64; MAX_GROUPS];
+        for (i, (ai, bi)) in a.iter().zip(b).enumerate() {
+            let sources = ai.iter().chain(bi);
+            for (j, v) in sources.enumerate() {
+                m[i / ROW_GROUP] |= u64::from(*v != 0.0) << j;
+            }
         }
-        for (l, v) in bi.iter().enumerate() {
-            use_u[i / ROW_GROUP][l] |= *v != 0.0;
-        }
+        Self(m)
     }
-    (use_x, use_u)
+
+    /// Whether group `g` reads source `s`.
+    #[inline(always)]
+    fn reads(&self, g: usize, s: usize) -> bool {
+        (self.0[g] >> s) & 1 != 0
+    }
 }
 
 /// The sums of group `g`'s rows of `[a b]` (rows `G g..G g + G`; past the last row the last
@@ -737,14 +762,14 @@ fn group_sums<S: Simd, const NS: usize, const NI: usize>(
     a: &[[f64; NS]],
     b: &[[f64; NI]],
     g: usize,
-    used: (&[bool; NS], &[bool; NI]),
+    masks: &SourceMasks,
     xv: &[S::f64s; NS],
     uv: &[S::f64s; NI],
 ) -> [S::f64s; ROW_GROUP] {
     let row = |r: usize| (ROW_GROUP * g + r).min(a.len() - 1);
     let mut acc = [simd.splat_f64s(0.0); ROW_GROUP];
     for j in 0..NS {
-        if used.0[j] {
+        if masks.reads(g, j) {
             for (r, acc) in acc.iter_mut().enumerate() {
                 let k = a[row(r)][j];
                 *acc = simd.mul_add_e_f64s(simd.splat_f64s(k), xv[j], *acc);
@@ -752,7 +777,7 @@ fn group_sums<S: Simd, const NS: usize, const NI: usize>(
         }
     }
     for l in 0..NI {
-        if used.1[l] {
+        if masks.reads(g, NS + l) {
             for (r, acc) in acc.iter_mut().enumerate() {
                 let k = b[row(r)][l];
                 *acc = simd.mul_add_e_f64s(simd.splat_f64s(k), uv[l], *acc);
@@ -769,17 +794,19 @@ pub const ROWS_MAP_MAX: usize = 64;
 /// `n` columns: a rectangular [`state_map`] (the same storage: `x` is `NS n` state-major, `out`
 /// is `a.len() n` row-major), for maps that give more or fewer values than they read (a
 /// composite of several steps' maps with their outputs). Rows are computed [`ROW_GROUP`] at a
-/// time and a group skips the sources none of its rows reads; each row is summed in the order
-/// of `a`'s columns, then `b`'s.
+/// time and a group skips the sources none of its rows reads (`masks`, the map's
+/// [`SourceMasks::of`]); each row is summed in the order of `a`'s columns, then `b`'s.
 ///
 /// # Panics
 /// If `a` and `b` differ in length, there are more than [`ROWS_MAP_MAX`] rows, or a slice is
 /// shorter than the dimensions say (programming errors).
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 pub fn rows_map<S: Simd, const NS: usize, const NI: usize>(
     simd: S,
     a: &[[f64; NS]],
     b: &[[f64; NI]],
+    masks: &SourceMasks,
     x: &[f64],
     u: [&[f64]; NI],
     n: usize,
@@ -800,7 +827,11 @@ pub fn rows_map<S: Simd, const NS: usize, const NI: usize>(
     let tail = n - S::as_simd_f64s(xs[0]).1.len();
     let xh: [&[S::f64s]; NS] = std::array::from_fn(|j| &S::as_simd_f64s(xs[j]).0[..m]);
     let uh: [&[S::f64s]; NI] = std::array::from_fn(|l| &S::as_simd_f64s(us[l]).0[..m]);
-    let (use_x, use_u) = group_masks(a, b);
+    debug_assert_eq!(
+        *masks,
+        SourceMasks::of(a, b),
+        "rows_map: masks of another map"
+    );
     let mut it = out.chunks_exact_mut(n);
     let zero = simd.splat_f64s(0.0);
     for g in 0..rows.div_ceil(G) {
@@ -811,7 +842,7 @@ pub fn rows_map<S: Simd, const NS: usize, const NI: usize>(
         for c in 0..m {
             let xv: [S::f64s; NS] = at_column(&xh, c, zero);
             let uv: [S::f64s; NI] = at_column(&uh, c, zero);
-            let acc = group_sums(simd, a, b, g, (&use_x[g], &use_u[g]), &xv, &uv);
+            let acc = group_sums(simd, a, b, g, masks, &xv, &uv);
             for (o, acc) in oh.iter_mut().zip(acc) {
                 if let Some(o) = o.get_mut(c) {
                     *o = acc;
@@ -825,7 +856,7 @@ pub fn rows_map<S: Simd, const NS: usize, const NI: usize>(
         let xv: [S::f64s; NS] = partial_at(simd, &xs, tail);
         let uv: [S::f64s; NI] = partial_at(simd, &us, tail);
         for g in 0..rows.div_ceil(G) {
-            let acc = group_sums(simd, a, b, g, (&use_x[g], &use_u[g]), &xv, &uv);
+            let acc = group_sums(simd, a, b, g, masks, &xv, &uv);
             for (r, acc) in acc.into_iter().enumerate() {
                 let i = G * g + r;
                 if i < rows {
@@ -888,6 +919,35 @@ mod tests {
         }
     }
 
+    /// A map's masks mark, per group of rows, exactly the sources some row of the group reads
+    /// with a non-zero coefficient: a whole zero column, a column zero in one group only, an
+    /// input read by one row, the groups past the map's rows empty.
+    #[test]
+    fn source_masks_mark_the_sources_each_group_reads() {
+        let rows = ROW_GROUP + 3;
+        let a: Vec<[f64; NS]> = (0..rows)
+            .map(|i| {
+                std::array::from_fn(|j| match j {
+                    1 => 0.0,
+                    3 if i < ROW_GROUP => 0.0,
+                    _ => 1.0 + (i + j) as f64,
+                })
+            })
+            .collect();
+        let b: Vec<[f64; NI]> = (0..rows)
+            .map(|i| [if i == ROW_GROUP + 1 { 2.0 } else { 0.0 }, -0.0])
+            .collect();
+        let m = SourceMasks::of(&a, &b);
+        for s in 0..NS + NI {
+            let want = [s != 1 && s != 3 && s < NS, s != 1 && s < NS || s == NS];
+            assert_eq!(m.reads(0, s), want[0], "group 0, source {s}");
+            assert_eq!(m.reads(1, s), want[1], "group 1, source {s}");
+            for g in 2..MAX_GROUPS {
+                assert!(!m.reads(g, s), "group {g}, source {s}");
+            }
+        }
+    }
+
     /// `rows_map` against the plain sums: 1, 7 (a partial group) and 9 rows of a sparse map
     /// (a state no row of the first group reads, an input one row does not), over column
     /// counts around the vector widths, on the best instruction set and the scalar ones.
@@ -913,6 +973,7 @@ mod tests {
                 let b: Vec<[f64; NI]> = (0..rows)
                     .map(|i| std::array::from_fn(|l| if i == 2 { 0.0 } else { (i + l) as f64 }))
                     .collect();
+                let masks = SourceMasks::of(&a, &b);
                 for n in [0usize, 1, 3, 4, 7, 8, 9, 17, 61] {
                     let x: Vec<f64> = (0..NS * n)
                         .map(|k| ((k * 7919) % 1013) as f64 / 1013.0 - 0.5)
@@ -921,7 +982,7 @@ mod tests {
                         .map(|l| (0..n).map(|c| (c + l) as f64 * 0.25).collect())
                         .collect();
                     let mut out = vec![f64::NAN; rows * n + 3];
-                    rows_map::<S, NS, NI>(simd, &a, &b, &x, [&u[0], &u[1]], n, &mut out);
+                    rows_map::<S, NS, NI>(simd, &a, &b, &masks, &x, [&u[0], &u[1]], n, &mut out);
                     for i in 0..rows {
                         for c in 0..n {
                             let want: f64 = (0..NS).map(|j| a[i][j] * x[j * n + c]).sum::<f64>()
@@ -964,6 +1025,7 @@ mod tests {
                 let b: [[f64; NI]; NS] =
                     std::array::from_fn(|i| std::array::from_fn(|l| (i + l) as f64 * 0.3));
                 let w: [f64; NS] = std::array::from_fn(|i| 0.7 - i as f64 * 0.2);
+                let masks = SourceMasks::of(&a, &b);
                 let value = |k: usize| ((k * 7919) % 1013) as f64 / 1013.0 - 0.5;
                 // Column c of state j, and of input l, whatever the width.
                 let run = |n: usize| {
@@ -977,6 +1039,7 @@ mod tests {
                         simd,
                         &a,
                         &b,
+                        &masks,
                         &x,
                         [&u[0], &u[1]],
                         n,
@@ -984,7 +1047,7 @@ mod tests {
                         Some((&w, &mut d)),
                     );
                     let mut rows = vec![0.0; NS * n];
-                    rows_map::<S, NS, NI>(simd, &a, &b, &x, [&u[0], &u[1]], n, &mut rows);
+                    rows_map::<S, NS, NI>(simd, &a, &b, &masks, &x, [&u[0], &u[1]], n, &mut rows);
                     (out, d, rows)
                 };
                 let (wide, wide_d, wide_rows) = run(WIDE);
@@ -1037,6 +1100,7 @@ mod tests {
                         simd,
                         self.a,
                         self.b,
+                        &SourceMasks::of(self.a, self.b),
                         self.x,
                         self.u,
                         self.n,

@@ -10,7 +10,7 @@ use super::maps::{foh_mode, substep_maps};
 use super::projection::{Project, input_columns, padded_rows_f32, row_major};
 use super::tick::{CellOutputs, Step};
 use crate::M1Error;
-use crate::linalg::kernels::padded_len;
+use crate::linalg::kernels::{SourceMasks, padded_len};
 use crate::linalg::pair::LazyPair;
 use crate::linalg::symmetric::{SymPacked32, balanced_split, padded_order};
 use crate::plant::segment::{
@@ -109,6 +109,8 @@ pub(super) struct FreeChunk {
     pub(super) len: usize,
     pub(super) a: [Vec<[f64; N_STATE]>; 2],
     pub(super) b: [Vec<[f64; 2]>; 2],
+    /// The sources each group of rows reads, per kind ([`SourceMasks`]).
+    pub(super) masks: [SourceMasks; 2],
 }
 
 /// `m` (r x 2r row-major, the two kinds' r columns side by side) in single precision, each
@@ -380,13 +382,20 @@ pub(super) struct ChannelMaps {
     pub(super) p: [[f64; N_STATE]; N_STATE],
     pub(super) g: [[f64; 1]; N_STATE],
     pub(super) c: [f64; N_STATE],
+    /// The sources each group of rows of `[p g]` reads ([`SourceMasks`]).
+    pub(super) masks: SourceMasks,
 }
 
 impl ChannelMaps {
     fn new(p: &Phi, g: &Gamma, ramp: &SVector<f64, N_STATE>, c: &SMatrix<f64, 1, N_STATE>) -> Self {
+        let (p, g) = (
+            std::array::from_fn(|i| std::array::from_fn(|s| p[(i, s)])),
+            std::array::from_fn(|i| [g[(i, 1)] - ramp[i]]),
+        );
         Self {
-            p: std::array::from_fn(|i| std::array::from_fn(|s| p[(i, s)])),
-            g: std::array::from_fn(|i| [g[(i, 1)] - ramp[i]]),
+            masks: SourceMasks::of(&p, &g),
+            p,
+            g,
             c: std::array::from_fn(|i| c[i]),
         }
     }
@@ -971,6 +980,7 @@ impl CoupledMirror {
         FreeChunk {
             phase,
             len,
+            masks: [SourceMasks::of(&a0, &b0), SourceMasks::of(&a1, &b1)],
             a: [a0, a1],
             b: [b0, b1],
         }

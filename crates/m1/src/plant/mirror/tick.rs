@@ -7,7 +7,9 @@ use super::coupled::{ChannelMaps, CoupledMirror};
 use pulp::WithSimd;
 
 use super::projection::Reconstruct;
-use crate::linalg::kernels::{axpy, rows_dot, rows_dot_f32, rows_dot2_f32, rows_map, state_map};
+use crate::linalg::kernels::{
+    SourceMasks, axpy, rows_dot, rows_dot_f32, rows_dot2_f32, rows_map, state_map,
+};
 use crate::linalg::pair::{LazyPair, Pair};
 use crate::linalg::symmetric::{BLOCK, SymPacked32, add_columns, sym_dot_f32, sym_dot_rows_f32};
 use crate::plant::segment::{N_STATE, state};
@@ -264,6 +266,7 @@ impl CoupledMirror {
         let kind = |k: usize, proj, out| FreeKind {
             a: &c.a[k],
             b: &c.b[k],
+            masks: &c.masks[k],
             w: &self.w_proj[k],
             r,
             proj,
@@ -580,6 +583,7 @@ impl pulp::WithSimd for Step<'_> {
 struct FreeKind<'a> {
     a: &'a [[f64; N_STATE]],
     b: &'a [[f64; 2]],
+    masks: &'a SourceMasks,
     w: &'a [f64],
     r: usize,
     proj: &'a mut [f64],
@@ -596,6 +600,7 @@ impl pulp::WithSimd for FreeKind<'_> {
             simd,
             self.a,
             self.b,
+            self.masks,
             self.proj,
             [&w[..r], &w[2 * r..3 * r]],
             r,
@@ -655,6 +660,7 @@ impl pulp::WithSimd for ChannelKind<'_> {
             simd,
             &maps.p,
             &maps.g,
+            &maps.masks,
             self.xi,
             [self.q],
             r,

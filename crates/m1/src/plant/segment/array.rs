@@ -9,7 +9,7 @@ use super::model::SegmentModel;
 use super::sampled::propagate;
 use super::{Channel, Gamma, N_IN, N_STATE, Phi, modal_basis, state};
 use crate::M1Error;
-use crate::linalg::kernels::{rows_map, state_map};
+use crate::linalg::kernels::{SourceMasks, rows_map, state_map};
 
 /// Propagators of both channel kinds for one step size.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -547,7 +547,8 @@ impl pulp::WithSimd for ApplyMaps<'_> {
             std::array::from_fn(|i| std::array::from_fn(|j| p[(i, j)]));
         let b: [[f64; N_IN]; N_STATE] = std::array::from_fn(|i| std::array::from_fn(|l| s[(i, l)]));
         let u: [&[f64]; N_IN] = std::array::from_fn(|l| &self.w[l * n..(l + 1) * n]);
-        state_map::<S, N_STATE, N_IN>(simd, &a, &b, self.x, u, n, self.next, None);
+        let masks = SourceMasks::of(&a, &b);
+        state_map::<S, N_STATE, N_IN>(simd, &a, &b, &masks, self.x, u, n, self.next, None);
     }
 }
 
@@ -587,7 +588,8 @@ impl pulp::WithSimd for Combination<'_> {
     fn with_simd<S: pulp::Simd>(self, simd: S) {
         let n = self.n;
         let u: [&[f64]; N_IN] = std::array::from_fn(|l| &self.w[l * n..(l + 1) * n]);
-        rows_map::<S, N_STATE, N_IN>(simd, &self.a, &self.b, self.x, u, n, self.out);
+        let masks = SourceMasks::of(&self.a, &self.b);
+        rows_map::<S, N_STATE, N_IN>(simd, &self.a, &self.b, &masks, self.x, u, n, self.out);
     }
 }
 
@@ -610,6 +612,9 @@ impl pulp::WithSimd for ApplyAcross<'_> {
         let n = self.n;
         let u: [&[f64]; 2 * N_IN] =
             std::array::from_fn(|l| &self.w[l / N_IN][(l % N_IN) * n..(l % N_IN + 1) * n]);
-        state_map::<S, N_STATE, { 2 * N_IN }>(simd, self.a, self.b, self.x, u, n, self.next, None);
+        let masks = SourceMasks::of(self.a, self.b);
+        state_map::<S, N_STATE, { 2 * N_IN }>(
+            simd, self.a, self.b, &masks, self.x, u, n, self.next, None,
+        );
     }
 }
