@@ -13,7 +13,7 @@
 //! |---|---|---|
 //! | mirror (`mirror_voicecoil`, each `--modes`; its wind forces changing every 10 steps and its command every 50, as in the standard system) | 1 ms | memory: the matrices one step streams ([`m1::plant::mirror::CoupledMirror::streamed_per_step`]), as separate single-precision buffers summed with SIMD the same number of times; arithmetic: the multiply-adds of a step at those rates ([`m1::plant::mirror::CoupledMirror::multiply_adds_per_step`]) as independent fused multiply-adds in registers at the peak rate |
 //! | edge sensors | 1 ms | arithmetic: one multiply-add per non-zero of `y = H z`, `gap = g0 + G z` at the peak rate; memory: the non-zeros and `z` read once (a plain CSR product with the same non-zeros is timed too, for scale, in the JSON) |
-//! | optics | 1 ms | metrics: one dot-product pass over `z`; PSSN: the FFTs of one evaluation (`m1::optics::pssn`), per step |
+//! | optics | 1 ms | metrics: one dot-product pass over `z`; PSSN: the FFTs of one evaluation (`m1::optics::pssn`) in the precision of the FMU's `pssn_single_precision`, per step |
 //! | wind | 10 ms (100 Hz) | streaming the table entries one sample interpolates and the forces it writes |
 //! | master | 1 ms | an estimate of the data work on its thread: the finite check's read of the Real outputs of the steps it takes, a copy of the mirror's displacement per step handed to the look-ahead thread without it (into a buffer the other core read last, the cheaper way: values that must reach the other core), a cache line's round trip between the cores per step handed over (the fractions from the runs below); its own time from `m1cs run` (below) |
 //!
@@ -46,7 +46,7 @@ use fmu::{Instance, Model};
 use m1::aperture::layout::Layout;
 use m1::loads::wind::WindParams;
 use m1::optics::pssn::{Pssn, PssnParams};
-use rustfft::num_complex::Complex64;
+use rustfft::num_complex::Complex;
 use serde_json::{Value, json};
 
 /// Blocks per measurement (the median and the minimum are taken over them).
@@ -746,6 +746,12 @@ fn optics(layout: &str, steps: Option<usize>, rows: &mut Vec<Row>) {
     eprintln!("optics: set up in {setup:.2} s");
     let pssn_rate = get_scalar(&mut fmu, "pssn_rate");
     let metrics_rate = get_scalar(&mut fmu, "metrics_rate");
+    let single = {
+        let mut b = [false];
+        fmu.get_boolean(&vrs(&fmu, "pssn_single_precision"), &mut b)
+            .unwrap_or_else(|e| panic!("get pssn_single_precision: {e}"));
+        b[0]
+    };
     let per_pssn = ((1.0 / pssn_rate) / STEP).round().max(1.0) as usize;
     let z = vrs(&fmu, "z");
     let na = z.len();
@@ -789,39 +795,24 @@ fn optics(layout: &str, steps: Option<usize>, rows: &mut Vec<Row>) {
         }
     });
 
-    // PSSN floor: the FFTs of one evaluation, planned once, on buffers of the same sizes.
+    // PSSN floor: the FFTs of one evaluation, in the precision of its transforms.
     let params = PssnParams::default();
     let pssn = Pssn::new(&Layout::preset(layout).expect("layout"), params).expect("PSSN");
     let (n, m) = (pssn.grid().samples(), pssn.fft_size());
     let lag_rows = pssn.otf_lag_rows();
     drop(pssn);
-    let mut planner = rustfft::FftPlanner::<f64>::new();
-    let (fft, ifft) = (planner.plan_fft_forward(m), planner.plan_fft_inverse(m));
-    let zero = Complex64::new(0.0, 0.0);
-    // The cost of a transform does not depend on the values: zeros keep the repeated in-place
-    // transforms finite.
-    let mut field = vec![zero; n * m];
-    let mut spectrum = vec![zero; m * m];
-    let mut otf = vec![zero; lag_rows * m];
-    let mut scratch = vec![
-        zero;
-        fft.get_inplace_scratch_len()
-            .max(ifft.get_inplace_scratch_len())
-    ];
     let half = m / 2;
-    let fft_per_eval = measure(steps.map(|s| s.div_ceil(per_pssn)), 1, |reps| {
-        for _ in 0..reps {
-            fft.process_with_scratch(&mut field, &mut scratch);
-            fft.process_with_scratch(&mut spectrum, &mut scratch);
-            ifft.process_with_scratch(&mut spectrum[..half * m], &mut scratch);
-            ifft.process_with_scratch(&mut otf, &mut scratch);
-            black_box((&field, &spectrum, &otf));
-        }
-    });
+    let evals = steps.map(|s| s.div_ceil(per_pssn));
+    let fft_per_eval = if single {
+        fft_floor::<f32>(n, m, lag_rows, evals)
+    } else {
+        fft_floor::<f64>(n, m, lag_rows, evals)
+    };
     let transforms = n + m + half + lag_rows;
+    let precision = if single { "single" } else { "double" };
     let fft_basis = format!(
-        "{transforms} complex FFTs of {m} ({n} field rows, {m} columns, {half} packed PSF rows, \
-         {lag_rows} OTF lag rows) per evaluation"
+        "{transforms} complex FFTs of {m} in {precision} precision ({n} field rows, {m} columns, \
+         {half} packed PSF rows, {lag_rows} OTF lag rows) per evaluation"
     );
     let pssn_floor = fft_per_eval.scaled(1.0 / per_pssn as f64);
     let combined = Stats {
@@ -838,6 +829,7 @@ fn optics(layout: &str, steps: Option<usize>, rows: &mut Vec<Row>) {
         "fft_size": m,
         "lag_rows": lag_rows,
         "ffts_per_evaluation": transforms,
+        "pssn_single_precision": single,
         "metrics_floor": metrics_floor.json(),
         "fft_per_evaluation": fft_per_eval.json(),
     });
@@ -875,6 +867,40 @@ fn optics(layout: &str, steps: Option<usize>, rows: &mut Vec<Row>) {
         basis: fft_basis,
         details,
     });
+}
+
+/// The FFTs of one PSSN evaluation in the precision `T` of its transforms (`n` field rows,
+/// size `m`, `lag_rows` OTF lag rows), planned once, on buffers of the evaluation's sizes:
+/// `evals` evaluations (or as many as the measurement takes).
+fn fft_floor<T: rustfft::FftNum>(
+    n: usize,
+    m: usize,
+    lag_rows: usize,
+    evals: Option<usize>,
+) -> Stats {
+    let mut planner = rustfft::FftPlanner::<T>::new();
+    let (fft, ifft) = (planner.plan_fft_forward(m), planner.plan_fft_inverse(m));
+    let zero = Complex::new(T::zero(), T::zero());
+    // The cost of a transform does not depend on the values: zeros keep the repeated in-place
+    // transforms finite.
+    let mut field = vec![zero; n * m];
+    let mut spectrum = vec![zero; m * m];
+    let mut otf = vec![zero; lag_rows * m];
+    let mut scratch = vec![
+        zero;
+        fft.get_inplace_scratch_len()
+            .max(ifft.get_inplace_scratch_len())
+    ];
+    let half = m / 2;
+    measure(evals, 1, |reps| {
+        for _ in 0..reps {
+            fft.process_with_scratch(&mut field, &mut scratch);
+            fft.process_with_scratch(&mut spectrum, &mut scratch);
+            ifft.process_with_scratch(&mut spectrum[..half * m], &mut scratch);
+            ifft.process_with_scratch(&mut otf, &mut scratch);
+            black_box((&field, &spectrum, &otf));
+        }
+    })
 }
 
 fn wind(layout: &str, steps: Option<usize>, arch: pulp::Arch, rows: &mut Vec<Row>) {

@@ -1,7 +1,8 @@
 //! The optics metrics and PSSN per evaluation, on Keck and TMT (the figures the optics FMU's
 //! documentation quotes): `MirrorMetrics::evaluate` on a fixed pseudo-random surface, and
 //! `Pssn::pssn_ptt` of its residual segment states at 128, 256 (the default) and 512 samples
-//! across the pupil. Set-up is outside the timings.
+//! across the pupil, in double precision and with the transforms in single precision (the
+//! optics FMU's default, `PssnPrecision::Single`) side by side. Set-up is outside the timings.
 //!
 //! `cargo bench -p m1 --bench optics`
 #![allow(clippy::expect_used, clippy::unwrap_used, clippy::panic)]
@@ -13,7 +14,7 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use m1::aperture::geometry::{Geometry, GeometryParams};
 use m1::aperture::layout::Layout;
 use m1::optics::metrics::MirrorMetrics;
-use m1::optics::pssn::{Pssn, PssnParams};
+use m1::optics::pssn::{Pssn, PssnParams, PssnPrecision};
 
 /// A deterministic surface of about `scale` (m) at every actuator.
 fn surface(n: usize, scale: f64) -> Vec<f64> {
@@ -42,17 +43,19 @@ fn bench(c: &mut Criterion) {
         m.residual_ptt(&z, &mut ptt).unwrap();
         group.sample_size(20);
         for samples in [128, 256, 512] {
-            let pssn = Pssn::new(
-                &layout,
-                PssnParams {
+            for (precision, label) in [
+                (PssnPrecision::Double, "double"),
+                (PssnPrecision::Single, "single"),
+            ] {
+                let params = PssnParams {
                     samples,
                     ..PssnParams::default()
-                },
-            )
-            .unwrap();
-            group.bench_function(format!("pssn/{samples}_samples"), |b| {
-                b.iter(|| black_box(pssn.pssn_ptt(black_box(&ptt)).unwrap()))
-            });
+                };
+                let pssn = Pssn::with_precision(&layout, params, precision).unwrap();
+                group.bench_function(format!("pssn/{samples}_samples/{label}"), |b| {
+                    b.iter(|| black_box(pssn.pssn_ptt(black_box(&ptt)).unwrap()))
+                });
+            }
         }
         group.finish();
     }

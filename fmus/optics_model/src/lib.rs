@@ -30,14 +30,14 @@ use std::sync::{Arc, Mutex, PoisonError};
 use serde::{Deserialize, Serialize};
 
 use fmu::{
-    Decl, Dependencies, FmuError, IntVar, Model, ModelInfo, RealVar, Running, StrVar,
+    BoolVar, Decl, Dependencies, FmuError, IntVar, Model, ModelInfo, RealVar, Running, StrVar,
     TableBuilder as T, Values, VariableTable,
 };
 use m1::M1Error;
 use m1::aperture::geometry::{Geometry, GeometryParams};
 use m1::aperture::layout::Layout;
 use m1::optics::metrics::{MetricsScratch, MirrorMetrics};
-use m1::optics::pssn::{Pssn, PssnParams};
+use m1::optics::pssn::{Pssn, PssnParams, PssnPrecision};
 use wiring::signals::{Z, layout_decl, n_segments_decl};
 
 /// Default samples across the aperture of the PSSN pupil grid (see the documentation).
@@ -84,6 +84,11 @@ fmu::variables! {
             .start_int(DEFAULT_PSSN_SAMPLES).check(fmu::Check::Range(16.0, 1024.0))
             .describe("Samples across the aperture of the PSSN pupil grid (cost ~ samples^2; \
                        1 - PSSN about 7 % high at 256, see the documentation)"),
+        pssn_single_precision: BoolVar = T::boolean("pssn_single_precision").parameter()
+            .start_bool(true)
+            .describe("Hold the PSSN's pupil field, its FFTs and the OTF in single precision \
+                       (phases, weights and sums stay double): about half the time, the PSSN \
+                       within 3e-7 of double precision's on TMT (false: double throughout)"),
         actuator_radius: RealVar = T::real("actuator_radius").parameter().unit("m")
             .start(GeometryParams::for_layout(layout).actuator_radius).positive()
             .describe("Radius of the actuator circle of a segment (less than the circumradius)"),
@@ -108,8 +113,9 @@ fn metric(name: &str, unit: &str) -> Decl {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 struct Setup {
     actuator_radius: f64,
-    /// None when PSSN is disabled.
-    pssn: Option<(usize, f64, f64, f64)>,
+    /// None when PSSN is disabled; else samples, wavelength, r0, L0 and whether in single
+    /// precision.
+    pssn: Option<(usize, f64, f64, f64, bool)>,
 }
 
 /// The precomputed evaluators (shared between copies of the model: read-only).
@@ -257,8 +263,10 @@ in the aperture plane, m; circumradius).</p>\
 log. Measured (release build, one core of a shared machine, <code>cargo bench -p m1 --bench \
 optics</code>) per evaluation: TMT 0.27 ms at 128 \
 samples, 1.3 ms at the default 256 (grid spacing 0.117 m, FFT 512), 8.1 ms at 512; Keck 0.25, \
-1.2 and 8.0 ms. So the default costs about 13 ms of CPU per simulated second at the default \
-10 Hz. \
+1.2 and 8.0 ms, in double precision (<code>pssn_single_precision</code> false). The default \
+single precision of the field, its FFTs and the OTF (phases, OTF weights and sums in double) \
+takes about half the FFTs' time and moves the PSSN by less than 3e-7 on TMT. So the default \
+costs at most 13 ms of CPU per simulated second at the default 10 Hz. \
 The deficit 1 &minus; PSSN converges with the grid spacing: at 500 nm and 256 samples it is \
 about 7 % above the 512-sample value (TMT, random segment errors: 3.35e-2 against 3.14e-2); \
 use 512 samples where a few per cent matter (dx &le; r0/4), or a longer wavelength, where the \
@@ -281,6 +289,7 @@ fn setup(x: &Vars, v: &Values) -> Setup {
             v.scalar(x.wavelength),
             v.scalar(x.r0),
             v.scalar(x.outer_scale),
+            v.boolean(x.pssn_single_precision),
         )
     });
     Setup {
@@ -298,8 +307,8 @@ impl Engine {
         let geometry = Geometry::new(&layout, params).map_err(model_error)?;
         let metrics = MirrorMetrics::new(&geometry).map_err(model_error)?;
         let pssn = match setup.pssn {
-            Some((samples, wavelength, r0, l0)) => Some(
-                Pssn::new(
+            Some((samples, wavelength, r0, l0, single)) => Some(
+                Pssn::with_precision(
                     &layout,
                     PssnParams {
                         samples,
@@ -307,6 +316,11 @@ impl Engine {
                         r0,
                         l0,
                         ..PssnParams::default()
+                    },
+                    if single {
+                        PssnPrecision::Single
+                    } else {
+                        PssnPrecision::Double
                     },
                 )
                 .map_err(model_error)?,
@@ -558,6 +572,35 @@ mod tests {
         assert_eq!(
             wiring::check_documented_signals::<Optics>(include_str!("lib.rs")),
             Ok(())
+        );
+    }
+
+    /// `pssn_single_precision` chooses the precision of the PSSN's transforms: single (the
+    /// default) and double give PSSNs within 1e-5 of each other, not the same bits, on a
+    /// state with a PSSN well below 1.
+    #[test]
+    fn the_pssn_precision_is_a_parameter() {
+        let pssn = |single: Option<bool>| {
+            let mut fmu = instance("keck");
+            fmu.set_integer(&vrs(&fmu, "pssn_samples"), &[64]).unwrap();
+            if let Some(single) = single {
+                fmu.set_boolean(&vrs(&fmu, "pssn_single_precision"), &[single])
+                    .unwrap();
+            }
+            let z = vrs(&fmu, "z");
+            let v: Vec<f64> = (0..z.len())
+                .map(|i| 5e-8 * (i as f64 * 0.7).sin())
+                .collect();
+            fmu.set_real(&z, &v).unwrap();
+            fmu.exit_initialization_mode().unwrap();
+            run(&mut fmu, 1, |_, _| {}, "pssn")[0]
+        };
+        let (default, single, double) = (pssn(None), pssn(Some(true)), pssn(Some(false)));
+        assert_eq!(default.to_bits(), single.to_bits());
+        assert!(double > 0.0 && double < 0.99, "pssn {double}");
+        assert!(
+            (single - double).abs() < 1e-5 && single != double,
+            "single {single}, double {double}"
         );
     }
 

@@ -80,8 +80,8 @@ use std::f64::consts::PI;
 use std::fmt;
 use std::sync::{Arc, Mutex, TryLockError};
 
-use rustfft::num_complex::Complex64;
-use rustfft::{Fft, FftPlanner};
+use rustfft::num_complex::{Complex, Complex64};
+use rustfft::{Fft, FftNum, FftPlanner};
 
 use crate::M1Error;
 use crate::aperture::layout::Layout;
@@ -143,17 +143,102 @@ struct Run {
 /// rounding grows with its length (about `len` units in the last place); longer rows are split.
 const RUN_MAX: usize = 32;
 
+/// The floating-point precision of an evaluation's transforms ([`Pssn::with_precision`]).
+///
+/// The field's phases, the OTF weights and the weighted sum are always computed in double
+/// precision; single precision holds the field, its transforms and the OTF. Against double
+/// precision it moves the PSSN by 0.7-2.8e-7 (TMT at the default grid, segment states from
+/// PSSN 0.9999 to 0.54; a test bounds it at 1e-5), three orders of magnitude below the grid's
+/// own discretisation error at the closed loop's PSSN (1 - PSSN about 7 % high at 256 samples,
+/// module documentation), and the FFTs take about half the time (BENCHMARKS.md,
+/// twenty-second round).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum PssnPrecision {
+    /// Double precision throughout (the default of [`Pssn::new`]).
+    #[default]
+    Double,
+    /// The field, its transforms and the OTF in single precision.
+    Single,
+}
+
+/// A floating-point type the transforms run in ([`PssnPrecision`]).
+trait Sample: FftNum {
+    /// `x` rounded to this type.
+    fn of(x: f64) -> Self;
+    /// The value in double precision.
+    fn wide(self) -> f64;
+}
+
+impl Sample for f64 {
+    fn of(x: f64) -> Self {
+        x
+    }
+    fn wide(self) -> f64 {
+        self
+    }
+}
+
+impl Sample for f32 {
+    fn of(x: f64) -> Self {
+        x as f32
+    }
+    fn wide(self) -> f64 {
+        f64::from(self)
+    }
+}
+
+/// `z` rounded to the type of the transforms.
+fn sample<T: Sample>(z: Complex64) -> Complex<T> {
+    Complex::new(T::of(z.re), T::of(z.im))
+}
+
 /// Buffers of one evaluation.
-struct Workspace {
+struct Workspace<T> {
     /// `N x M`: the field rows, then their FFTs.
-    field: Vec<Complex64>,
+    field: Vec<Complex<T>>,
     /// `M x M`: the transposed spectrum, then the packed PSF rows and their inverse FFTs.
-    spectrum: Vec<Complex64>,
+    spectrum: Vec<Complex<T>>,
     /// `rows x M`: the half OTF over the lags with non-negligible weight.
-    otf: Vec<Complex64>,
-    scratch: Vec<Complex64>,
+    otf: Vec<Complex<T>>,
+    scratch: Vec<Complex<T>>,
     /// Per segment: the field's factor from one sample to the next along a row.
     steps: Vec<Complex64>,
+}
+
+impl<T: Sample> Workspace<T> {
+    fn empty() -> Self {
+        Self {
+            field: Vec::new(),
+            spectrum: Vec::new(),
+            otf: Vec::new(),
+            scratch: Vec::new(),
+            steps: Vec::new(),
+        }
+    }
+}
+
+/// The FFT plans and the buffers of one precision.
+struct Fourier<T> {
+    fft: Arc<dyn Fft<T>>,
+    ifft: Arc<dyn Fft<T>>,
+    workspace: Mutex<Workspace<T>>,
+}
+
+impl<T: Sample> Fourier<T> {
+    fn new(size: usize) -> Self {
+        let mut planner = FftPlanner::<T>::new();
+        Self {
+            fft: planner.plan_fft_forward(size),
+            ifft: planner.plan_fft_inverse(size),
+            workspace: Mutex::new(Workspace::empty()),
+        }
+    }
+}
+
+/// The transforms in the evaluator's precision.
+enum Transforms {
+    Double(Fourier<f64>),
+    Single(Fourier<f32>),
 }
 
 /// PSSN evaluator for one layout and one set of [`PssnParams`] (see the
@@ -166,8 +251,7 @@ pub struct Pssn {
     size: usize,
     /// Lag rows `y' = 0..rows` of the half OTF that carry weight.
     rows: usize,
-    fft: Arc<dyn Fft<f64>>,
-    ifft: Arc<dyn Fft<f64>>,
+    transforms: Transforms,
     /// `rows x M`: `exp(-D(r))`, doubled for the rows standing for their mirror image too.
     weights: Vec<f64>,
     pupil: Vec<PupilSample>,
@@ -175,7 +259,6 @@ pub struct Pssn {
     runs: Vec<Run>,
     phase_per_metre: f64,
     denominator: f64,
-    workspace: Mutex<Workspace>,
 }
 
 impl fmt::Debug for Pssn {
@@ -187,14 +270,25 @@ impl fmt::Debug for Pssn {
             .field("fft_size", &self.size)
             .field("lag_rows", &self.rows)
             .field("denominator", &self.denominator)
+            .field("precision", &self.precision())
             .finish_non_exhaustive()
     }
 }
 
 impl Pssn {
     /// Builds the evaluator: pupil grid, FFT plans, buffers, OTF weights and the
-    /// perfect-telescope denominator.
+    /// perfect-telescope denominator, in double precision.
     pub fn new(layout: &Layout, params: PssnParams) -> Result<Pssn, M1Error> {
+        Self::with_precision(layout, params, PssnPrecision::Double)
+    }
+
+    /// [`Self::new`] with the transforms in `precision` (the denominator too, so that a
+    /// perfect mirror still gives exactly 1).
+    pub fn with_precision(
+        layout: &Layout,
+        params: PssnParams,
+        precision: PssnPrecision,
+    ) -> Result<Pssn, M1Error> {
         let positive = |name: &'static str, value: f64, allow_inf: bool| {
             if value > 0.0 && (value.is_finite() || allow_inf) {
                 Ok(())
@@ -271,35 +365,26 @@ impl Pssn {
 
         let (weights, rows) = otf_weights(&params, size, grid.spacing);
 
-        let mut planner = FftPlanner::<f64>::new();
-        let fft = planner.plan_fft_forward(size);
-        let ifft = planner.plan_fft_inverse(size);
+        let transforms = match precision {
+            PssnPrecision::Double => Transforms::Double(Fourier::new(size)),
+            PssnPrecision::Single => Transforms::Single(Fourier::new(size)),
+        };
         let mut pssn = Pssn {
             params,
             grid,
             size,
             rows,
-            fft,
-            ifft,
+            transforms,
             weights,
             pupil,
             runs,
             phase_per_metre: 4.0 * PI / params.wavelength,
             denominator: 1.0,
-            workspace: Mutex::new(Workspace {
-                field: Vec::new(),
-                spectrum: Vec::new(),
-                otf: Vec::new(),
-                scratch: Vec::new(),
-                steps: Vec::new(),
-            }),
         };
-        let mut ws = pssn.new_workspace();
-        let denominator = pssn.weighted_otf_power(&mut ws, |field| {
-            for s in &pssn.pupil {
-                field[s.field] = Complex64::new(1.0, 0.0);
-            }
-        });
+        let denominator = match &pssn.transforms {
+            Transforms::Double(f) => pssn.perfect_power(f),
+            Transforms::Single(f) => pssn.perfect_power(f),
+        };
         if !(denominator > 0.0 && denominator.is_finite()) {
             return Err(M1Error::InvalidParameter {
                 name: "samples",
@@ -308,7 +393,6 @@ impl Pssn {
             });
         }
         pssn.denominator = denominator;
-        pssn.workspace = Mutex::new(ws);
         Ok(pssn)
     }
 
@@ -326,6 +410,14 @@ impl Pssn {
     /// is non-negligible; at most `M / 2 + 1`): with the grid's and `M`, the sizes of its FFTs.
     pub fn otf_lag_rows(&self) -> usize {
         self.rows
+    }
+
+    /// The precision of the transforms.
+    pub fn precision(&self) -> PssnPrecision {
+        match self.transforms {
+            Transforms::Double(_) => PssnPrecision::Double,
+            Transforms::Single(_) => PssnPrecision::Single,
+        }
     }
 
     /// FFT size `M` of the padded grid.
@@ -347,33 +439,42 @@ impl Pssn {
     /// [`crate::aperture::zernike`]).
     pub fn pssn_ptt(&self, ptt: &[[f64; 3]]) -> Result<f64, M1Error> {
         check_ptt(ptt, self.grid.n_segments())?;
+        let power = match &self.transforms {
+            Transforms::Double(f) => self.ptt_power(f, ptt),
+            Transforms::Single(f) => self.ptt_power(f, ptt),
+        };
+        Ok(power / self.denominator)
+    }
+
+    /// The weighted OTF power of the segment state `ptt` ([`Self::pssn_ptt`]).
+    fn ptt_power<T: Sample>(&self, f: &Fourier<T>, ptt: &[[f64; 3]]) -> f64 {
         let k = self.phase_per_metre;
         let h = self.grid.spacing;
-        Ok(self.with_workspace(|ws| {
+        self.with_workspace(f, |ws| {
             // Along a run the phase grows by k tx h per sample: the field is its first
             // sample's exponential times powers of the segment's step (a sin_cos per run and
-            // one per segment, instead of one per sample).
+            // one per segment, instead of one per sample), in double precision.
             let mut steps = std::mem::take(&mut ws.steps);
             steps.clear();
             steps.extend(ptt.iter().map(|&[_, tx, _]| {
                 let (s, c) = (k * tx * h).sin_cos();
                 Complex64::new(c, s)
             }));
-            let power = self.weighted_otf_power(ws, |field| {
+            let power = self.weighted_otf_power(f, ws, |field| {
                 for r in &self.runs {
                     let [p, tx, ty] = ptt[r.segment];
                     let (s0, c0) = (k * (p + tx * r.dx + ty * r.dy)).sin_cos();
                     let step = steps[r.segment];
                     let mut e = Complex64::new(c0, s0);
                     for f in &mut field[r.field..r.field + r.len] {
-                        *f = e;
+                        *f = sample(e);
                         e *= step;
                     }
                 }
             });
             ws.steps = steps;
             power
-        }) / self.denominator)
+        })
     }
 
     /// PSSN of a surface error sampled on the [grid](Self::grid) (m, `N x N`, flat index
@@ -387,53 +488,89 @@ impl Pssn {
                 found: surface.len(),
             });
         }
-        let k = self.phase_per_metre;
-        Ok(self.with_workspace(|ws| {
-            self.weighted_otf_power(ws, |field| {
-                for s in &self.pupil {
-                    let (sin, cos) = (k * surface[s.grid]).sin_cos();
-                    field[s.field] = Complex64::new(cos, sin);
-                }
-            })
-        }) / self.denominator)
+        let power = match &self.transforms {
+            Transforms::Double(f) => self.surface_power(f, surface),
+            Transforms::Single(f) => self.surface_power(f, surface),
+        };
+        Ok(power / self.denominator)
     }
 
-    fn new_workspace(&self) -> Workspace {
+    /// The weighted OTF power of the sampled surface `surface` ([`Self::pssn_surface`]).
+    fn surface_power<T: Sample>(&self, f: &Fourier<T>, surface: &[f64]) -> f64 {
+        let k = self.phase_per_metre;
+        self.with_workspace(f, |ws| {
+            self.weighted_otf_power(f, ws, |field| {
+                for s in &self.pupil {
+                    let (sin, cos) = (k * surface[s.grid]).sin_cos();
+                    field[s.field] = sample(Complex64::new(cos, sin));
+                }
+            })
+        })
+    }
+
+    /// The weighted OTF power of the perfect mirror: the denominator.
+    fn perfect_power<T: Sample>(&self, f: &Fourier<T>) -> f64 {
+        self.with_workspace(f, |ws| {
+            self.weighted_otf_power(f, ws, |field| {
+                for s in &self.pupil {
+                    field[s.field] = Complex::new(T::one(), T::zero());
+                }
+            })
+        })
+    }
+
+    fn new_workspace<T: Sample>(&self, f: &Fourier<T>) -> Workspace<T> {
         let (n, m) = (self.grid.samples, self.size);
-        let scratch = self
+        let scratch = f
             .fft
             .get_inplace_scratch_len()
-            .max(self.ifft.get_inplace_scratch_len());
-        let zero = Complex64::new(0.0, 0.0);
+            .max(f.ifft.get_inplace_scratch_len());
+        let zero = Complex::new(T::zero(), T::zero());
         Workspace {
             field: vec![zero; n * m],
             spectrum: vec![zero; m * m],
             otf: vec![zero; self.rows * m],
             scratch: vec![zero; scratch],
-            steps: vec![zero; self.grid.n_segments()],
+            steps: vec![Complex64::new(0.0, 0.0); self.grid.n_segments()],
         }
     }
 
-    fn with_workspace<R>(&self, f: impl FnOnce(&mut Workspace) -> R) -> R {
-        match self.workspace.try_lock() {
-            Ok(mut guard) => f(&mut guard),
-            Err(TryLockError::Poisoned(poisoned)) => f(&mut poisoned.into_inner()),
-            Err(TryLockError::WouldBlock) => f(&mut self.new_workspace()),
+    /// Runs `g` on `f`'s buffers (made at the first evaluation), or on fresh ones when
+    /// another thread holds them.
+    fn with_workspace<T: Sample, R>(
+        &self,
+        f: &Fourier<T>,
+        g: impl FnOnce(&mut Workspace<T>) -> R,
+    ) -> R {
+        let run = |ws: &mut Workspace<T>| {
+            if ws.field.is_empty() {
+                *ws = self.new_workspace(f);
+            }
+            g(ws)
+        };
+        match f.workspace.try_lock() {
+            Ok(mut guard) => run(&mut guard),
+            Err(TryLockError::Poisoned(poisoned)) => run(&mut poisoned.into_inner()),
+            Err(TryLockError::WouldBlock) => run(&mut self.new_workspace(f)),
         }
     }
 
     /// `sum_f exp(-D(f)) |OTF(f)|^2` for the pupil field that `fill` writes into the zeroed
     /// `N x M` field buffer (`exp(i phase)` at each in-aperture sample), unnormalised.
-    fn weighted_otf_power(&self, ws: &mut Workspace, fill: impl FnOnce(&mut [Complex64])) -> f64 {
+    fn weighted_otf_power<T: Sample>(
+        &self,
+        f: &Fourier<T>,
+        ws: &mut Workspace<T>,
+        fill: impl FnOnce(&mut [Complex<T>]),
+    ) -> f64 {
         let (n, m) = (self.grid.samples, self.size);
         let half = m / 2;
-        let zero = Complex64::new(0.0, 0.0);
+        let zero = Complex::new(T::zero(), T::zero());
 
         // Field on the N non-zero rows, FFT along x.
         ws.field.fill(zero);
         fill(&mut ws.field);
-        self.fft
-            .process_with_scratch(&mut ws.field, &mut ws.scratch);
+        f.fft.process_with_scratch(&mut ws.field, &mut ws.scratch);
 
         // Transpose into the M x M spectrum (rows N..M of the field are zero), FFT along y.
         // Blocks of ROWS field rows: their stride (M complex values, a power of two) puts them
@@ -454,27 +591,28 @@ impl Pssn {
         for c in 0..m {
             ws.spectrum[c * m + n..(c + 1) * m].fill(zero);
         }
-        self.fft
+        f.fft
             .process_with_scratch(&mut ws.spectrum, &mut ws.scratch);
 
         // PSF rows 2t and 2t+1 packed as the real and imaginary parts of row t.
         for k in 0..m {
             let (a, b) = (ws.spectrum[k].norm_sqr(), ws.spectrum[m + k].norm_sqr());
-            ws.spectrum[k] = Complex64::new(a, b);
+            ws.spectrum[k] = Complex::new(a, b);
         }
         for t in 1..half {
             let (lo, hi) = ws.spectrum.split_at_mut(2 * t * m);
             let dst = &mut lo[t * m..(t + 1) * m];
             let (ra, rb) = hi[..2 * m].split_at(m);
             for ((d, a), b) in dst.iter_mut().zip(ra).zip(rb) {
-                *d = Complex64::new(a.norm_sqr(), b.norm_sqr());
+                *d = Complex::new(a.norm_sqr(), b.norm_sqr());
             }
         }
-        self.ifft
+        f.ifft
             .process_with_scratch(&mut ws.spectrum[..half * m], &mut ws.scratch);
 
         // Unpack the two real rows' (Hermitian) transforms and transpose: otf[y'][kx].
         const PAIRS: usize = 8;
+        let half_of = T::of(0.5);
         for t0 in (0..half).step_by(PAIRS) {
             let t1 = (t0 + PAIRS).min(half);
             for y in 0..self.rows {
@@ -484,17 +622,17 @@ impl Pssn {
                     let z = ws.spectrum[t * m + y];
                     let zc = ws.spectrum[t * m + ym].conj();
                     let (s, d) = (z + zc, z - zc);
-                    out[2 * t] = Complex64::new(0.5 * s.re, 0.5 * s.im);
-                    out[2 * t + 1] = Complex64::new(0.5 * d.im, -0.5 * d.re);
+                    out[2 * t] = Complex::new(half_of * s.re, half_of * s.im);
+                    out[2 * t + 1] = Complex::new(half_of * d.im, -half_of * d.re);
                 }
             }
         }
-        self.ifft.process_with_scratch(&mut ws.otf, &mut ws.scratch);
+        f.ifft.process_with_scratch(&mut ws.otf, &mut ws.scratch);
 
         ws.otf
             .iter()
             .zip(&self.weights)
-            .map(|(o, w)| w * o.norm_sqr())
+            .map(|(o, w)| w * o.norm_sqr().wide())
             .sum()
     }
 }
