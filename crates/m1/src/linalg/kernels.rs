@@ -220,6 +220,80 @@ pub fn rows_dot2_f32<S: Simd>(
     }
 }
 
+/// `y[i - rows.start] = sum_j x_j A[j, i]` for `i` in `rows`: a single-precision `A` (`k x n`
+/// row-major, row stride `lda`) read by columns, each output one lane of a vector summed over
+/// `j` in order in single precision (no reduction across lanes), [`COLS_BLOCK`] vectors of
+/// outputs at a time, then written in double precision.
+///
+/// The transposed form of [`rows_dot_f32`], for short rows: a row of 60 modes is four vectors,
+/// and its reduction across the lanes cost as much as its products (the coupled mirror's pass
+/// back to the actuators at 60 modes, BENCHMARKS.md twenty-second round). Each output's sum does
+/// not depend on `rows` (a row gives the same bits whatever range computes it); its relative
+/// error is about `k` units in the last place of single precision at most, of the sum of the
+/// terms' magnitudes (about `sqrt(k)` typically).
+///
+/// # Panics
+/// If a slice is shorter than the dimensions say (a programming error).
+#[inline(always)]
+pub fn cols_dot_f32<S: Simd>(
+    simd: S,
+    a: &[f32],
+    lda: usize,
+    k: usize,
+    rows: std::ops::Range<usize>,
+    x: &[f32],
+    y: &mut [f64],
+) {
+    const B: usize = COLS_BLOCK;
+    let lanes = S::F32_LANES;
+    let x = &x[..k];
+    let y = &mut y[..rows.len()];
+    let zero = simd.splat_f32s(0.0);
+    let mut lane = [0.0f32; 16];
+    let mut i = rows.start;
+    while i < rows.end {
+        // Every block sums B vectors (constant bounds: the sums stay in registers); the last
+        // loads the outputs it has with partial loads, zeros past them.
+        let valid = (rows.end - i).min(B * lanes);
+        let mut acc = [zero; B];
+        if valid == B * lanes {
+            for (j, &xj) in x.iter().enumerate() {
+                let xv = simd.splat_f32s(xj);
+                let (ch, _) = S::as_simd_f32s(&a[j * lda + i..][..B * lanes]);
+                for (acc, c) in acc.iter_mut().zip(&ch[..B]) {
+                    *acc = simd.mul_add_f32s(*c, xv, *acc);
+                }
+            }
+        } else {
+            for (j, &xj) in x.iter().enumerate() {
+                let xv = simd.splat_f32s(xj);
+                let col = &a[j * lda + i..][..valid];
+                for (b, acc) in acc.iter_mut().enumerate() {
+                    let lo = (b * lanes).min(valid);
+                    let c = simd.partial_load_f32s(&col[lo..(lo + lanes).min(valid)]);
+                    *acc = simd.mul_add_f32s(c, xv, *acc);
+                }
+            }
+        }
+        for (b, acc) in acc.iter().enumerate() {
+            let from = b * lanes;
+            if from >= valid {
+                break;
+            }
+            let n = (valid - from).min(lanes);
+            simd.partial_store_f32s(&mut lane[..n], *acc);
+            let at = i - rows.start + from;
+            for (o, v) in y[at..at + n].iter_mut().zip(&lane[..n]) {
+                *o = f64::from(*v);
+            }
+        }
+        i += valid;
+    }
+}
+
+/// Vectors of outputs [`cols_dot_f32`] sums together (each its own chain of multiply-adds).
+pub const COLS_BLOCK: usize = 8;
+
 /// The products of a single-precision row's scalar tail with the vector's, summed in double
 /// precision.
 #[inline(always)]
@@ -916,6 +990,73 @@ mod tests {
         });
         for (a, b) in [(dense, b_dense), (sparse, b_sparse)] {
             state_map_case(&a, &b);
+        }
+    }
+
+    /// `cols_dot_f32` against the plain double-precision sums (within single precision's
+    /// rounding of the sum of the terms' magnitudes), over ranges of rows that start and end
+    /// anywhere in a vector and around a block; every row gives the same bits whatever range
+    /// computes it; the scalar instruction set gives the same bits as the vector ones.
+    #[test]
+    fn cols_dot_f32_sums_each_row_whatever_the_range() {
+        struct Case<'a> {
+            a: &'a [f32],
+            lda: usize,
+            k: usize,
+            rows: std::ops::Range<usize>,
+            x: &'a [f32],
+            y: &'a mut [f64],
+        }
+        impl pulp::WithSimd for Case<'_> {
+            type Output = ();
+            #[inline(always)]
+            fn with_simd<S: Simd>(self, simd: S) {
+                cols_dot_f32::<S>(simd, self.a, self.lda, self.k, self.rows, self.x, self.y);
+            }
+        }
+        let (k, n, lda) = (61usize, 301usize, 304usize);
+        let a: Vec<f32> = (0..k * lda)
+            .map(|i| ((i * 7919) % 1013) as f32 / 1013.0 - 0.5)
+            .collect();
+        let x: Vec<f32> = (0..k).map(|j| (j as f32 * 0.37).sin()).collect();
+        let run = |rows: std::ops::Range<usize>, scalar: bool| {
+            let mut y = vec![f64::NAN; rows.len()];
+            let case = Case {
+                a: &a,
+                lda,
+                k,
+                rows,
+                x: &x,
+                y: &mut y,
+            };
+            if scalar {
+                pulp::WithSimd::with_simd(case, pulp::Scalar);
+            } else {
+                pulp::Arch::new().dispatch(case);
+            }
+            y
+        };
+        let whole = run(0..n, false);
+        for i in 0..n {
+            let (want, size) = (0..k).fold((0.0f64, 0.0f64), |(s, m), j| {
+                let t = f64::from(a[j * lda + i]) * f64::from(x[j]);
+                (s + t, m + t.abs())
+            });
+            assert!(
+                (whole[i] - want).abs() <= 1e-6 * size,
+                "row {i}: {} vs {want}",
+                whole[i]
+            );
+        }
+        for rows in [0..1, 3..20, 17..150, 100..301, 129..130, 250..301] {
+            let part = run(rows.clone(), false);
+            for (i, v) in rows.clone().zip(&part) {
+                assert_eq!(v.to_bits(), whole[i].to_bits(), "row {i} of {rows:?}");
+            }
+        }
+        let scalar = run(0..n, true);
+        for (i, (s, v)) in scalar.iter().zip(&whole).enumerate() {
+            assert_eq!(s.to_bits(), v.to_bits(), "row {i}: scalar {s}, vector {v}");
         }
     }
 

@@ -180,6 +180,13 @@ pub struct CoupledMirror {
     /// Row stride of `phic32`, and length of each column of `cols32` and of `acc32`:
     /// [`padded_len`]`(r)`.
     pub(super) ld32: usize,
+    /// Up to [`COLUMN_PASS_MAX_MODES`] modes, `phic32` transposed (`r x ldt`, row `j` mode
+    /// `j` at every channel): the mirror's displacement back by columns
+    /// ([`crate::linalg::kernels::cols_dot_f32`]), whose rows of a few vectors would each end in
+    /// a reduction across the lanes. Empty above.
+    pub(super) phit32: Vec<f32>,
+    /// Row stride of `phit32`: [`padded_len`]`(na)`.
+    pub(super) ldt: usize,
     /// Single-precision scratch: the channel inputs by kind (command then wind, `2 n_k`), the
     /// projection's accumulators (`ld32` each) and the output columns (at most 4 columns of
     /// `ld32`, zero past `r`: the mirror's displacement one per kind, the cell's two per kind).
@@ -302,6 +309,14 @@ pub struct CoupledMirror {
     /// The free part's mirror position per channel (piston channels, then tilt), per step.
     pub(super) free_z: Vec<f64>,
 }
+
+/// Most retained modes for which the mirror's displacement goes back by the shapes' columns
+/// (a transposed copy of the single-precision shapes, [`crate::linalg::kernels::cols_dot_f32`]). Measured (TMT's 1476 channels, one thread, `cols_dot_f32`
+/// against `rows_dot_f32`, BENCHMARKS.md twenty-second round): 3.9 against 5.7 us at 60 modes,
+/// 6.7 against 8.8 at 100, 8.6 against 9.2 at 128, 13.7 against 15.6 at 200 and the same time
+/// at 300, where the pass is bound by the shapes' traffic; above, the transposed copy, kept
+/// beside the rows the inputs' projection reads, would be memory for no gain.
+pub const COLUMN_PASS_MAX_MODES: usize = 128;
 
 /// The timed steps of each side of a trial: two blocks, each after its first steps.
 const TIMED_PER_SIDE: usize = 2 * (THREADS_TRIAL_BLOCK - THREADS_TRIAL_WARM) as usize;
@@ -555,6 +570,12 @@ impl CoupledMirror {
             phic: row_major(&phic),
             phic32: padded_rows_f32(&phic, padded_len(r)),
             ld32: padded_len(r),
+            phit32: if r <= COLUMN_PASS_MAX_MODES {
+                padded_rows_f32(&phic.transpose(), padded_len(na))
+            } else {
+                Vec::new()
+            },
+            ldt: padded_len(na),
             w32: [vec![0.0f32; 2 * n], vec![0.0f32; 4 * n]],
             acc32: [vec![0.0f32; padded_len(r)], vec![0.0f32; padded_len(r)]],
             cols32: vec![0.0f32; 4 * padded_len(r)],
@@ -734,13 +755,30 @@ impl CoupledMirror {
     pub fn streamed_per_step(&self, h: f64) -> Result<Vec<(&'static str, usize, u64)>, M1Error> {
         let samples = self.ticks_in(h)?;
         let ticks = samples * u64::from(self.substeps);
-        Ok(vec![
-            (
+        let shapes = if self.phit32.is_empty() {
+            vec![(
                 "mode shapes (single precision): inputs onto the modes, the mirror's \
                  displacement back",
                 std::mem::size_of_val(self.phic32.as_slice()),
                 2,
-            ),
+            )]
+        } else {
+            vec![
+                (
+                    "mode shapes by rows (single precision): inputs onto the modes",
+                    std::mem::size_of_val(self.phic32.as_slice()),
+                    1,
+                ),
+                (
+                    "mode shapes by columns (single precision): the mirror's displacement back",
+                    std::mem::size_of_val(self.phit32.as_slice()),
+                    1,
+                ),
+            ]
+        };
+        Ok(shapes
+            .into_iter()
+            .chain([
             (
                 "[W G_p, W G_t], one per coupled tick (in single precision: between samples)",
                 if self.coupling_single {
@@ -773,6 +811,7 @@ impl CoupledMirror {
                 if self.coupling_single { samples } else { 0 },
             ),
         ])
+            .collect())
     }
 
     /// The multiply-adds a communication step of `h` seconds cannot avoid in this scheme, by

@@ -70,7 +70,11 @@
 //! shapes are streamed in
 //! single precision, their rows zero-padded to whole vectors so that the passes have no scalar
 //! tail (inputs onto the modes, outputs back: relative error about 1e-7 of the largest term), and so
-//! are, from [`SINGLE_COUPLING_MIN_MODES`] modes, the coupled solve's matrices.
+//! are, from [`SINGLE_COUPLING_MIN_MODES`] modes, the coupled solve's matrices. Up to
+//! [`COLUMN_PASS_MAX_MODES`] modes the outputs go back by the shapes' columns (a transposed
+//! copy, [`crate::linalg::kernels::cols_dot_f32`]): a channel's row of 60 modes is four vectors,
+//! whose reduction across the lanes cost as much as its products (TMT at 60 modes, the mirror
+//! step alone 7 % shorter; BENCHMARKS.md, twenty-second round).
 //!
 //! **The coupled solve per tick.** With $W = (I - M B_1)^{-1}$ the solve reads
 //! $u_{n+1} = h' + W G \psi$, where $G = [G_p, G_t]$ are the Gram matrices of the shapes'
@@ -153,8 +157,8 @@ mod tests;
 mod tick;
 
 pub use coupled::{
-    CoupledMirror, PACKED_GRAM_MIN_MODES, SHARED_CACHE_MIN_MODES, SINGLE_COUPLING_MIN_MODES,
-    THREADS_CHECK_STEPS, THREADS_TRIAL_BLOCK, THREADS_TRIAL_STEPS, THREADS_TRIAL_WARM,
-    TWO_THREADS_MIN_MODES,
+    COLUMN_PASS_MAX_MODES, CoupledMirror, PACKED_GRAM_MIN_MODES, SHARED_CACHE_MIN_MODES,
+    SINGLE_COUPLING_MIN_MODES, THREADS_CHECK_STEPS, THREADS_TRIAL_BLOCK, THREADS_TRIAL_STEPS,
+    THREADS_TRIAL_WARM, TWO_THREADS_MIN_MODES,
 };
 pub use maps::foh_mode;

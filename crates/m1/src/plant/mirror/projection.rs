@@ -4,7 +4,7 @@
 
 use nalgebra::DMatrix;
 
-use crate::linalg::kernels::{rows_axpy2_f32, rows_dot_f32, rows_dot2_f32};
+use crate::linalg::kernels::{cols_dot_f32, rows_axpy2_f32, rows_dot_f32, rows_dot2_f32};
 
 /// The two input columns the ticks use (command, wind) of an `r x N_IN` column-major block.
 pub(super) fn input_columns(w: &mut [f64], r: usize) -> (&mut [f64], &mut [f64]) {
@@ -101,6 +101,47 @@ impl<const C: usize> pulp::WithSimd for Reconstruct<'_, C> {
                 ),
                 _ => unreachable!("Reconstruct: 1 or 2 columns per kind"),
             }
+        }
+    }
+}
+
+/// Rows `rows` of `Phi_c [cols_k]`, one column per kind, from the shapes stored by columns
+/// (`phit`, `r x ldt`: row `j` mode `j` at every channel row): [`Reconstruct`]`::<1>` by
+/// [`cols_dot_f32`], each output summed over the modes in order whatever `rows` is.
+pub(super) struct ReconstructCols<'a> {
+    pub(super) phit: &'a [f32],
+    pub(super) ldt: usize,
+    pub(super) r: usize,
+    pub(super) n: usize,
+    pub(super) rows: std::ops::Range<usize>,
+    /// The column of each kind in turn, `ld` long.
+    pub(super) cols: &'a [f32],
+    pub(super) ld: usize,
+    pub(super) out: &'a mut [f64],
+}
+
+impl pulp::WithSimd for ReconstructCols<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
+        let (ld, n) = (self.ld, self.n);
+        for (kind, kinds) in [(0usize, 0..n), (1, n..3 * n)] {
+            let lo = self.rows.start.max(kinds.start);
+            let hi = self.rows.end.min(kinds.end);
+            if lo >= hi {
+                continue;
+            }
+            let at = lo - self.rows.start..hi - self.rows.start;
+            cols_dot_f32::<S>(
+                simd,
+                self.phit,
+                self.ldt,
+                self.r,
+                lo..hi,
+                &self.cols[ld * kind..ld * kind + self.r],
+                &mut self.out[at],
+            );
         }
     }
 }

@@ -6,7 +6,7 @@
 use super::coupled::{ChannelMaps, CoupledMirror};
 use pulp::WithSimd;
 
-use super::projection::Reconstruct;
+use super::projection::{Reconstruct, ReconstructCols};
 use crate::linalg::kernels::{
     SourceMasks, axpy, rows_dot, rows_dot_f32, rows_dot2_f32, rows_map, state_map,
 };
@@ -404,7 +404,27 @@ impl CoupledMirror {
         }
         let mut outs = std::mem::take(&mut self.out);
         let (phic, cols) = (&self.phic32[..], &self.cols32[..2 * ld]);
+        let (phit, ldt) = (&self.phit32[..], self.ldt);
+        let by_columns = |rows, out| ReconstructCols {
+            phit,
+            ldt,
+            r,
+            n,
+            rows,
+            cols,
+            ld,
+            out,
+        };
         match pair::<LARGE>(&mut self.pair, self.two_threads) {
+            Some(p) if !phit.is_empty() => {
+                let h = split_rows(na);
+                let (lo, hi) = outs[..na].split_at_mut(h);
+                p.join(
+                    || simd.vectorize(by_columns(0..h, lo)),
+                    move || simd.vectorize(by_columns(h..na, hi)),
+                );
+            }
+            None if !phit.is_empty() => by_columns(0..na, &mut outs[..na]).with_simd(simd),
             Some(p) => {
                 let h = split_rows(na);
                 let (lo, hi) = outs[..na].split_at_mut(h);
