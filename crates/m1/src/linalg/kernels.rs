@@ -791,8 +791,8 @@ const MAX_GROUPS: usize = ROWS_MAP_MAX / ROW_GROUP;
 /// Which sources (the states, then the inputs) each group of [`ROW_GROUP`] rows of a map
 /// `[a b]` reads with a non-zero coefficient, a bit per source (bit `j` state `j`, bit
 /// `NS + l` input `l`): what [`state_map`] and [`rows_map`] skip. Made once per map
-/// ([`Self::of`]) and kept with it: found again at every pass, they cost as much as a fifth of
-/// the coupled mirror's passes over its 60 modes (BENCHMARKS.md, twenty-second round).
+/// ([`Self::of`]) and kept with it: found again at every pass, they took 2.5 % of a profile of
+/// the coupled mirror's step at 60 modes (BENCHMARKS.md, twenty-second round).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct SourceMasks([u64; MAX_GROUPS]);
 

@@ -311,11 +311,12 @@ pub struct CoupledMirror {
 }
 
 /// Most retained modes for which the mirror's displacement goes back by the shapes' columns
-/// (a transposed copy of the single-precision shapes, [`crate::linalg::kernels::cols_dot_f32`]). Measured (TMT's 1476 channels, one thread, `cols_dot_f32`
-/// against `rows_dot_f32`, BENCHMARKS.md twenty-second round): 3.9 against 5.7 us at 60 modes,
-/// 6.7 against 8.8 at 100, 8.6 against 9.2 at 128, 13.7 against 15.6 at 200 and the same time
-/// at 300, where the pass is bound by the shapes' traffic; above, the transposed copy, kept
-/// beside the rows the inputs' projection reads, would be memory for no gain.
+/// (a transposed copy of the single-precision shapes,
+/// [`crate::linalg::kernels::cols_dot_f32`]). Measured (TMT's 1476 channels, one thread,
+/// `cols_dot_f32` against `rows_dot_f32`, BENCHMARKS.md twenty-second round): 3.9 against 5.7 us
+/// at 60 modes, 6.7 against 8.8 at 100, 8.6 against 9.2 at 128, 13.7 against 15.6 at 200 and
+/// the same time at 300, where the pass is bound by the shapes' traffic; above, the transposed
+/// copy, kept beside the rows the inputs' projection reads, would be memory for no gain.
 pub const COLUMN_PASS_MAX_MODES: usize = 128;
 
 /// The timed steps of each side of a trial: two blocks, each after its first steps.

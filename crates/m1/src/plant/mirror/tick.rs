@@ -405,61 +405,38 @@ impl CoupledMirror {
         let mut outs = std::mem::take(&mut self.out);
         let (phic, cols) = (&self.phic32[..], &self.cols32[..2 * ld]);
         let (phit, ldt) = (&self.phit32[..], self.ldt);
-        let by_columns = |rows, out| ReconstructCols {
-            phit,
-            ldt,
-            r,
-            n,
-            rows,
-            cols,
-            ld,
-            out,
+        // Rows `rows` of the displacement: by the shapes' columns where they are kept, else by
+        // their rows.
+        let back = move |rows: std::ops::Range<usize>, out: &mut [f64]| {
+            if phit.is_empty() {
+                simd.vectorize(Reconstruct::<1> {
+                    phic,
+                    ld,
+                    n,
+                    rows,
+                    cols,
+                    out: [out],
+                });
+            } else {
+                simd.vectorize(ReconstructCols {
+                    phit,
+                    ldt,
+                    r,
+                    n,
+                    rows,
+                    cols,
+                    ld,
+                    out,
+                });
+            }
         };
         match pair::<LARGE>(&mut self.pair, self.two_threads) {
-            Some(p) if !phit.is_empty() => {
-                let h = split_rows(na);
-                let (lo, hi) = outs[..na].split_at_mut(h);
-                p.join(
-                    || simd.vectorize(by_columns(0..h, lo)),
-                    move || simd.vectorize(by_columns(h..na, hi)),
-                );
-            }
-            None if !phit.is_empty() => by_columns(0..na, &mut outs[..na]).with_simd(simd),
             Some(p) => {
                 let h = split_rows(na);
                 let (lo, hi) = outs[..na].split_at_mut(h);
-                p.join(
-                    || {
-                        simd.vectorize(Reconstruct::<1> {
-                            phic,
-                            ld,
-                            n,
-                            rows: 0..h,
-                            cols,
-                            out: [lo],
-                        });
-                    },
-                    move || {
-                        simd.vectorize(Reconstruct::<1> {
-                            phic,
-                            ld,
-                            n,
-                            rows: h..na,
-                            cols,
-                            out: [hi],
-                        });
-                    },
-                );
+                p.join(|| back(0..h, lo), move || back(h..na, hi));
             }
-            None => Reconstruct::<1> {
-                phic,
-                ld,
-                n,
-                rows: 0..na,
-                cols,
-                out: [&mut outs[..na]],
-            }
-            .with_simd(simd),
+            None => back(0..na, &mut outs[..na]),
         }
         // The free part's mirror position (its steps may be pending: `SegmentArray::set_deferred`).
         let mut free_z = std::mem::take(&mut self.free_z);
