@@ -13,7 +13,7 @@
 //! |---|---|---|
 //! | mirror (`mirror_voicecoil`, each `--modes`; its wind forces changing every 10 steps and its command every 50, as in the standard system) | 1 ms | memory: the matrices one step streams ([`m1::plant::mirror::CoupledMirror::streamed_per_step`]), as separate single-precision buffers summed with SIMD the same number of times; arithmetic: the multiply-adds of a step at those rates ([`m1::plant::mirror::CoupledMirror::multiply_adds_per_step`]) as independent fused multiply-adds in registers at the peak rate |
 //! | edge sensors | 1 ms | arithmetic: one multiply-add per non-zero of `y = H z`, `gap = g0 + G z` at the peak rate; memory: the non-zeros and `z` read once (a plain CSR product with the same non-zeros is timed too, for scale, in the JSON) |
-//! | optics | 1 ms | metrics: one dot-product pass over `z`; PSSN: the FFTs of one evaluation (`m1::optics::pssn`) in the precision of the FMU's `pssn_single_precision`, per step |
+//! | optics | 1 ms | metrics: one dot-product pass over `z`; PSSN: the FFTs of one evaluation (`m1::optics::pssn`) in the precision of the FMU's `pssn_single_precision`, and with `OtfMethod::Correlation` (the default's choice) its complex multiply-adds at the peak rate, per step |
 //! | wind | 10 ms (100 Hz) | streaming the table entries one sample interpolates and the forces it writes |
 //! | master | 1 ms | an estimate of the data work on its thread: the finite check's read of the Real outputs of the steps it takes, a copy of the mirror's displacement per step handed to the look-ahead thread without it (into a buffer the other core read last, the cheaper way: values that must reach the other core), a cache line's round trip between the cores per step handed over (the fractions from the runs below); its own time from `m1cs run` (below) |
 //!
@@ -45,7 +45,7 @@ use faer::sparse::SparseColMat;
 use fmu::{Instance, Model};
 use m1::aperture::layout::Layout;
 use m1::loads::wind::WindParams;
-use m1::optics::pssn::{Pssn, PssnParams};
+use m1::optics::pssn::{OtfMethod, Pssn, PssnParams};
 use rustfft::num_complex::Complex;
 use serde_json::{Value, json};
 
@@ -736,7 +736,7 @@ fn edge_sensors(layout: &str, steps: Option<usize>, arch: pulp::Arch, rows: &mut
     });
 }
 
-fn optics(layout: &str, steps: Option<usize>, rows: &mut Vec<Row>) {
+fn optics(layout: &str, steps: Option<usize>, arch: pulp::Arch, rows: &mut Vec<Row>) {
     let t0 = Instant::now();
     let mut fmu = instance::<optics_model::Optics>(layout, |_| {});
     let setup = t0.elapsed().as_secs_f64();
@@ -795,25 +795,63 @@ fn optics(layout: &str, steps: Option<usize>, rows: &mut Vec<Row>) {
         }
     });
 
-    // PSSN floor: the FFTs of one evaluation, in the precision of its transforms.
+    // PSSN floor: the FFTs of one evaluation in the precision of its transforms, and for the
+    // correlation its multiply-adds at the peak rate.
     let params = PssnParams::default();
     let pssn = Pssn::new(&Layout::preset(layout).expect("layout"), params).expect("PSSN");
-    let (n, m) = (pssn.grid().samples(), pssn.fft_size());
-    let lag_rows = pssn.otf_lag_rows();
+    let (n, m, p) = (pssn.grid().samples(), pssn.fft_size(), pssn.row_fft_size());
+    let (lag_rows, method) = (pssn.otf_lag_rows(), pssn.otf_method());
     drop(pssn);
     let half = m / 2;
     let evals = steps.map(|s| s.div_ceil(per_pssn));
-    let fft_per_eval = if single {
-        fft_floor::<f32>(n, m, lag_rows, evals)
-    } else {
-        fft_floor::<f64>(n, m, lag_rows, evals)
+    let plan: Vec<(usize, usize)> = match method {
+        OtfMethod::Correlation => vec![(p, n), (p, lag_rows)],
+        OtfMethod::Transforms => vec![(m, n), (m, m), (m, half), (m, lag_rows)],
     };
-    let transforms = n + m + half + lag_rows;
+    let ffts = if single {
+        fft_floor::<f32>(&plan, evals)
+    } else {
+        fft_floor::<f64>(&plan, evals)
+    };
+    let transforms: usize = plan.iter().map(|&(_, count)| count).sum();
     let precision = if single { "single" } else { "double" };
-    let fft_basis = format!(
-        "{transforms} complex FFTs of {m} in {precision} precision ({n} field rows, {m} columns, \
-         {half} packed PSF rows, {lag_rows} OTF lag rows) per evaluation"
-    );
+    // The correlation: 4 real multiply-adds per complex one, for every pair of rows y, y + y'
+    // and column; in single precision a vector holds twice the lanes (counted at half).
+    let complex_macs: usize = match method {
+        OtfMethod::Correlation => (0..lag_rows.min(n)).map(|lag| (n - lag) * p).sum(),
+        OtfMethod::Transforms => 0,
+    };
+    let fmas = 4 * complex_macs as u64 / if single { 2 } else { 1 };
+    let arithmetic = if fmas > 0 {
+        measure(evals, 1, |reps| {
+            for _ in 0..reps {
+                black_box(multiply_adds(arch, black_box(fmas)));
+            }
+        })
+    } else {
+        Stats {
+            median: 0.0,
+            min: 0.0,
+            steps: 1,
+        }
+    };
+    let fft_per_eval = Stats {
+        median: ffts.median + arithmetic.median,
+        min: ffts.min + arithmetic.min,
+        steps: ffts.steps,
+    };
+    let fft_basis = match method {
+        OtfMethod::Correlation => format!(
+            "{transforms} complex FFTs of {p} in {precision} precision ({n} field rows, {lag_rows} \
+             OTF lag rows) and the correlation's {:.2} M complex multiply-adds at the peak rate \
+             per evaluation",
+            complex_macs as f64 / 1e6
+        ),
+        OtfMethod::Transforms => format!(
+            "{transforms} complex FFTs of {m} in {precision} precision ({n} field rows, {m} \
+             columns, {half} packed PSF rows, {lag_rows} OTF lag rows) per evaluation"
+        ),
+    };
     let pssn_floor = fft_per_eval.scaled(1.0 / per_pssn as f64);
     let combined = Stats {
         median: metrics_floor.median + pssn_floor.median,
@@ -827,8 +865,13 @@ fn optics(layout: &str, steps: Option<usize>, rows: &mut Vec<Row>) {
         "steps_per_pssn": per_pssn,
         "pssn_samples": n,
         "fft_size": m,
+        "row_fft_size": p,
+        "otf_method": format!("{method:?}"),
         "lag_rows": lag_rows,
         "ffts_per_evaluation": transforms,
+        "correlation_complex_multiply_adds": complex_macs,
+        "ffts_per_evaluation_s": ffts.json(),
+        "correlation_at_peak": arithmetic.json(),
         "pssn_single_precision": single,
         "metrics_floor": metrics_floor.json(),
         "fft_per_evaluation": fft_per_eval.json(),
@@ -869,36 +912,28 @@ fn optics(layout: &str, steps: Option<usize>, rows: &mut Vec<Row>) {
     });
 }
 
-/// The FFTs of one PSSN evaluation in the precision `T` of its transforms (`n` field rows,
-/// size `m`, `lag_rows` OTF lag rows), planned once, on buffers of the evaluation's sizes:
-/// `evals` evaluations (or as many as the measurement takes).
-fn fft_floor<T: rustfft::FftNum>(
-    n: usize,
-    m: usize,
-    lag_rows: usize,
-    evals: Option<usize>,
-) -> Stats {
+/// The FFTs of one PSSN evaluation in the precision `T` of its transforms, `plan` listing
+/// (size, count) (for the correlation: the field rows and the OTF's lag rows), planned once, on
+/// buffers of the evaluation's sizes: `evals` evaluations (or as many as the measurement takes).
+fn fft_floor<T: rustfft::FftNum>(plan: &[(usize, usize)], evals: Option<usize>) -> Stats {
     let mut planner = rustfft::FftPlanner::<T>::new();
-    let (fft, ifft) = (planner.plan_fft_forward(m), planner.plan_fft_inverse(m));
     let zero = Complex::new(T::zero(), T::zero());
-    // The cost of a transform does not depend on the values: zeros keep the repeated in-place
-    // transforms finite.
-    let mut field = vec![zero; n * m];
-    let mut spectrum = vec![zero; m * m];
-    let mut otf = vec![zero; lag_rows * m];
-    let mut scratch = vec![
-        zero;
-        fft.get_inplace_scratch_len()
-            .max(ifft.get_inplace_scratch_len())
-    ];
-    let half = m / 2;
+    // Per (size, count): the plan and `count` rows of zeros (the cost of a transform does not
+    // depend on the values: zeros keep the repeated in-place transforms finite).
+    let mut work: Vec<_> = plan
+        .iter()
+        .map(|&(size, count)| {
+            let fft = planner.plan_fft_forward(size);
+            let scratch = vec![zero; fft.get_inplace_scratch_len()];
+            (fft, vec![zero; size * count], scratch)
+        })
+        .collect();
     measure(evals, 1, |reps| {
         for _ in 0..reps {
-            fft.process_with_scratch(&mut field, &mut scratch);
-            fft.process_with_scratch(&mut spectrum, &mut scratch);
-            ifft.process_with_scratch(&mut spectrum[..half * m], &mut scratch);
-            ifft.process_with_scratch(&mut otf, &mut scratch);
-            black_box((&field, &spectrum, &otf));
+            for (fft, rows, scratch) in work.iter_mut() {
+                fft.process_with_scratch(rows, scratch);
+                black_box(&rows);
+            }
         }
     })
 }
@@ -1276,7 +1311,7 @@ fn main() {
         mirror(&layout, modes, a.steps, arch, &mut rows);
     }
     edge_sensors(&layout, a.steps, arch, &mut rows);
-    optics(&layout, a.steps, &mut rows);
+    optics(&layout, a.steps, arch, &mut rows);
     wind(&layout, a.steps, arch, &mut rows);
     master(&layout, a.steps, arch, &a.fmu_dir, &mut rows);
 

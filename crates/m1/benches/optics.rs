@@ -2,7 +2,8 @@
 //! documentation quotes): `MirrorMetrics::evaluate` on a fixed pseudo-random surface, and
 //! `Pssn::pssn_ptt` of its residual segment states at 128, 256 (the default) and 512 samples
 //! across the pupil, in double precision and with the transforms in single precision (the
-//! optics FMU's default, `PssnPrecision::Single`) side by side. Set-up is outside the timings.
+//! optics FMU's default, `PssnPrecision::Single`), the OTF by each `OtfMethod` (the correlation
+//! of the row spectra, the 2-D transforms), side by side. Set-up is outside the timings.
 //!
 //! `cargo bench -p m1 --bench optics`
 #![allow(clippy::expect_used, clippy::unwrap_used, clippy::panic)]
@@ -14,7 +15,7 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use m1::aperture::geometry::{Geometry, GeometryParams};
 use m1::aperture::layout::Layout;
 use m1::optics::metrics::MirrorMetrics;
-use m1::optics::pssn::{Pssn, PssnParams, PssnPrecision};
+use m1::optics::pssn::{OtfMethod, Pssn, PssnParams, PssnPrecision};
 
 /// A deterministic surface of about `scale` (m) at every actuator.
 fn surface(n: usize, scale: f64) -> Vec<f64> {
@@ -51,10 +52,19 @@ fn bench(c: &mut Criterion) {
                     samples,
                     ..PssnParams::default()
                 };
-                let pssn = Pssn::with_precision(&layout, params, precision).unwrap();
-                group.bench_function(format!("pssn/{samples}_samples/{label}"), |b| {
-                    b.iter(|| black_box(pssn.pssn_ptt(black_box(&ptt)).unwrap()))
-                });
+                for (method, how) in [
+                    (OtfMethod::Correlation, "correlation"),
+                    (OtfMethod::Transforms, "transforms"),
+                ] {
+                    let pssn = Pssn::with_method(&layout, params, precision, Some(method)).unwrap();
+                    let id = format!(
+                        "pssn/{samples}_samples/{label}/{how}_{}_lag_rows",
+                        pssn.otf_lag_rows()
+                    );
+                    group.bench_function(id, |b| {
+                        b.iter(|| black_box(pssn.pssn_ptt(black_box(&ptt)).unwrap()))
+                    });
+                }
             }
         }
         group.finish();

@@ -61,6 +61,7 @@
 //! statistics and the lag weights of the OTF, `pupil.rs` the sampled pupil of the segments.
 
 mod atmosphere;
+mod correlate;
 mod pupil;
 #[cfg(test)]
 mod tests;
@@ -74,6 +75,7 @@ pub use pupil::PupilGrid;
 #[cfg(test)]
 use atmosphere::LagWeight;
 use atmosphere::otf_weights;
+use correlate::Lane;
 use pupil::check_ptt;
 
 use std::f64::consts::PI;
@@ -114,34 +116,31 @@ impl Default for PssnParams {
     }
 }
 
-/// An in-aperture sample: where it goes in the field buffer, its grid index, its segment and its
-/// offset from the segment centre (m).
+/// An in-aperture sample: where it goes in the field buffer, its grid index, its segment, and
+/// its column and row in the segment's bounding box of grid samples.
 #[derive(Debug, Clone, Copy)]
 struct PupilSample {
     field: usize,
     grid: usize,
     segment: usize,
-    dx: f64,
-    dy: f64,
+    col: usize,
+    row: usize,
 }
 
 /// A run of in-aperture samples of one segment on one grid row, consecutive in the field
-/// buffer: the phase of a segment's piston and tilts along it is an arithmetic progression, so
-/// its field is one complex exponential times powers of one step ([`Pssn::pssn_ptt`]).
+/// buffer. A segment's piston and tilts make its phase linear in the sample's column and row in
+/// the segment's box, so its field is the box corner's exponential times a power of the step
+/// along `x` and one of the step along `y` ([`Pssn::pssn_ptt`]).
 #[derive(Debug, Clone, Copy)]
 struct Run {
     /// First sample's index in the field buffer.
     field: usize,
     len: usize,
     segment: usize,
-    /// First sample's offset from the segment centre (m).
-    dx: f64,
-    dy: f64,
+    /// First sample's column and row in the segment's box.
+    col: usize,
+    row: usize,
 }
-
-/// Longest [`Run`]: the field along a run is a running product of complex exponentials, whose
-/// rounding grows with its length (about `len` units in the last place); longer rows are split.
-const RUN_MAX: usize = 32;
 
 /// The floating-point precision of an evaluation's transforms ([`Pssn::with_precision`]).
 ///
@@ -159,6 +158,77 @@ pub enum PssnPrecision {
     Double,
     /// The field, its transforms and the OTF in single precision.
     Single,
+}
+
+/// How an evaluation obtains the lag rows of the OTF that carry weight ([`Pssn::with_method`]).
+///
+/// Both give the same PSSN to rounding (tested); [`OtfMethod::choose`] picks the cheaper.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OtfMethod {
+    /// The FFTs of the `N` field rows, then each lag row `y'`'s spectrum along `x` as the sum
+    /// over the rows of `F_{y+y'} conj(F_y)` (`rows x N x M` complex multiply-adds) and its
+    /// inverse FFT. The cheaper where few lag rows carry weight: 12 on the default TMT grid,
+    /// where an evaluation takes about a quarter of the transforms' time (BENCHMARKS.md,
+    /// twenty-third round).
+    Correlation,
+    /// The 2-D power spectrum: the `N` row FFTs, a transpose, `M` column FFTs, `|.|^2`, `M / 2`
+    /// inverse FFTs of packed PSF rows, a transpose and the inverse FFTs of the lag rows.
+    Transforms,
+}
+
+impl OtfMethod {
+    /// Where [`OtfMethod::choose`] stops correlating: while `rows x N <= this x M log2 M`
+    /// (the correlation's `rows N P` multiply-adds against the transforms' `1.5 M` FFTs of
+    /// size `M` beyond the row FFTs). Measured on TMT at 256 samples (`M` = 512), the two take
+    /// as long at about 80 lag rows in both precisions (4.4 here); 4 keeps the correlation
+    /// where it is faster (BENCHMARKS.md, twenty-third round).
+    pub const CORRELATION_ROWS_PER_LOG: f64 = 4.0;
+
+    /// The cheaper method for `rows` weighted lag rows, `samples` (`N`) field rows and the FFT
+    /// size `size` (`M`).
+    pub fn choose(rows: usize, samples: usize, size: usize) -> OtfMethod {
+        let live = rows.min(samples) as f64;
+        let m = size as f64;
+        if live * samples as f64 <= Self::CORRELATION_ROWS_PER_LOG * m * m.log2() {
+            OtfMethod::Correlation
+        } else {
+            OtfMethod::Transforms
+        }
+    }
+}
+
+/// `out[j] = exp(i j angle)`, each a product of two earlier ones (`j / 2` and `j - j / 2`):
+/// about `log2 j` roundings, and products that do not wait on each other.
+fn unit_powers(out: &mut [Complex64], angle: f64) {
+    if let Some(o) = out.first_mut() {
+        *o = Complex64::new(1.0, 0.0);
+    }
+    if let Some(o) = out.get_mut(1) {
+        let (s, c) = angle.sin_cos();
+        *o = Complex64::new(c, s);
+    }
+    for j in 2..out.len() {
+        out[j] = out[j / 2] * out[j - j / 2];
+    }
+}
+
+/// The smallest even `2^a 3^b 5^c` (sizes the FFTs handle well) of at least `n + rows`: the
+/// period of [`OtfMethod::Correlation`]'s row transforms.
+fn correlation_size(n: usize, rows: usize) -> usize {
+    let smooth = |mut k: usize| {
+        for f in [2, 3, 5] {
+            while k.is_multiple_of(f) {
+                k /= f;
+            }
+        }
+        k == 1
+    };
+    let mut p = (n + rows).max(2);
+    p += p % 2;
+    while !smooth(p) {
+        p += 2;
+    }
+    p
 }
 
 /// A floating-point type the transforms run in ([`PssnPrecision`]).
@@ -194,15 +264,20 @@ fn sample<T: Sample>(z: Complex64) -> Complex<T> {
 
 /// Buffers of one evaluation.
 struct Workspace<T> {
-    /// `N x M`: the field rows, then their FFTs.
+    /// `N x P`: the field rows, then their FFTs.
     field: Vec<Complex<T>>,
-    /// `M x M`: the transposed spectrum, then the packed PSF rows and their inverse FFTs.
+    /// `M x M` ([`OtfMethod::Transforms`] only): the transposed spectrum, then the packed PSF
+    /// rows and their inverse FFTs.
     spectrum: Vec<Complex<T>>,
-    /// `rows x M`: the half OTF over the lags with non-negligible weight.
+    /// [`OtfMethod::Correlation`]'s panels of columns.
+    panel: Vec<T>,
+    /// `rows x P`: the half OTF over the lags with non-negligible weight.
     otf: Vec<Complex<T>>,
     scratch: Vec<Complex<T>>,
-    /// Per segment: the field's factor from one sample to the next along a row.
-    steps: Vec<Complex64>,
+    /// Per segment ([`Pssn::pssn_ptt`]): the powers of the field's factor from one sample to
+    /// the next along a row (as many as the widest box has columns), those along a column (as
+    /// many as the tallest box has rows), and the field at the box's corner.
+    powers: Vec<Complex64>,
 }
 
 impl<T: Sample> Workspace<T> {
@@ -210,9 +285,10 @@ impl<T: Sample> Workspace<T> {
         Self {
             field: Vec::new(),
             spectrum: Vec::new(),
+            panel: Vec::new(),
             otf: Vec::new(),
             scratch: Vec::new(),
-            steps: Vec::new(),
+            powers: Vec::new(),
         }
     }
 }
@@ -249,14 +325,22 @@ pub struct Pssn {
     grid: PupilGrid,
     /// Padded FFT size `M`.
     size: usize,
+    /// The size `P` of the row FFTs (and the field buffer's row stride): `M` for
+    /// [`OtfMethod::Transforms`], at least `N + rows` for [`OtfMethod::Correlation`].
+    row_size: usize,
     /// Lag rows `y' = 0..rows` of the half OTF that carry weight.
     rows: usize,
+    method: OtfMethod,
     transforms: Transforms,
-    /// `rows x M`: `exp(-D(r))`, doubled for the rows standing for their mirror image too.
+    /// `rows x P`: `exp(-D(r))`, doubled for the rows standing for their mirror image too.
     weights: Vec<f64>,
     pupil: Vec<PupilSample>,
     /// The same samples as runs along the rows, for segment states ([`Self::pssn_ptt`]).
     runs: Vec<Run>,
+    /// Per segment, the offset (m) of its box's corner sample from its centre.
+    corners: Vec<[f64; 2]>,
+    /// Columns of the widest segment box and rows of the tallest.
+    box_size: [usize; 2],
     phase_per_metre: f64,
     denominator: f64,
 }
@@ -268,7 +352,9 @@ impl fmt::Debug for Pssn {
             .field("samples", &self.grid.samples)
             .field("spacing", &self.grid.spacing)
             .field("fft_size", &self.size)
+            .field("row_fft_size", &self.row_size)
             .field("lag_rows", &self.rows)
+            .field("method", &self.method)
             .field("denominator", &self.denominator)
             .field("precision", &self.precision())
             .finish_non_exhaustive()
@@ -283,11 +369,21 @@ impl Pssn {
     }
 
     /// [`Self::new`] with the transforms in `precision` (the denominator too, so that a
-    /// perfect mirror still gives exactly 1).
+    /// perfect mirror still gives exactly 1), the OTF by the cheaper [`OtfMethod`].
     pub fn with_precision(
         layout: &Layout,
         params: PssnParams,
         precision: PssnPrecision,
+    ) -> Result<Pssn, M1Error> {
+        Self::with_method(layout, params, precision, None)
+    }
+
+    /// [`Self::with_precision`] with the OTF by `method` (`None`: [`OtfMethod::choose`]).
+    pub fn with_method(
+        layout: &Layout,
+        params: PssnParams,
+        precision: PssnPrecision,
+        method: Option<OtfMethod>,
     ) -> Result<Pssn, M1Error> {
         let positive = |name: &'static str, value: f64, allow_inf: bool| {
             if value > 0.0 && (value.is_finite() || allow_inf) {
@@ -327,57 +423,93 @@ impl Pssn {
             });
         }
 
-        // Pupil samples, in field-buffer order (row iy, column ix of an N x M buffer).
-        let pupil: Vec<PupilSample> = grid
-            .segment
+        let (weights, rows) = otf_weights(&params, size, grid.spacing);
+        let method = method.unwrap_or_else(|| OtfMethod::choose(rows, n, size));
+        // The correlation's row transforms need no more than N + rows points (below).
+        let (row_size, weights) = match method {
+            OtfMethod::Correlation => {
+                let p = correlation_size(n, rows);
+                match otf_weights(&params, p, grid.spacing) {
+                    (w, r) if p < size && r == rows => (p, w),
+                    _ => (size, weights),
+                }
+            }
+            OtfMethod::Transforms => (size, weights),
+        };
+
+        // Every segment's box of grid samples: its first column and row, and its size.
+        let n_seg = grid.n_segments();
+        let mut first = vec![[usize::MAX; 2]; n_seg];
+        let mut box_size = [1, 1];
+        let inside = || {
+            grid.segment
+                .iter()
+                .enumerate()
+                .filter_map(|(flat, seg)| Some(((*seg)? as usize, flat % n, flat / n)))
+        };
+        for (seg, ix, iy) in inside() {
+            first[seg] = [first[seg][0].min(ix), first[seg][1].min(iy)];
+        }
+        for (seg, ix, iy) in inside() {
+            box_size = [
+                box_size[0].max(ix - first[seg][0] + 1),
+                box_size[1].max(iy - first[seg][1] + 1),
+            ];
+        }
+        let corners: Vec<[f64; 2]> = first
             .iter()
-            .enumerate()
-            .filter_map(|(flat, seg)| {
-                let seg = (*seg)? as usize;
-                let (ix, iy) = (flat % n, flat / n);
-                Some(PupilSample {
-                    field: iy * size + ix,
-                    grid: flat,
-                    segment: seg,
-                    dx: grid.coordinate(ix) - grid.centers[seg][0],
-                    dy: grid.coordinate(iy) - grid.centers[seg][1],
-                })
+            .zip(&grid.centers)
+            .map(|(&[ix, iy], c)| {
+                if ix == usize::MAX {
+                    [0.0, 0.0]
+                } else {
+                    [grid.coordinate(ix) - c[0], grid.coordinate(iy) - c[1]]
+                }
+            })
+            .collect();
+
+        // Pupil samples, in field-buffer order (row iy, column ix of an N x P buffer).
+        let pupil: Vec<PupilSample> = inside()
+            .map(|(seg, ix, iy)| PupilSample {
+                field: iy * row_size + ix,
+                grid: iy * n + ix,
+                segment: seg,
+                col: ix - first[seg][0],
+                row: iy - first[seg][1],
             })
             .collect();
 
         let mut runs: Vec<Run> = Vec::new();
         for s in &pupil {
             match runs.last_mut() {
-                Some(r)
-                    if r.segment == s.segment && r.field + r.len == s.field && r.len < RUN_MAX =>
-                {
-                    r.len += 1;
-                }
+                Some(r) if r.segment == s.segment && r.field + r.len == s.field => r.len += 1,
                 _ => runs.push(Run {
                     field: s.field,
                     len: 1,
                     segment: s.segment,
-                    dx: s.dx,
-                    dy: s.dy,
+                    col: s.col,
+                    row: s.row,
                 }),
             }
         }
 
-        let (weights, rows) = otf_weights(&params, size, grid.spacing);
-
         let transforms = match precision {
-            PssnPrecision::Double => Transforms::Double(Fourier::new(size)),
-            PssnPrecision::Single => Transforms::Single(Fourier::new(size)),
+            PssnPrecision::Double => Transforms::Double(Fourier::new(row_size)),
+            PssnPrecision::Single => Transforms::Single(Fourier::new(row_size)),
         };
         let mut pssn = Pssn {
             params,
             grid,
             size,
+            row_size,
             rows,
+            method,
             transforms,
             weights,
             pupil,
             runs,
+            corners,
+            box_size,
             phase_per_metre: 4.0 * PI / params.wavelength,
             denominator: 1.0,
         };
@@ -412,6 +544,11 @@ impl Pssn {
         self.rows
     }
 
+    /// How an evaluation obtains the OTF's weighted lag rows.
+    pub fn otf_method(&self) -> OtfMethod {
+        self.method
+    }
+
     /// The precision of the transforms.
     pub fn precision(&self) -> PssnPrecision {
         match self.transforms {
@@ -423,6 +560,14 @@ impl Pssn {
     /// FFT size `M` of the padded grid.
     pub fn fft_size(&self) -> usize {
         self.size
+    }
+
+    /// Size `P` of the field rows' FFTs: [`Self::fft_size`] for [`OtfMethod::Transforms`];
+    /// for [`OtfMethod::Correlation`] the smallest even `2^a 3^b 5^c >= N + rows` (at most
+    /// `M`): the OTF's weighted lags along `x` are fewer than `rows`, and a period of `N +
+    /// rows` keeps them clear of the wrap-around (TMT's default grid: 270 instead of 512).
+    pub fn row_fft_size(&self) -> usize {
+        self.row_size
     }
 
     /// Fried parameter at the evaluation wavelength (m).
@@ -447,32 +592,36 @@ impl Pssn {
     }
 
     /// The weighted OTF power of the segment state `ptt` ([`Self::pssn_ptt`]).
-    fn ptt_power<T: Sample>(&self, f: &Fourier<T>, ptt: &[[f64; 3]]) -> f64 {
+    fn ptt_power<T: Lane>(&self, f: &Fourier<T>, ptt: &[[f64; 3]]) -> f64 {
         let k = self.phase_per_metre;
         let h = self.grid.spacing;
         self.with_workspace(f, |ws| {
-            // Along a run the phase grows by k tx h per sample: the field is its first
-            // sample's exponential times powers of the segment's step (a sin_cos per run and
-            // one per segment, instead of one per sample), in double precision.
-            let mut steps = std::mem::take(&mut ws.steps);
-            steps.clear();
-            steps.extend(ptt.iter().map(|&[_, tx, _]| {
-                let (s, c) = (k * tx * h).sin_cos();
-                Complex64::new(c, s)
-            }));
+            // Per segment: the powers of the steps along x and y, and the field at the box's
+            // corner (three sin_cos per segment); every sample is then two products away.
+            let [w, hgt] = self.box_size;
+            let per = w + hgt + 1;
+            let mut powers = std::mem::take(&mut ws.powers);
+            powers.resize(ptt.len() * per, Complex64::new(0.0, 0.0));
+            for ((t, &[p, tx, ty]), &[x0, y0]) in
+                powers.chunks_exact_mut(per).zip(ptt).zip(&self.corners)
+            {
+                let (along_x, rest) = t.split_at_mut(w);
+                let (along_y, corner) = rest.split_at_mut(hgt);
+                unit_powers(along_x, k * tx * h);
+                unit_powers(along_y, k * ty * h);
+                let (s, c) = (k * (p + tx * x0 + ty * y0)).sin_cos();
+                corner[0] = Complex64::new(c, s);
+            }
             let power = self.weighted_otf_power(f, ws, |field| {
                 for r in &self.runs {
-                    let [p, tx, ty] = ptt[r.segment];
-                    let (s0, c0) = (k * (p + tx * r.dx + ty * r.dy)).sin_cos();
-                    let step = steps[r.segment];
-                    let mut e = Complex64::new(c0, s0);
-                    for f in &mut field[r.field..r.field + r.len] {
-                        *f = sample(e);
-                        e *= step;
+                    let t = &powers[r.segment * per..][..per];
+                    let e = t[per - 1] * t[w + r.row];
+                    for (f, q) in field[r.field..r.field + r.len].iter_mut().zip(&t[r.col..]) {
+                        *f = sample(e * q);
                     }
                 }
             });
-            ws.steps = steps;
+            ws.powers = powers;
             power
         })
     }
@@ -496,7 +645,7 @@ impl Pssn {
     }
 
     /// The weighted OTF power of the sampled surface `surface` ([`Self::pssn_surface`]).
-    fn surface_power<T: Sample>(&self, f: &Fourier<T>, surface: &[f64]) -> f64 {
+    fn surface_power<T: Lane>(&self, f: &Fourier<T>, surface: &[f64]) -> f64 {
         let k = self.phase_per_metre;
         self.with_workspace(f, |ws| {
             self.weighted_otf_power(f, ws, |field| {
@@ -509,7 +658,7 @@ impl Pssn {
     }
 
     /// The weighted OTF power of the perfect mirror: the denominator.
-    fn perfect_power<T: Sample>(&self, f: &Fourier<T>) -> f64 {
+    fn perfect_power<T: Lane>(&self, f: &Fourier<T>) -> f64 {
         self.with_workspace(f, |ws| {
             self.weighted_otf_power(f, ws, |field| {
                 for s in &self.pupil {
@@ -519,25 +668,29 @@ impl Pssn {
         })
     }
 
-    fn new_workspace<T: Sample>(&self, f: &Fourier<T>) -> Workspace<T> {
-        let (n, m) = (self.grid.samples, self.size);
+    fn new_workspace<T: Lane>(&self, f: &Fourier<T>) -> Workspace<T> {
+        let (n, m, p) = (self.grid.samples, self.size, self.row_size);
         let scratch = f
             .fft
             .get_inplace_scratch_len()
             .max(f.ifft.get_inplace_scratch_len());
         let zero = Complex::new(T::zero(), T::zero());
         Workspace {
-            field: vec![zero; n * m],
-            spectrum: vec![zero; m * m],
-            otf: vec![zero; self.rows * m],
+            field: vec![zero; n * p],
+            spectrum: match self.method {
+                OtfMethod::Transforms => vec![zero; m * m],
+                OtfMethod::Correlation => Vec::new(),
+            },
+            panel: Vec::new(),
+            otf: vec![zero; self.rows * p],
             scratch: vec![zero; scratch],
-            steps: vec![Complex64::new(0.0, 0.0); self.grid.n_segments()],
+            powers: Vec::new(),
         }
     }
 
     /// Runs `g` on `f`'s buffers (made at the first evaluation), or on fresh ones when
     /// another thread holds them.
-    fn with_workspace<T: Sample, R>(
+    fn with_workspace<T: Lane, R>(
         &self,
         f: &Fourier<T>,
         g: impl FnOnce(&mut Workspace<T>) -> R,
@@ -557,20 +710,50 @@ impl Pssn {
 
     /// `sum_f exp(-D(f)) |OTF(f)|^2` for the pupil field that `fill` writes into the zeroed
     /// `N x M` field buffer (`exp(i phase)` at each in-aperture sample), unnormalised.
-    fn weighted_otf_power<T: Sample>(
+    fn weighted_otf_power<T: Lane>(
         &self,
         f: &Fourier<T>,
         ws: &mut Workspace<T>,
         fill: impl FnOnce(&mut [Complex<T>]),
     ) -> f64 {
-        let (n, m) = (self.grid.samples, self.size);
-        let half = m / 2;
+        let (n, m, p) = (self.grid.samples, self.size, self.row_size);
         let zero = Complex::new(T::zero(), T::zero());
 
         // Field on the N non-zero rows, FFT along x.
         ws.field.fill(zero);
         fill(&mut ws.field);
         f.fft.process_with_scratch(&mut ws.field, &mut ws.scratch);
+
+        // The lag rows' spectra along x, then their inverse FFTs.
+        let scale = match self.method {
+            OtfMethod::Correlation => {
+                correlate::lag_rows(&ws.field, n, p, self.rows, &mut ws.otf, &mut ws.panel);
+                // The transforms' OTF carries a factor M^2 / P (their FFTs' sizes): the same
+                // power, so that the denominator does not depend on the method.
+                let gain = (m * m) as f64 / p as f64;
+                gain * gain
+            }
+            OtfMethod::Transforms => {
+                self.transformed_lag_rows(f, ws);
+                1.0
+            }
+        };
+        f.ifft.process_with_scratch(&mut ws.otf, &mut ws.scratch);
+
+        scale
+            * ws.otf
+                .iter()
+                .zip(&self.weights)
+                .map(|(o, w)| w * o.norm_sqr().wide())
+                .sum::<f64>()
+    }
+
+    /// [`OtfMethod::Transforms`]: the lag rows' spectra along x into `ws.otf` from the row
+    /// FFTs in `ws.field`, by the 2-D power spectrum.
+    fn transformed_lag_rows<T: Lane>(&self, f: &Fourier<T>, ws: &mut Workspace<T>) {
+        let (n, m) = (self.grid.samples, self.size);
+        let half = m / 2;
+        let zero = Complex::new(T::zero(), T::zero());
 
         // Transpose into the M x M spectrum (rows N..M of the field are zero), FFT along y.
         // Blocks of ROWS field rows: their stride (M complex values, a power of two) puts them
@@ -627,12 +810,5 @@ impl Pssn {
                 }
             }
         }
-        f.ifft.process_with_scratch(&mut ws.otf, &mut ws.scratch);
-
-        ws.otf
-            .iter()
-            .zip(&self.weights)
-            .map(|(o, w)| w * o.norm_sqr().wide())
-            .sum()
     }
 }

@@ -49,41 +49,122 @@ fn reference(pssn: &Pssn, surface: &[f64]) -> f64 {
     sum
 }
 
+/// Both ways to the OTF's lag rows give the weighted power of the full 2-D computation, on a
+/// grid where the correlation's row transforms (90 points, for 58 samples and 23 lag rows) are
+/// not a whole number of its panels of columns.
 #[test]
 fn fast_path_matches_direct_computation() {
     let layout = Layout::keck();
     let params = PssnParams {
-        samples: 48,
+        samples: 58,
         wavelength: 1.0e-6,
         r0: 0.2,
         l0: 30.0,
         pad_factor: 2,
     };
-    let pssn = Pssn::new(&layout, params).unwrap();
-    let n = pssn.grid.samples;
-    let surface: Vec<f64> = (0..n * n)
-        .map(|i| 40e-9 * ((i as f64 * 0.37).sin() + (i as f64 * 0.011).cos()))
-        .collect();
-    let fast = pssn.pssn_surface(&surface).unwrap() * pssn.denominator;
-    let direct = reference(&pssn, &surface);
-    assert!(
-        ((fast - direct) / direct).abs() < 1e-10,
-        "fast {fast} direct {direct}"
-    );
+    for method in [OtfMethod::Correlation, OtfMethod::Transforms] {
+        let pssn = Pssn::with_method(&layout, params, PssnPrecision::Double, Some(method)).unwrap();
+        assert_eq!(pssn.otf_method(), method);
+        if method == OtfMethod::Correlation {
+            // Not whole panels of columns: the scalar tail runs too.
+            assert_eq!(pssn.row_fft_size() % 4, 2, "P = {}", pssn.row_fft_size());
+        }
+        let n = pssn.grid.samples;
+        let surface: Vec<f64> = (0..n * n)
+            .map(|i| 40e-9 * ((i as f64 * 0.37).sin() + (i as f64 * 0.011).cos()))
+            .collect();
+        let fast = pssn.pssn_surface(&surface).unwrap() * pssn.denominator;
+        let direct = reference(&pssn, &surface);
+        assert!(
+            ((fast - direct) / direct).abs() < 1e-10,
+            "{method:?}: fast {fast} direct {direct}"
+        );
+    }
 }
 
-/// A segment state's PSSN, whose field is built run by run as running products of complex
+/// The correlation and the transforms give the same PSSN to rounding in double precision
+/// (within 1e-12) and within 1e-6 in single precision, TMT at the default grid (where the
+/// correlation is the choice: 12 lag rows, row FFTs of 270 points instead of 512) and with a
+/// Fried parameter of 1 m (every lag row carries weight: the transforms are the choice, and
+/// the correlation's last lag row, past the grid's rows, has no pair of rows).
+#[test]
+fn correlation_and_transforms_agree() {
+    let layout = Layout::tmt();
+    let n_seg = layout.n_segments();
+    let states: Vec<Vec<[f64; 3]>> = [3e-9, 40e-9, 200e-9]
+        .iter()
+        .map(|&scale| {
+            (0..n_seg)
+                .map(|s| {
+                    let f = s as f64;
+                    [
+                        scale * (0.3 * f).sin(),
+                        scale / 0.72 * (0.7 * f + 1.0).cos(),
+                        scale / 0.72 * (1.3 * f + 2.0).sin(),
+                    ]
+                })
+                .collect()
+        })
+        .collect();
+    let calm = PssnParams {
+        r0: 1.0,
+        ..PssnParams::default()
+    };
+    for (params, auto) in [
+        (PssnParams::default(), OtfMethod::Correlation),
+        (calm, OtfMethod::Transforms),
+    ] {
+        for (precision, tolerance) in [
+            (PssnPrecision::Double, 1e-12),
+            (PssnPrecision::Single, 1e-6),
+        ] {
+            let by = |method| Pssn::with_method(&layout, params, precision, method).unwrap();
+            let (chosen, corr, tran) = (
+                by(None),
+                by(Some(OtfMethod::Correlation)),
+                by(Some(OtfMethod::Transforms)),
+            );
+            assert_eq!(chosen.otf_method(), auto, "{params:?}");
+            if params.r0 == 1.0 {
+                assert!(
+                    corr.otf_lag_rows() > 256,
+                    "{} lag rows",
+                    corr.otf_lag_rows()
+                );
+                assert_eq!(corr.row_fft_size(), 512);
+            } else {
+                assert_eq!(corr.otf_lag_rows(), 12);
+                assert_eq!(corr.row_fft_size(), 270);
+            }
+            let rel = (corr.denominator() - tran.denominator()) / tran.denominator();
+            assert!(
+                rel.abs() < tolerance,
+                "{precision:?}: denominators {rel:e} apart"
+            );
+            for ptt in &states {
+                let (c, t) = (corr.pssn_ptt(ptt).unwrap(), tran.pssn_ptt(ptt).unwrap());
+                assert!(
+                    (c - t).abs() < tolerance,
+                    "{params:?} {precision:?}: correlation {c}, transforms {t}"
+                );
+                assert!(c < 1.0 - 1e-6, "{c} shows no error");
+            }
+        }
+    }
+}
+
+/// A segment state's PSSN, whose field is built from products of powers of complex
 /// exponentials, equals the PSSN of the same state sampled as a surface (a sin_cos per sample):
 /// small errors, and tilts large enough that the phase turns by radians from one sample to the
-/// next (Keck at the default 256 samples: rows of up to 42 samples per segment, split into runs
-/// of at most `RUN_MAX`).
+/// next (Keck at the default 256 samples: segment boxes of 37 x 42 samples).
 #[test]
 fn segment_states_match_their_sampled_surface() {
     let layout = Layout::keck();
     let pssn = Pssn::new(&layout, PssnParams::default()).unwrap();
     assert!(
-        pssn.runs.iter().any(|r| r.len == RUN_MAX),
-        "no run was split"
+        pssn.box_size[0] > 35 && pssn.box_size[1] > 35,
+        "{:?}",
+        pssn.box_size
     );
     let total: usize = pssn.runs.iter().map(|r| r.len).sum();
     assert_eq!(total, pssn.pupil.len());
