@@ -18,6 +18,10 @@ use rustfft::num_complex::Complex;
 /// Lag rows one pass over a panel sums together, each in its own accumulators.
 const GROUP: usize = 4;
 
+/// Real numbers of a panel row at most (two pairs of 512-bit vectors of single precision): a
+/// partial last panel goes through a buffer of this size.
+const SPARE: usize = 64;
+
 /// A precision of the correlation: `pulp`'s vectors of it.
 pub(super) trait Lane: super::Sample + pulp::bytemuck::Pod {
     /// A vector of values.
@@ -177,9 +181,11 @@ impl<T: Lane> LagRows<'_, T> {
         let groups = live.div_ceil(GROUP);
         // Rows n.. of every panel stay zero: the last group's lags read up to them.
         let height = n + groups * GROUP;
-        let whole = m / width * width;
-        let blocks = whole / width;
+        // The last panel's columns past `m` are zeros (their sums are not written).
+        let blocks = m.div_ceil(width);
         let size = height * stride;
+        let mut spare = [T::zero(); SPARE];
+        let spare = &mut spare[..stride];
         if panel.len() != blocks * size {
             panel.clear();
             panel.resize(blocks * size, T::zero());
@@ -189,8 +195,17 @@ impl<T: Lane> LagRows<'_, T> {
         // stride would put every row of a panel on a new page, out of the prefetchers' reach.
         let reals: &[T] = pulp::bytemuck::cast_slice(field);
         for y in 0..n {
-            let src = T::vectors::<S>(&reals[2 * y * m..][..2 * whole]);
-            for (blk, src) in src.chunks_exact(2 * B).enumerate() {
+            let row = &reals[2 * y * m..][..2 * m];
+            for blk in 0..blocks {
+                let from = 2 * blk * width;
+                let src = if from + stride <= row.len() {
+                    &row[from..from + stride]
+                } else {
+                    spare.fill(T::zero());
+                    spare[..row.len() - from].copy_from_slice(&row[from..]);
+                    &spare[..]
+                };
+                let src = T::vectors::<S>(src);
                 let dst = T::vectors_mut::<S>(&mut panel[blk * size + y * stride..][..stride]);
                 for b in 0..B {
                     let [re, im] = T::split(simd, [src[2 * b], src[2 * b + 1]]);
@@ -223,23 +238,21 @@ impl<T: Lane> LagRows<'_, T> {
                     }
                 }
                 for (j, acc) in acc.iter().enumerate().take(live - first) {
-                    let out: &mut [T] =
-                        pulp::bytemuck::cast_slice_mut(&mut otf[(first + j) * m + c0..][..width]);
-                    let out = T::vectors_mut::<S>(out);
+                    let valid = width.min(m - c0);
+                    let out = &mut otf[(first + j) * m + c0..][..valid];
+                    let out: &mut [T] = pulp::bytemuck::cast_slice_mut(out);
+                    let whole = out.len() == stride;
+                    let to = T::vectors_mut::<S>(if whole { &mut out[..] } else { &mut spare[..] });
                     for (b, &pair) in acc.iter().enumerate() {
                         let [lo, hi] = T::join(simd, pair);
-                        out[2 * b] = lo;
-                        out[2 * b + 1] = hi;
+                        to[2 * b] = lo;
+                        to[2 * b + 1] = hi;
+                    }
+                    if !whole {
+                        let n = out.len();
+                        out.copy_from_slice(&spare[..n]);
                     }
                 }
-            }
-        }
-        // The columns past the last whole panel (when `m` is not a multiple of its width).
-        for c in whole..m {
-            for lag in 0..live {
-                otf[lag * m + c] = (0..n - lag)
-                    .map(|y| field[(y + lag) * m + c] * field[y * m + c].conj())
-                    .fold(zero, |s, p| s + p);
             }
         }
     }

@@ -45,20 +45,33 @@
 //!
 //! [`Pssn`] plans the FFTs, allocates every buffer, tabulates the OTF weights and computes the
 //! perfect-telescope denominator once. An evaluation then fills the field on the in-aperture
-//! samples (for a segment state, run by run along the grid rows: a segment's piston and tilts
-//! make the phase an arithmetic progression along a row, so the field is one complex
-//! exponential times powers of another, a `sin_cos` per run of up to 32 samples and one per
-//! segment instead of one per sample; the PSSN agrees with the per-sample field's to 1e-12,
-//! tested) and does, on the `M x M` padded grid (`M = pad_factor x samples`): FFTs of the `N`
-//! non-zero rows, a transpose, FFTs of the `M` columns, `|.|^2`, inverse FFTs of the PSF rows
-//! two at a time (packing two real rows in one complex FFT and keeping the half spectrum), a
-//! transpose, inverse FFTs of only the rows of lags where the weight is non-negligible
-//! (`exp(-D) > 1e-30`), and the weighted sum.
+//! samples (for a segment state, from three `sin_cos` per segment: its piston and tilts make the
+//! phase linear in a sample's column and row in the segment's box of grid samples, so every
+//! sample is the box corner's exponential times a tabulated power of the step along `x` and one
+//! along `y`; the PSSN agrees with the per-sample field's to 1e-12, tested), transforms the `N`
+//! non-zero rows along `x`, and obtains the OTF's lag rows that carry weight (`exp(-D) >
+//! 1e-30`: 12 of them on the default TMT grid at 500 nm) by one of two [`OtfMethod`]s:
+//!
+//! - [`OtfMethod::Correlation`] (chosen when few lag rows carry weight): lag row `y'`'s
+//!   spectrum along `x` is `sum_y F_{y+y'} conj(F_y)` over the row spectra `F_y`, so the
+//!   evaluation needs only the row FFTs, `rows x N x P` complex multiply-adds and `rows` inverse
+//!   FFTs. Only lags along `x` within the weighted disc are read, so the rows need zero-padding
+//!   to `P >= N + rows` points, not `2N` (270 instead of 512 on the default TMT grid; the
+//!   wrap-around falls on lags of no weight);
+//! - [`OtfMethod::Transforms`]: on the `M x M` padded grid (`M = pad_factor x samples`), a
+//!   transpose, FFTs of the `M` columns, `|.|^2`, inverse FFTs of the PSF rows two at a time
+//!   (two real rows packed in one complex FFT, the half spectrum kept), a transpose and the
+//!   inverse FFTs of the weighted lag rows;
+//!
+//! then the weighted sum. The two agree to rounding (1e-12 in double precision, tested).
+//! BENCHMARKS.md, twenty-third round: TMT in single precision 0.87 ms per evaluation by the
+//! transforms, 0.29 ms by the correlation.
 //!
 //! # Files
 //!
 //! `mod.rs` the evaluator ([`Pssn`]) and its parameters, `atmosphere.rs` the von Karman phase
-//! statistics and the lag weights of the OTF, `pupil.rs` the sampled pupil of the segments.
+//! statistics and the lag weights of the OTF, `pupil.rs` the sampled pupil of the segments,
+//! `correlate.rs` the correlation's vector kernel.
 
 mod atmosphere;
 mod correlate;
