@@ -87,8 +87,8 @@ fmu::variables! {
         pssn_single_precision: BoolVar = T::boolean("pssn_single_precision").parameter()
             .start_bool(true)
             .describe("Hold the PSSN's pupil field, its FFTs and the OTF in single precision \
-                       (phases, weights and sums stay double): about half the time, the PSSN \
-                       within 3e-7 of double precision's on TMT (false: double throughout)"),
+                       (phases, weights and sums stay double): 0.6x the time, the PSSN within \
+                       5e-7 of double precision's on TMT (false: double throughout)"),
         actuator_radius: RealVar = T::real("actuator_radius").parameter().unit("m")
             .start(GeometryParams::for_layout(layout).actuator_radius).positive()
             .describe("Radius of the actuator circle of a segment (less than the circumradius)"),
@@ -259,15 +259,16 @@ instant t0 is sampled at initialisation from the initial input. No output depend
 <code>z</code> (empty dependencies): the outputs are discrete Real variables.</p>\
 <p>The archive holds the packaged layout as <code>resources/layout.json</code> (segment centres \
 in the aperture plane, m; circumradius).</p>\
-<h2>PSSN accuracy and cost</h2><p>The cost grows as (2 <code>pssn_samples</code>)<sup>2</sup> \
-log. Measured (release build, one core of a shared machine, <code>cargo bench -p m1 --bench \
-optics</code>) per evaluation: TMT 0.27 ms at 128 \
-samples, 1.3 ms at the default 256 (grid spacing 0.117 m, FFT 512), 8.1 ms at 512; Keck 0.25, \
-1.2 and 8.0 ms, in double precision (<code>pssn_single_precision</code> false). The default \
-single precision of the field, its FFTs and the OTF (phases, OTF weights and sums in double) \
-takes about half the FFTs' time (TMT at 256 samples: 0.87 ms per evaluation against 1.57 ms in \
-double precision, the same bench) and moves the PSSN by less than 3e-7 on TMT. So the default \
-costs about 9 ms of CPU per simulated second at the default 10 Hz. \
+<h2>PSSN accuracy and cost</h2><p>Only the OTF's lags within a few Fried parameters carry \
+weight (12 lag rows on TMT at 256 samples and 500 nm): an evaluation transforms the field's rows \
+and correlates their spectra for those lag rows (<code>m1::optics::pssn::OtfMethod</code>; the \
+2-D power spectrum's transforms where many rows carry weight). Measured (release build, one \
+core of a shared machine, <code>cargo bench -p m1 --bench optics</code>) per evaluation in the \
+default single precision of the field, its FFTs and the OTF (phases, OTF weights and sums in \
+double): TMT 0.08 ms at 128 samples, 0.25 ms at the default 256 (grid spacing 0.117 m), 1.5 ms \
+at 512; Keck 0.08, 0.26 and 1.6 ms; in double precision (<code>pssn_single_precision</code> \
+false) TMT 0.10, 0.40 and 2.3 ms. Single precision moves the PSSN by less than 5e-7 on TMT. So \
+the default costs about 2.5 ms of CPU per simulated second at the default 10 Hz. \
 The deficit 1 &minus; PSSN converges with the grid spacing: at 500 nm and 256 samples it is \
 about 7 % above the 512-sample value (TMT, random segment errors: 3.35e-2 against 3.14e-2); \
 use 512 samples where a few per cent matter (dx &le; r0/4), or a longer wavelength, where the \

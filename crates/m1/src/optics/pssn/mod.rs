@@ -158,12 +158,13 @@ struct Run {
 /// The floating-point precision of an evaluation's transforms ([`Pssn::with_precision`]).
 ///
 /// The field's phases, the OTF weights and the weighted sum are always computed in double
-/// precision; single precision holds the field, its transforms and the OTF. Against double
-/// precision it moves the PSSN by 0.7-2.8e-7 (TMT at the default grid, segment states from
+/// precision; single precision holds the field, its transforms and the OTF (and the
+/// correlation's sums). Against double precision it moves the PSSN by up to 4.6e-7 by the
+/// correlation and 0.7-2.8e-7 by the transforms (TMT at the default grid, segment states from
 /// PSSN 0.9999 to 0.54; a test bounds it at 1e-5), three orders of magnitude below the grid's
 /// own discretisation error at the closed loop's PSSN (1 - PSSN about 7 % high at 256 samples,
-/// module documentation), and the FFTs take about half the time (BENCHMARKS.md,
-/// twenty-second round).
+/// module documentation), and an evaluation takes 0.6 times as long (the FFTs half;
+/// BENCHMARKS.md, twenty-second and twenty-third rounds).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum PssnPrecision {
     /// Double precision throughout (the default of [`Pssn::new`]).
