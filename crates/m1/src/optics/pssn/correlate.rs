@@ -257,3 +257,83 @@ impl<T: Lane> LagRows<'_, T> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+
+    use super::*;
+
+    /// `sum_y F[y + lag][c] conj(F[y][c])` term by term, in double precision.
+    fn reference<T: Lane>(
+        field: &[Complex<T>],
+        n: usize,
+        m: usize,
+        lag: usize,
+        c: usize,
+    ) -> [f64; 2] {
+        let mut s = [0.0; 2];
+        for y in 0..n.saturating_sub(lag) {
+            let (a, b) = (field[y * m + c], field[(y + lag) * m + c]);
+            let (ar, ai, br, bi) = (a.re.wide(), a.im.wide(), b.re.wide(), b.im.wide());
+            s[0] += ar * br + ai * bi;
+            s[1] += ar * bi - ai * br;
+        }
+        s
+    }
+
+    /// Runs the kernel with `simd` on pseudo-random rows and checks every sum: more lag rows
+    /// than a group and than the field's rows, columns that end in a partial panel.
+    fn check<T: Lane, S: Simd>(simd: S, tolerance: f64) {
+        let (n, m, rows) = (11, 37, 13);
+        let mut state = 7u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            T::of(((state >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0)
+        };
+        let field: Vec<Complex<T>> = (0..n * m).map(|_| Complex::new(next(), next())).collect();
+        let mut otf = vec![Complex::new(T::one(), T::one()); rows * m];
+        let mut panel = Vec::new();
+        for _ in 0..2 {
+            simd.vectorize(LagRows {
+                field: &field,
+                n,
+                m,
+                rows,
+                otf: &mut otf,
+                panel: &mut panel,
+            });
+            for lag in 0..rows {
+                for c in 0..m {
+                    let want = reference(&field, n, m, lag, c);
+                    let got = otf[lag * m + c];
+                    let err = (got.re.wide() - want[0]).abs() + (got.im.wide() - want[1]).abs();
+                    assert!(
+                        err <= tolerance,
+                        "{:?} lag {lag} column {c}: {got:?} against {want:?}",
+                        simd
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn lag_rows_match_plain_sums_at_every_vector_width() {
+        check::<f64, _>(pulp::Scalar::new(), 1e-13);
+        check::<f32, _>(pulp::Scalar::new(), 1e-5);
+        #[cfg(target_arch = "x86_64")]
+        {
+            if let Some(simd) = pulp::x86::V3::try_new() {
+                check::<f64, _>(simd, 1e-13);
+                check::<f32, _>(simd, 1e-5);
+            }
+            if let Some(simd) = pulp::x86::V4::try_new() {
+                check::<f64, _>(simd, 1e-13);
+                check::<f32, _>(simd, 1e-5);
+            }
+        }
+    }
+}
