@@ -35,6 +35,34 @@ fn geometry_counts() {
     );
 }
 
+/// `m1cs pssn` reports how the OTF was computed: on Keck's default grid 30 lag rows carry
+/// weight, so the rows' spectra are correlated, with row FFTs of at least N + 30 points and
+/// fewer than the padded grid's; the state's PSSN is below each of its parts'.
+#[test]
+fn pssn_reports_its_otf_method() {
+    let v = json(&["pssn", "--layout", "keck", "--json"]);
+    assert_eq!(v["otf_method"], "correlation");
+    let (samples, rows) = (
+        v["samples"].as_u64().unwrap(),
+        v["otf_lag_rows"].as_u64().unwrap(),
+    );
+    let (p, m) = (
+        v["row_fft_size"].as_u64().unwrap(),
+        v["fft_size"].as_u64().unwrap(),
+    );
+    assert_eq!((samples, rows), (256, 30));
+    assert!(
+        p >= samples + rows && p < m,
+        "row FFTs of {p}, padded grid {m}"
+    );
+    let part = |k: &str| v["pssn"][k].as_f64().unwrap();
+    let combined = part("combined");
+    assert!(
+        combined > 0.5 && combined < part("piston_only").min(part("tilt_only")),
+        "{v}"
+    );
+}
+
 #[test]
 fn amatrix_structure_on_keck() {
     let v = json(&["amatrix", "--layout", "keck", "--full", "--json"]);

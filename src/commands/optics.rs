@@ -12,7 +12,7 @@ use std::sync::LazyLock;
 
 use m1::aperture::layout::{DEFAULT_LAYOUT, Layout};
 use m1::aperture::zernike::{ZernikeBasis, hexagon_rule, noll_to_nm, zernike_xy};
-use m1::optics::pssn::{Pssn, PssnParams, pssn_small_error, r0_at_wavelength};
+use m1::optics::pssn::{OtfMethod, Pssn, PssnParams, pssn_small_error, r0_at_wavelength};
 use m1::optics::statistics::{
     DEFAULT_PISTON_RMS, DEFAULT_SEED, DEFAULT_TILT_RMS, piston_rms, random_state, scaled_pistons,
     small_error_coefficient, tilt_rms_per_axis,
@@ -343,6 +343,9 @@ struct PssnReport {
     params: PssnParams,
     spacing: f64,
     fft_size: usize,
+    row_fft_size: usize,
+    lag_rows: usize,
+    otf_method: OtfMethod,
     r0_at_wavelength: f64,
     realised_piston_rms: f64,
     realised_tilt_rms: f64,
@@ -385,6 +388,9 @@ fn pssn_report(a: &PssnArgs) -> Result<PssnReport, String> {
         params,
         spacing: pssn.grid().spacing(),
         fft_size: pssn.fft_size(),
+        row_fft_size: pssn.row_fft_size(),
+        lag_rows: pssn.otf_lag_rows(),
+        otf_method: pssn.otf_method(),
         r0_at_wavelength: r0_at_wavelength(params.r0, params.wavelength),
         realised_piston_rms: piston_rms(&state),
         realised_tilt_rms: tilt_rms_per_axis(&state),
@@ -461,6 +467,12 @@ fn pssn_json(a: &PssnArgs, r: &PssnReport) -> serde_json::Value {
         "samples": r.params.samples,
         "spacing_m": r.spacing,
         "fft_size": r.fft_size,
+        "row_fft_size": r.row_fft_size,
+        "otf_lag_rows": r.lag_rows,
+        "otf_method": match r.otf_method {
+            OtfMethod::Correlation => "correlation",
+            OtfMethod::Transforms => "transforms",
+        },
         "wavelength_m": r.params.wavelength,
         "r0_500nm_m": r.params.r0,
         "r0_at_wavelength_m": r.r0_at_wavelength,
@@ -485,8 +497,21 @@ fn pssn_json(a: &PssnArgs, r: &PssnReport) -> serde_json::Value {
 /// The report as text: the PSSN of the state and its parts, then the scan.
 fn print_pssn(a: &PssnArgs, r: &PssnReport) {
     println!(
-        "PSSN on {} ({} segments): {} samples across (dx = {:.4} m), FFT {}",
-        r.layout, r.segments, r.params.samples, r.spacing, r.fft_size
+        "PSSN on {} ({} segments): {} samples across (dx = {:.4} m), FFT {}; {} weighted OTF lag \
+         rows by {}",
+        r.layout,
+        r.segments,
+        r.params.samples,
+        r.spacing,
+        r.fft_size,
+        r.lag_rows,
+        match r.otf_method {
+            OtfMethod::Correlation => format!(
+                "the correlation of the rows' spectra (row FFTs of {})",
+                r.row_fft_size
+            ),
+            OtfMethod::Transforms => "the 2-D transforms".to_string(),
+        }
     );
     let l0 = if r.params.l0.is_finite() {
         format!("{} m", r.params.l0)

@@ -64,8 +64,8 @@
 //!   inverse FFTs of the weighted lag rows;
 //!
 //! then the weighted sum. The two agree to rounding (1e-12 in double precision, tested).
-//! BENCHMARKS.md, twenty-third round: TMT in single precision 0.87 ms per evaluation by the
-//! transforms, 0.29 ms by the correlation.
+//! BENCHMARKS.md, twenty-third round: TMT in single precision 0.83 ms per evaluation by the
+//! transforms, 0.25 ms by the correlation (1.5 and 0.40 ms in double precision).
 //!
 //! # Files
 //!
@@ -180,10 +180,10 @@ pub enum PssnPrecision {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum OtfMethod {
     /// The FFTs of the `N` field rows, then each lag row `y'`'s spectrum along `x` as the sum
-    /// over the rows of `F_{y+y'} conj(F_y)` (`rows x N x M` complex multiply-adds) and its
-    /// inverse FFT. The cheaper where few lag rows carry weight: 12 on the default TMT grid,
-    /// where an evaluation takes about a quarter of the transforms' time (BENCHMARKS.md,
-    /// twenty-third round).
+    /// over the rows of `F_{y+y'} conj(F_y)` (`rows x N x P` complex multiply-adds, with
+    /// [`Pssn::row_fft_size`] `P`) and its inverse FFT. The cheaper where few lag rows carry
+    /// weight: 12 on the default TMT grid, where an evaluation takes 0.3 times the transforms'
+    /// time (BENCHMARKS.md, twenty-third round).
     Correlation,
     /// The 2-D power spectrum: the `N` row FFTs, a transpose, `M` column FFTs, `|.|^2`, `M / 2`
     /// inverse FFTs of packed PSF rows, a transpose and the inverse FFTs of the lag rows.
