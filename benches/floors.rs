@@ -870,7 +870,7 @@ fn optics(layout: &str, steps: Option<usize>, arch: pulp::Arch, rows: &mut Vec<R
         "lag_rows": lag_rows,
         "ffts_per_evaluation": transforms,
         "correlation_complex_multiply_adds": complex_macs,
-        "ffts_per_evaluation_s": ffts.json(),
+        "ffts_alone_per_evaluation": ffts.json(),
         "correlation_at_peak": arithmetic.json(),
         "pssn_single_precision": single,
         "metrics_floor": metrics_floor.json(),
