@@ -10,7 +10,9 @@
 //! `LAYOUT` is a preset (`tmt`, the default, `keck` or `elt`), on its built-in cell.
 //! `VARIANTS` is a comma-separated list (default `1,2`): `1` or `2` threads
 //! (`CoupledMirror::set_two_threads`) or `a` for the automatic choice, with a `p` suffix for
-//! the Gram matrices stored by half (`CoupledMirror::set_gram_packed`), without it whole.
+//! the Gram matrices stored by half (`CoupledMirror::set_gram_packed`), without it whole; `h`:
+//! stored by half in half precision (`CoupledMirror::set_coupling_half`), `s`: by half in single
+//! precision (`p` and `s` alike, but `p` keeps the mirror's default precision).
 //! Three rounds of the variants in turn; each prints the median and the fastest of five
 //! blocks (microseconds per step) and the sum of the last step's |z|, which must agree between
 //! thread counts to every digit.
@@ -36,10 +38,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .get(2)
         .map_or(vec!["1", "2"], |s| s.split(',').collect());
     for v in &variants {
-        if !matches!(*v, "1" | "2" | "a" | "1p" | "2p" | "ap") {
-            return Err(
-                format!("variant {v:?}: expected 1, 2 or a, each with or without p").into(),
-            );
+        if !matches!(
+            *v,
+            "1" | "2" | "a" | "1p" | "2p" | "ap" | "1h" | "2h" | "ah" | "1s" | "2s" | "as"
+        ) {
+            return Err(format!(
+                "variant {v:?}: expected 1, 2 or a, each alone or followed by p, h or s"
+            )
+            .into());
         }
     }
     let layout = Layout::preset(args.get(3).map_or("tmt", String::as_str))?;
@@ -68,7 +74,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             if !v.starts_with('a') {
                 m.set_two_threads(v.starts_with('2'));
             }
-            m.set_gram_packed(v.ends_with('p'));
+            m.set_gram_packed(v.len() > 1);
+            if v.len() == 1 || v.ends_with('s') || v.ends_with('h') {
+                m.set_correction_half(v.ends_with('h'));
+            }
             let u = vec![0.0; na];
             let mut f: Vec<f64> = (0..na).map(|i| (i % 7) as f64).collect();
             let mut z = vec![0.0; na];

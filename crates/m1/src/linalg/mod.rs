@@ -14,3 +14,4 @@ pub mod npy;
 pub mod pair;
 pub mod skyline;
 pub mod symmetric;
+pub mod symmetric_half;

@@ -69,8 +69,7 @@ impl SymPacked32 {
     }
 
     /// Entry `(i, j)` as stored (either triangle), in single precision.
-    #[cfg(test)]
-    fn get(&self, i: usize, j: usize) -> f32 {
+    pub fn get(&self, i: usize, j: usize) -> f32 {
         let (i, j) = if j / BLOCK < i / BLOCK {
             (j, i)
         } else {
@@ -82,10 +81,17 @@ impl SymPacked32 {
     /// Offset of row `i` in the storage of a matrix of padded order `n` (for `i = n`: the
     /// whole length).
     fn offset_in(n: usize, i: usize) -> usize {
-        let b = i / BLOCK;
-        // Whole block rows before `b`: BLOCK rows of n - BLOCK c each.
-        BLOCK * (b * n - BLOCK * b * b.saturating_sub(1) / 2) + (i - BLOCK * b) * (n - BLOCK * b)
+        packed_offset(n, i)
     }
+}
+
+/// Offset of row `i` in the storage by upper block triangle of a matrix of padded order `n`
+/// (for `i = n`: the whole length): [`SymPacked32`] and
+/// [`SymPackedHalf`](super::symmetric_half::SymPackedHalf) alike.
+pub(crate) const fn packed_offset(n: usize, i: usize) -> usize {
+    let b = i / BLOCK;
+    // Whole block rows before `b`: BLOCK rows of n - BLOCK c each.
+    BLOCK * (b * n - BLOCK * b * b.saturating_sub(1) / 2) + (i - BLOCK * b) * (n - BLOCK * b)
 }
 
 /// `y_l += A x_l` for `L` (1 or 2) right-hand sides, `A` symmetric and stored by

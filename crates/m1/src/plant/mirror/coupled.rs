@@ -13,6 +13,7 @@ use crate::M1Error;
 use crate::linalg::kernels::{SourceMasks, padded_len};
 use crate::linalg::pair::LazyPair;
 use crate::linalg::symmetric::{SymPacked32, balanced_split, padded_order};
+use crate::linalg::symmetric_half::SymPackedHalf;
 use crate::plant::segment::{
     Channel, Gamma, N_IN, N_STATE, Phi, SegmentArray, SegmentModel, modal_basis, propagate, state,
 };
@@ -29,6 +30,15 @@ use crate::plant::structure::{Flexibility, ModalModel, ModalSolver};
 /// seventeenth round of issue 18, where the double-precision matrix (360 kB) and the Gram
 /// matrices' single-precision copy (180 kB) outgrow the 512 kB L2.
 pub const SINGLE_COUPLING_MIN_MODES: usize = 45;
+
+/// Retained modes from which [`CoupledMirror`] streams the coupled solve's correction `W - I`
+/// in half precision ([`CoupledMirror::set_correction_half`]), where the correction no longer
+/// fits the caches beside the Gram matrices. On the project's 2-core Intel VM
+/// (`mirror_loop -- MODES 2s,2h,1s,1h`, alternating, TMT, the Gram matrices by half): 1000
+/// modes 986 against 918 us per step on two threads and 1769 against 1576 on one; 700 modes
+/// 468 against 443 and 946 against 859; 500 modes 295 against 291 and 502 against 467; at 300
+/// modes within the noise (BENCHMARKS.md, twenty-fourth round).
+pub const HALF_CORRECTION_MIN_MODES: usize = 500;
 
 /// Retained modes from which [`CoupledMirror`] splits its large streaming products between two
 /// threads by default ([`CoupledMirror::set_two_threads`]).
@@ -216,6 +226,10 @@ pub struct CoupledMirror {
     /// results per kind (`G_k psi_k`, `G_k drive_k`) and their column sums' scratch.
     #[serde(default)]
     pub(super) gram_packed: Option<Box<[SymPacked32; 2]>>,
+    /// The correction `K` in half precision, read instead of `corr32` when present
+    /// ([`CoupledMirror::set_correction_half`]).
+    #[serde(default)]
+    pub(super) corr_half: Option<SymPackedHalf>,
     #[serde(default)]
     pub(super) gram_y: [[Vec<f64>; 2]; 2],
     #[serde(default)]
@@ -593,6 +607,7 @@ impl CoupledMirror {
             threads_auto: true,
             trial: ThreadsTrial::default(),
             gram_packed: None,
+            corr_half: None,
             gram_y: Default::default(),
             gram_t: Default::default(),
             alpha,
@@ -634,6 +649,7 @@ impl CoupledMirror {
             free_z: vec![0.0; na],
         };
         mirror.set_gram_packed(r >= PACKED_GRAM_MIN_MODES);
+        mirror.set_correction_half(r >= HALF_CORRECTION_MIN_MODES);
         Ok(mirror)
     }
 
@@ -687,15 +703,44 @@ impl CoupledMirror {
         }
     }
 
+    /// Streams the coupled solve's correction `W - I` (its symmetric form `K`, by its upper
+    /// block triangle) in half precision (`true`, the default from
+    /// [`HALF_CORRECTION_MIN_MODES`] modes) or in single precision (`false`). Only the
+    /// single-precision one-pass solve reads it ([`Self::set_coupling_single`]). The correction
+    /// is about 4e-7 of the solve in norm for the voice coil (8e-5 for the piezo), so that half
+    /// precision's rounding (`2^-11` of each entry, [`crate::linalg::symmetric_half`]) stays
+    /// below single precision's effect on the rest of the solve: the test
+    /// `correction_in_half_precision_matches_double` bounds the mirror's response to wind, a
+    /// command, a static load and a pier vibration against double precision. At 1000 modes it
+    /// saves 5 of the 42.9 MB a TMT step streams. The Gram matrices stay in single precision:
+    /// rounded to half precision they moved the mirror's response to a pier vibration by
+    /// 5e-4 of its rms (TMT, 300 modes; `W G` in single precision 1.4e-7).
+    pub fn set_correction_half(&mut self, half: bool) {
+        if half && self.corr_half.is_none() {
+            let corr = &self.corr32;
+            self.corr_half = SymPackedHalf::from_fn(self.r, |i, j| f64::from(corr.get(i, j)));
+        } else if !half {
+            self.corr_half = None;
+        }
+    }
+
+    /// Whether the correction `W - I` is streamed in half precision.
+    pub fn correction_half(&self) -> bool {
+        self.corr_half.is_some()
+    }
+
     /// Whether the Gram matrices are streamed by their upper block triangles.
     pub fn gram_packed(&self) -> bool {
         self.gram_packed.is_some()
     }
 
     /// Whether a step takes any of the large models' forms (two threads, the Gram matrices by
-    /// half, the correction in two parts).
+    /// half, the correction in two parts or in half precision).
     pub(super) fn large_forms(&self) -> bool {
-        self.two_threads || self.gram_packed.is_some() || self.corr_split > 0
+        self.two_threads
+            || self.gram_packed.is_some()
+            || self.corr_split > 0
+            || self.corr_half.is_some()
     }
 
     /// Whether the large products are split between two threads.
@@ -805,12 +850,20 @@ impl CoupledMirror {
                     samples,
                 ),
             },
-            (
-                "the solve's correction W - I in symmetric form by its upper block triangle, \
-                 one per servo sample (single precision)",
-                std::mem::size_of_val(self.corr32.as_slice()),
-                if self.coupling_single { samples } else { 0 },
-            ),
+            match &self.corr_half {
+                Some(h) => (
+                    "the solve's correction W - I in symmetric form by its upper block \
+                     triangle, one per servo sample (half precision)",
+                    std::mem::size_of_val(h.as_bits()),
+                    if self.coupling_single { samples } else { 0 },
+                ),
+                None => (
+                    "the solve's correction W - I in symmetric form by its upper block \
+                     triangle, one per servo sample (single precision)",
+                    std::mem::size_of_val(self.corr32.as_slice()),
+                    if self.coupling_single { samples } else { 0 },
+                ),
+            },
         ])
             .collect())
     }

@@ -91,7 +91,14 @@
 //! times faster per step; BENCHMARKS.md). $W - I$ is stored in a symmetric form by its upper
 //! block triangle ([`crate::linalg::symmetric`]): with $D = B_1^{1/2}$ (every $b_1 > 0$) and
 //! $S = D M D$, $W - I = D^{-1} K D$ with $K = (I - S)^{-1} S$ symmetric, so that a sample's
-//! tick streams 1.25 $r \times 2r$ matrices instead of 2. Below
+//! tick streams 1.25 $r \times 2r$ matrices instead of 2. From [`HALF_CORRECTION_MIN_MODES`]
+//! modes $K$ is stored in half precision, scaled symmetrically
+//! ([`crate::linalg::symmetric_half`], [`CoupledMirror::set_correction_half`]): a tick then
+//! streams 1.125 instead, and the mirror's response moves by no more than single precision
+//! itself moves it (tested against double precision for a static load and a pier vibration as
+//! well as wind). The Gram matrices stay in single precision: the response to a pier vibration
+//! is a small difference of large terms, and their rounding to half precision moved it by 1e-4
+//! of its largest value. Below
 //! [`SINGLE_COUPLING_MIN_MODES`] the double-precision matrix fits a core's L1 cache with room
 //! to spare, and the conversions to single precision cost more than the traffic they save. In single precision (each vector lane sums about `2r / 8`
 //! products, then the lanes are summed, and the row's sum is added in double precision)
@@ -157,8 +164,8 @@ mod tests;
 mod tick;
 
 pub use coupled::{
-    COLUMN_PASS_MAX_MODES, CoupledMirror, PACKED_GRAM_MIN_MODES, SHARED_CACHE_MIN_MODES,
-    SINGLE_COUPLING_MIN_MODES, THREADS_CHECK_STEPS, THREADS_TRIAL_BLOCK, THREADS_TRIAL_STEPS,
-    THREADS_TRIAL_WARM, TWO_THREADS_MIN_MODES,
+    COLUMN_PASS_MAX_MODES, CoupledMirror, HALF_CORRECTION_MIN_MODES, PACKED_GRAM_MIN_MODES,
+    SHARED_CACHE_MIN_MODES, SINGLE_COUPLING_MIN_MODES, THREADS_CHECK_STEPS, THREADS_TRIAL_BLOCK,
+    THREADS_TRIAL_STEPS, THREADS_TRIAL_WARM, TWO_THREADS_MIN_MODES,
 };
 pub use maps::foh_mode;

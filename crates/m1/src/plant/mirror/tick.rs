@@ -12,6 +12,7 @@ use crate::linalg::kernels::{
 };
 use crate::linalg::pair::{LazyPair, Pair};
 use crate::linalg::symmetric::{BLOCK, SymPacked32, add_columns, sym_dot_f32, sym_dot_rows_f32};
+use crate::linalg::symmetric_half::SymPackedHalf;
 use crate::plant::segment::{N_STATE, state};
 use nalgebra::{SMatrix, SVector};
 
@@ -131,6 +132,7 @@ impl CoupledMirror {
             // W - I = D^-1 K D, K symmetric (stored by its upper block triangle). The per-mode
             // loops run over slices cut to r, so that they vectorise.
             let (gpsi, gjump, d_half) = (&self.gpsi[..r], &self.gjump[..r], &self.d_half[..r]);
+            let half = self.corr_half.as_ref().filter(|_| LARGE);
             {
                 let (beta, win, u_new) =
                     (&self.beta[..r], &mut self.win32[..r], &mut self.u_new[..r]);
@@ -139,13 +141,47 @@ impl CoupledMirror {
                     win[j] = (d_half[j] * x) as f32;
                     u_new[j] += gpsi[j];
                 }
+                if let Some(h) = half {
+                    for (w, s) in win.iter_mut().zip(h.scale()) {
+                        *w *= s;
+                    }
+                }
             }
             // From [`TWO_THREADS_MIN_MODES`] in two parts of block rows with about the same
             // stored entries, each with its own column sums (on one thread the same two parts,
             // so the same bits); below, whole.
             self.corr.fill(0.0);
             let (a, s) = (&self.corr32, self.corr_split);
-            if !LARGE || s == 0 {
+            if let Some(h) = half {
+                let cut = (BLOCK * s).min(r);
+                let (y0, y1) = self.corr[..r].split_at_mut(cut);
+                let x = [&self.win32[..]];
+                let lo = SymRowsHalf {
+                    a: h,
+                    x,
+                    y: [y0],
+                    t: [&mut self.corr_t],
+                    blocks: 0..s,
+                };
+                let hi = SymRowsHalf {
+                    a: h,
+                    x,
+                    y: [y1],
+                    t: [&mut self.corr_t2],
+                    blocks: s..h.padded_order() / BLOCK,
+                };
+                both(
+                    simd,
+                    pair::<LARGE>(&mut self.pair, self.two_threads),
+                    lo,
+                    hi,
+                );
+                add_columns(&mut self.corr[..r], &self.corr_t, 0);
+                add_columns(&mut self.corr[..r], &self.corr_t2, cut);
+                for (c, s) in self.corr[..r].iter_mut().zip(h.scale()) {
+                    *c *= f64::from(*s);
+                }
+            } else if !LARGE || s == 0 {
                 sym_dot_f32::<S, 1>(simd, a, [&self.win32], [&mut self.corr], [&mut self.corr_t]);
             } else {
                 let cut = (BLOCK * s).min(r);
@@ -823,6 +859,24 @@ impl pulp::WithSimd for GramKind<'_> {
             yl.fill(0.0);
         }
         sym_dot_f32::<S, 2>(simd, self.a, self.x, y, self.t);
+    }
+}
+
+/// Block rows of a symmetric product in half precision ([`SymPackedHalf::scaled_rows`]).
+struct SymRowsHalf<'a> {
+    a: &'a SymPackedHalf,
+    x: [&'a [f32]; 1],
+    y: [&'a mut [f64]; 1],
+    t: [&'a mut [f32]; 1],
+    blocks: std::ops::Range<usize>,
+}
+
+impl pulp::WithSimd for SymRowsHalf<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        self.a.scaled_rows::<1>(self.x, self.y, self.t, self.blocks);
     }
 }
 
