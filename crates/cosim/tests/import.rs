@@ -785,10 +785,16 @@ static GLOBAL: Counting = Counting;
 /// The step loop allocates nothing, recording included (every step, both orders, multi-rate):
 /// the count of this thread's allocations is the same after the second step and after the
 /// last (the components are too light for Jacobi's threads, so the loop runs on this one).
+/// Only the look-ahead's timed trials allocate (a switch starts or ends its thread, a trial's
+/// outcome is kept), every `lookahead_trial_every` base steps: none here.
 #[test]
 fn the_step_loop_does_not_allocate() {
     let path = tiny_fmu("no_alloc", &tiny_xml(), &[], true);
     let sys = System::new(0.5, 0.001)
+        .scheduler(cosim::SchedulerParams {
+            lookahead_trial_every: 0,
+            ..cosim::SchedulerParams::default()
+        })
         .component("a", &path)
         .parameter("a", "u", Value::Real(1.0))
         .component("b", &path)
@@ -1095,6 +1101,8 @@ fn recorded_components_on_the_lookahead_thread_change_no_row() {
             .order(c.order)
             .scheduler(SchedulerParams {
                 lookahead_min_seconds: 0.0,
+                // Every eligible step there (the counts below): no timed trial.
+                lookahead_trial_every: 0,
                 ..SchedulerParams::default()
             });
         s.no_lookahead = !c.lookahead;
@@ -1249,6 +1257,82 @@ fn threads_change_no_value() {
     assert_eq!(last([0.0; 3]), last([0.0, 1e-4, 0.0]));
 }
 
+/// The look-ahead's timed trials change no value: with short trials (every 60 base steps,
+/// blocks of 10 timed steps) the look-ahead thread is switched off and on during the run
+/// (a busy component handed there, so that the sides differ), its steps counted across the
+/// switches, and the rows are those of the run without the thread, bit for bit, in both
+/// orders; each trial is reported with its timings; `set_lookahead` ends the trials.
+#[test]
+fn lookahead_trials_change_no_value() {
+    use cosim::SchedulerParams;
+    let path = tiny_fmu("trials", &tiny_xml(), &[], true);
+    let own = path.with_file_name("tiny_trials_b.fmu");
+    std::fs::copy(&path, &own).unwrap();
+    let sys = |order: Order, lookahead: bool| {
+        let mut s = System::new(0.4, 0.001)
+            .component("a", &path)
+            .parameter("a", "u", Value::Real(1.0))
+            .component("b", &own)
+            .parameter("b", "k", Value::Real(0.5))
+            .parameter("b", "busy", Value::Real(2e-5))
+            .component("c", &path)
+            .component("d", &path)
+            .every(2)
+            .connect("a.y", "b.u")
+            .connect("a.y", "c.u")
+            .connect("b.y", "d.u")
+            .order(order)
+            .scheduler(SchedulerParams {
+                lookahead_min_seconds: 0.0,
+                lookahead_trial_every: 60,
+                lookahead_trial_block: 10,
+                ..SchedulerParams::default()
+            });
+        s.no_lookahead = !lookahead;
+        s
+    };
+    let record = ["a.y".to_string(), "c.y".to_string(), "d.y".to_string()];
+    for order in [Order::GaussSeidel, Order::Jacobi] {
+        let plain = run(&sys(order, false), &record, 1, &mut |_, _| {}).unwrap();
+        let tried = run(&sys(order, true), &record, 1, &mut |_, _| {}).unwrap();
+        assert!(plain.timing.lookahead_trials.is_empty());
+        let trials = &tried.timing.lookahead_trials;
+        // 400 base steps: trials from base step 11, every 60 (the last may not end).
+        assert!(trials.len() >= 5, "{order:?}: {trials:?}");
+        for (n, t) in trials.iter().enumerate() {
+            assert_eq!(t.step, 11 + 60 * n as u64, "{order:?}");
+            assert!(t.with_seconds > 0.0 && t.with_seconds.is_finite(), "{t:?}");
+            assert_eq!(
+                t.kept,
+                t.without_seconds.is_nan() || t.without_seconds >= t.with_seconds,
+                "{t:?}"
+            );
+        }
+        assert_eq!(
+            plain.values(),
+            tried.values(),
+            "{order:?}: a trial changed a value"
+        );
+        assert!(plain.values().iter().any(|&x| x != 0.0));
+        if order == Order::GaussSeidel {
+            // b went there in each trial's first block: each timed the run without the thread.
+            assert!(trials.iter().all(|t| t.without_seconds > 0.0), "{trials:?}");
+            assert!(
+                tried.timing.lookahead_steps > 100,
+                "{}",
+                tried.timing.lookahead_steps
+            );
+        }
+    }
+    // An explicit choice ends the trials.
+    let mut sim = cosim::Simulation::new(&sys(Order::GaussSeidel, true), &record).unwrap();
+    sim.set_lookahead(Some(0.0)).unwrap();
+    while !sim.finished() {
+        sim.step().unwrap();
+    }
+    assert!(sim.lookahead_trials().is_empty());
+}
+
 /// The scheduler's thresholds come from the system ([`SchedulerParams`], today's values by
 /// default) and change no value: every measured Jacobi step forced onto the threads (threshold
 /// 0) or none (infinite thresholds), every eligible Gauss-Seidel step handed to the look-ahead thread
@@ -1263,9 +1347,11 @@ fn scheduler_params_change_no_value() {
             d.split_min_seconds,
             d.wake_seconds,
             d.lookahead_min_seconds,
-            d.mean_weight
+            d.mean_weight,
+            d.lookahead_trial_every,
+            d.lookahead_trial_block,
         ),
-        (2e-4, 5e-5, 1.5e-4, 5e-6, 0.05)
+        (2e-4, 5e-5, 1.5e-4, 5e-6, 0.05, 8000, 100)
     );
     assert_eq!(System::default().scheduler, d);
     let path = tiny_fmu("scheduler", &tiny_xml(), &[], true);

@@ -431,6 +431,16 @@ pub(super) fn summary_row(o: &RunOutcome, duration: f64) -> serde_json::Value {
         // Components' steps the master's second thread took (Gauss-Seidel's look-ahead).
         "lookahead_steps": timing.lookahead_steps,
         "lookahead_memo_steps": timing.lookahead_memo_steps,
+        // The master's timed trials of that thread: per trial, the base step it began at, the
+        // mean loop time per base step with and without the thread (s), and whether it was kept.
+        "lookahead_trials": timing.lookahead_trials.iter()
+            .map(|t| json!({
+                "step": t.step,
+                "with_seconds_per_step": t.with_seconds,
+                "without_seconds_per_step": t.without_seconds,
+                "kept": t.kept,
+            }))
+            .collect::<Vec<_>>(),
         "component_seconds": timing.components.iter()
             .map(|(n, t)| (n.clone(), json!(t)))
             .collect::<serde_json::Map<_, _>>(),

@@ -90,6 +90,15 @@
 //! there. [`Simulation::step`] driven directly keeps recorded components on the master's
 //! thread, so that [`Simulation::recorded_values`] is current after every step.
 //!
+//! **Whether the look-ahead thread pays is measured.** It pays while the components on the
+//! master's thread leave the second core free, and costs when they use it themselves (the TMT
+//! mirror with 1000 retained modes splits its products with a thread of its own: the step loop
+//! ran about a tenth slower with the look-ahead thread beside it). Every
+//! [`SchedulerParams::lookahead_trial_every`] base steps the master times blocks of base steps
+//! with and without it and keeps the faster until the next trial (`trial.rs`;
+//! [`Simulation::lookahead_trials`] and [`Timing::lookahead_trials`] report each); an
+//! explicit [`Simulation::set_lookahead`] ends the trials.
+//!
 //! The thresholds of these decisions are one parameter struct, [`SchedulerParams`] (its
 //! [`Default`] holds the measured values; [`System::scheduler`] sets others); they change the
 //! wall time only.
@@ -155,6 +164,7 @@ mod setup;
 mod simulation;
 mod step;
 mod threads;
+mod trial;
 mod wiring;
 
 pub use background::BackgroundSink;
@@ -163,4 +173,5 @@ pub use ports::{CopyWay, copy_for_other_core};
 pub use run::{CsvSink, Ended, Failure, Report, Results, RunOptions, Sink, Timing, run, run_into};
 pub use simulation::{Recorded, Simulation};
 pub use threads::SchedulerParams;
+pub use trial::LookaheadTrial;
 pub use wiring::record_selects;

@@ -60,6 +60,9 @@ pub struct Timing {
     /// Of those, the steps of kept sinks that took inputs from the memo there (values copied
     /// once by the master for two components, [`Simulation::lookahead_memo_steps`]).
     pub lookahead_memo_steps: u64,
+    /// The look-ahead thread's timed trials and what each kept
+    /// ([`SchedulerParams::lookahead_trial_every`](super::SchedulerParams::lookahead_trial_every)).
+    pub lookahead_trials: Vec<super::LookaheadTrial>,
 }
 
 impl Timing {
@@ -427,6 +430,7 @@ pub fn run_into(
         setup_components: sim.component_setup_seconds(),
         lookahead_steps: sim.lookahead_steps(),
         lookahead_memo_steps: sim.lookahead_memo_steps(),
+        lookahead_trials: sim.lookahead_trials().to_vec(),
     };
     sim.terminate().map_err(|e| Box::new(Failure::from(e)))?;
     Ok(Report {

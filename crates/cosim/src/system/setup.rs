@@ -12,6 +12,7 @@ use super::ports::{CopyTrial, Port, Ports, SourcedRun, Values, sourced_runs};
 use super::simulation::{KeptSink, Late, Memo, MemoPlan, Recorded, RecordedOf, Simulation};
 use super::step::Running;
 use super::threads::Lookahead;
+use super::trial::Trials;
 use super::wiring::{Kind, Recording, Wiring, var_of};
 use crate::description::{ScalarVariable, VarType};
 use crate::error::{CosimError, Result};
@@ -333,6 +334,13 @@ impl Simulation {
             late_rows: false,
             late: Late::default(),
             stay_on_master,
+            trials: lookahead.as_ref().and_then(|_| {
+                Trials::new(
+                    system.scheduler.lookahead_trial_every,
+                    system.scheduler.lookahead_trial_block,
+                )
+            }),
+            lookahead_steps_before: 0,
             lookahead,
             lookahead_failed_at: None,
             params: system.scheduler,

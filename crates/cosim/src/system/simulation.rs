@@ -7,6 +7,7 @@ use super::definition::Order;
 use super::ports::{CopyTrial, SourcedRun, Values};
 use super::step::Running;
 use super::threads::{InFlight, Lookahead, SchedulerParams};
+use super::trial::{LookaheadTrial, Trials};
 use super::wiring::Kind;
 use crate::error::Result;
 use crate::fmu::Fmu;
@@ -140,6 +141,10 @@ pub struct Simulation {
     pub(super) late: Late,
     /// The look-ahead thread (None: off, or a single component).
     pub(super) lookahead: Option<Lookahead>,
+    /// The look-ahead thread's timed trials (None: none, [`SchedulerParams::lookahead_trial_every`]).
+    pub(super) trials: Option<Trials>,
+    /// Steps taken on look-ahead threads ended since the start (a trial's switches).
+    pub(super) lookahead_steps_before: u64,
     /// Per component, if it is a sink that may be kept on the look-ahead thread (no other
     /// component reads it, it steps every base step, it is the only instance of its FMU and
     /// its connected inputs are all Real): how its inputs are gathered there.
@@ -203,15 +208,30 @@ impl Simulation {
     /// Turns the look-ahead thread off (`None`) or lets components of at least that mean step
     /// time (s) use it (the default is [`SchedulerParams::lookahead_min_seconds`]): in
     /// Gauss-Seidel order components whose outputs are not needed right away, in both orders
-    /// sinks kept there (module docs). Results are the same either way.
+    /// sinks kept there (module docs). Results are the same either way. This call ends the
+    /// look-ahead's timed trials ([`SchedulerParams::lookahead_trial_every`]): the choice is
+    /// the caller's from then on.
     ///
     /// # Errors
     /// As [`Self::settle`] (a component in flight is waited for first).
     pub fn set_lookahead(&mut self, min_seconds: Option<f64>) -> Result<()> {
+        self.trials = None;
+        self.switch_lookahead(min_seconds)
+    }
+
+    /// The look-ahead's timed trials so far, oldest first.
+    pub fn lookahead_trials(&self) -> &[LookaheadTrial] {
+        self.trials.as_ref().map_or(&[], |t| t.outcomes.as_slice())
+    }
+
+    /// [`Self::set_lookahead`] without ending the trials.
+    pub(super) fn switch_lookahead(&mut self, min_seconds: Option<f64>) -> Result<()> {
         self.settle()?;
         match min_seconds {
             None => {
-                self.lookahead = None;
+                if let Some(l) = self.lookahead.take() {
+                    self.lookahead_steps_before += l.deferred;
+                }
                 self.memo.from = None;
             }
             Some(m) => {
@@ -312,7 +332,7 @@ impl Simulation {
 
     /// Components' steps taken on the look-ahead thread so far.
     pub fn lookahead_steps(&self) -> u64 {
-        self.lookahead.as_ref().map_or(0, |l| l.deferred)
+        self.lookahead_steps_before + self.lookahead.as_ref().map_or(0, |l| l.deferred)
     }
 
     /// Current simulation time (s).

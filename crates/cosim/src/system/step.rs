@@ -131,6 +131,11 @@ impl Simulation {
     /// more from the simulation but its timings. [`run_into`](super::run_into) handles this.
     pub fn step(&mut self) -> Result<()> {
         let k = self.n_steps;
+        // A block of the look-ahead's timed trial begins: the thread on or off.
+        let ahead = self.lookahead_steps();
+        if let Some(on) = self.trials.as_mut().and_then(|tr| tr.before(k, ahead)) {
+            self.switch_lookahead(on.then_some(self.params.lookahead_min_seconds))?;
+        }
         let t = self.time;
         let h = self.step;
         // Base steps left before the stop time, this one included: a slower component's last
@@ -144,6 +149,11 @@ impl Simulation {
         self.collect_ready()?;
         self.n_steps += 1;
         self.time = self.start + self.n_steps as f64 * h;
+        // A trial ends: the faster side kept.
+        let ahead = self.lookahead_steps();
+        if let Some(on) = self.trials.as_mut().and_then(|tr| tr.after(k, ahead)) {
+            self.switch_lookahead(on.then_some(self.params.lookahead_min_seconds))?;
+        }
         Ok(())
     }
 

@@ -49,6 +49,16 @@ pub struct SchedulerParams {
     /// Weight of the newest step in each component's running mean of its step time (the mean
     /// the thresholds above are compared with): `mean += weight * (last - mean)`. Default 0.05.
     pub mean_weight: f64,
+    /// Base steps between the starts of two timed trials of the look-ahead thread, the first
+    /// after [`Self::lookahead_trial_block`] steps: blocks without and with it, the faster
+    /// kept until the next trial (`trial.rs`; [`super::Simulation::lookahead_trials`]). 0: no
+    /// trial, the thread used whenever the rules above allow. Default 8000: a 5 s run at
+    /// 1 ms takes one, at its 110th step.
+    pub lookahead_trial_every: u64,
+    /// Timed base steps of each of a trial's blocks (at least 10; a tenth as many before them
+    /// are not timed). Default 100: in the standard systems the 10 Hz PSSN's evaluation falls
+    /// once in each block's timed steps, on whichever thread it runs.
+    pub lookahead_trial_block: u64,
 }
 
 impl Default for SchedulerParams {
@@ -59,6 +69,8 @@ impl Default for SchedulerParams {
             wake_seconds: 1.5e-4,
             lookahead_min_seconds: 5e-6,
             mean_weight: 0.05,
+            lookahead_trial_every: 8000,
+            lookahead_trial_block: 100,
         }
     }
 }
