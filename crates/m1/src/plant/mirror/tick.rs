@@ -152,50 +152,22 @@ impl CoupledMirror {
             // so the same bits); below, whole.
             self.corr.fill(0.0);
             let (a, s) = (&self.corr32, self.corr_split);
-            if let Some(h) = half {
-                let cut = (BLOCK * s).min(r);
-                let (y0, y1) = self.corr[..r].split_at_mut(cut);
-                let x = [&self.win32[..]];
-                let lo = SymRowsHalf {
-                    a: h,
-                    x,
-                    y: [y0],
-                    t: [&mut self.corr_t],
-                    blocks: 0..s,
-                };
-                let hi = SymRowsHalf {
-                    a: h,
-                    x,
-                    y: [y1],
-                    t: [&mut self.corr_t2],
-                    blocks: s..h.padded_order() / BLOCK,
-                };
-                both(
-                    simd,
-                    pair::<LARGE>(&mut self.pair, self.two_threads),
-                    lo,
-                    hi,
-                );
-                add_columns(&mut self.corr[..r], &self.corr_t, 0);
-                add_columns(&mut self.corr[..r], &self.corr_t2, cut);
-                for (c, s) in self.corr[..r].iter_mut().zip(h.scale()) {
-                    *c *= f64::from(*s);
-                }
-            } else if !LARGE || s == 0 {
+            if half.is_none() && (!LARGE || s == 0) {
                 sym_dot_f32::<S, 1>(simd, a, [&self.win32], [&mut self.corr], [&mut self.corr_t]);
             } else {
+                let stored = half.map_or(Stored::Single(a), Stored::Half);
                 let cut = (BLOCK * s).min(r);
                 let (y0, y1) = self.corr[..r].split_at_mut(cut);
                 let x = [&self.win32[..]];
                 let lo = SymRows {
-                    a,
+                    a: stored,
                     x,
                     y: [y0],
                     t: [&mut self.corr_t],
                     blocks: 0..s,
                 };
                 let hi = SymRows {
-                    a,
+                    a: stored,
                     x,
                     y: [y1],
                     t: [&mut self.corr_t2],
@@ -209,6 +181,11 @@ impl CoupledMirror {
                 );
                 add_columns(&mut self.corr[..r], &self.corr_t, 0);
                 add_columns(&mut self.corr[..r], &self.corr_t2, cut);
+                if let Some(h) = half {
+                    for (c, s) in self.corr[..r].iter_mut().zip(h.scale()) {
+                        *c *= f64::from(*s);
+                    }
+                }
             }
             let (corr, u_new) = (&self.corr[..r], &mut self.u_new[..r]);
             for j in 0..r {
@@ -862,27 +839,19 @@ impl pulp::WithSimd for GramKind<'_> {
     }
 }
 
-/// Block rows of a symmetric product in half precision ([`SymPackedHalf::scaled_rows`]).
-struct SymRowsHalf<'a> {
-    a: &'a SymPackedHalf,
-    x: [&'a [f32]; 1],
-    y: [&'a mut [f64]; 1],
-    t: [&'a mut [f32]; 1],
-    blocks: std::ops::Range<usize>,
+/// A symmetric matrix stored by its upper block triangle, in single precision or (scaled) in
+/// half precision.
+#[derive(Clone, Copy)]
+enum Stored<'a> {
+    Single(&'a SymPacked32),
+    Half(&'a SymPackedHalf),
 }
 
-impl pulp::WithSimd for SymRowsHalf<'_> {
-    type Output = ();
-
-    #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, _simd: S) {
-        self.a.scaled_rows::<1>(self.x, self.y, self.t, self.blocks);
-    }
-}
-
-/// Block rows of a symmetric product ([`sym_dot_rows_f32`]) as a SIMD operation.
+/// Block rows of a symmetric product ([`sym_dot_rows_f32`], or in half precision
+/// [`SymPackedHalf::scaled_rows`] on its own instructions, whatever the SIMD operation's: `x`
+/// already scaled) as a SIMD operation.
 struct SymRows<'a, const L: usize> {
-    a: &'a SymPacked32,
+    a: Stored<'a>,
     x: [&'a [f32]; L],
     y: [&'a mut [f64]; L],
     t: [&'a mut [f32]; L],
@@ -894,7 +863,12 @@ impl<const L: usize> pulp::WithSimd for SymRows<'_, L> {
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, simd: S) {
-        sym_dot_rows_f32::<S, L>(simd, self.a, self.x, self.y, self.t, self.blocks);
+        match self.a {
+            Stored::Single(a) => {
+                sym_dot_rows_f32::<S, L>(simd, a, self.x, self.y, self.t, self.blocks);
+            }
+            Stored::Half(a) => a.scaled_rows::<L>(self.x, self.y, self.t, self.blocks),
+        }
     }
 }
 
