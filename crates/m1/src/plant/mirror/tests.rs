@@ -465,10 +465,11 @@ fn held_inputs_keep_their_projection() {
 
 /// The large products split between two threads give the same mirror and cell outputs to the
 /// bit as on one thread, at every tick kind: TMT's voice coil at 300 modes (a servo sample per
-/// tick) with the Gram matrices whole and by half, at 520 modes (the correction in two parts, in half precision,
-/// too), Keck's piezo at 60 modes with two sub-steps per servo period (ticks between samples
-/// too), all with the coupled solve in single precision (the split products); and a clone
-/// taken during the run (with its own helper thread) goes on with the same values.
+/// tick) with the Gram matrices whole and by half, at 520 modes (the correction in two parts
+/// too, in half precision), Keck's piezo at 60 modes with two sub-steps per servo period
+/// (ticks between samples too), all with the coupled solve in single precision (the split
+/// products); and a clone taken during the run (with its own helper thread) goes on with the
+/// same values.
 #[test]
 fn two_threads_give_the_same_values_to_the_bit() {
     let tmt = Layout::tmt();
