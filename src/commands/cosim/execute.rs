@@ -547,6 +547,26 @@ pub(super) fn print_summary(a: &RunCmd, table: &[serde_json::Value], duration: f
             100.0 * g("master_share")
         );
     }
+    // The master's timed trials of its look-ahead thread: say where one turned it off.
+    for r in table {
+        let trials = r["lookahead_trials"]
+            .as_array()
+            .map_or(&[][..], Vec::as_slice);
+        let dropped: Vec<_> = trials.iter().filter(|t| t["kept"] == false).collect();
+        if let Some(last) = dropped.last() {
+            let us = |k: &str| last[k].as_f64().unwrap_or(f64::NAN) * 1e6;
+            println!(
+                "{}: the master's second thread was slower in {} of {} timed trials and was \
+                 turned off after them (the last: {:.0} us per base step with it, {:.0} us \
+                 without)",
+                r["run"].as_str().unwrap_or(""),
+                dropped.len(),
+                trials.len(),
+                us("with_seconds_per_step"),
+                us("without_seconds_per_step")
+            );
+        }
+    }
     let rms_of = |label: &str| {
         table
             .iter()
