@@ -714,7 +714,8 @@ impl CoupledMirror {
     /// command, a static load and a pier vibration against double precision. At 1000 modes it
     /// saves 5 of the 42.9 MB a TMT step streams. The Gram matrices stay in single precision:
     /// rounded to half precision they moved the mirror's response to a pier vibration by
-    /// 5e-4 of its rms (TMT, 300 modes; `W G` in single precision 1.4e-7).
+    /// 5e-4 of its rms (TMT, 300 modes; single against double precision: 1.4e-7). A correction
+    /// with an entry that is not finite stays in single precision.
     pub fn set_correction_half(&mut self, half: bool) {
         if half && self.corr_half.is_none() {
             let corr = &self.corr32;
