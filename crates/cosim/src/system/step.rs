@@ -13,7 +13,9 @@ use super::ports::{
 };
 use super::queue::TryRecv;
 use super::simulation::Simulation;
-use super::threads::{self, Flight, InFlight, Job, Kept, KeptStep, LOOKAHEAD_SLOTS, Reply, Work};
+use super::threads::{
+    self, Flight, InFlight, Job, Kept, KeptStep, LOOKAHEAD_SLOTS, Lookahead, Reply, Work,
+};
 use crate::error::{CosimError, Result};
 use crate::instance::Instance;
 
@@ -133,8 +135,12 @@ impl Simulation {
         let k = self.n_steps;
         // A block of the look-ahead's timed trial begins: the thread on or off.
         let ahead = self.lookahead_steps();
-        if let Some(on) = self.trials.as_mut().and_then(|tr| tr.before(k, ahead)) {
-            self.switch_lookahead(on.then_some(self.params.lookahead_min_seconds))?;
+        if let Some(on) = self
+            .trials
+            .as_mut()
+            .and_then(|tr| tr.before(k, tr.now(), ahead))
+        {
+            self.trial_switch(on)?;
         }
         let t = self.time;
         let h = self.step;
@@ -151,8 +157,32 @@ impl Simulation {
         self.time = self.start + self.n_steps as f64 * h;
         // A trial ends: the faster side kept.
         let ahead = self.lookahead_steps();
-        if let Some(on) = self.trials.as_mut().and_then(|tr| tr.after(k, ahead)) {
-            self.switch_lookahead(on.then_some(self.params.lookahead_min_seconds))?;
+        if let Some(on) = self
+            .trials
+            .as_mut()
+            .and_then(|tr| tr.after(k, tr.now(), ahead))
+        {
+            self.trial_switch(on)?;
+        }
+        Ok(())
+    }
+
+    /// A trial's switch of the look-ahead thread: off after the steps in flight there are back
+    /// (their errors are the run's), or on with a new thread; if none can be started the run
+    /// goes on without one, and without trials.
+    fn trial_switch(&mut self, on: bool) -> Result<()> {
+        if !on {
+            return self.switch_lookahead(None);
+        }
+        if self.lookahead.is_none() && self.comps.len() > 1 {
+            match Lookahead::start(self.comps.len()) {
+                Ok(l) => {
+                    // A new thread: nothing in its memo yet.
+                    self.memo.from = None;
+                    self.lookahead = Some(l);
+                }
+                Err(_) => self.trials = None,
+            }
         }
         Ok(())
     }

@@ -55,7 +55,10 @@ pub(super) struct Trials {
     next: u64,
     /// Timed seconds and base steps per side (without, with).
     sums: [(f64, u64); 2],
-    started: Option<Instant>,
+    /// The clock the blocks are timed by ([`Self::now`]), and the time the current block's
+    /// timed steps began.
+    origin: Instant,
+    started: Option<f64>,
     /// The look-ahead's steps when the first block began.
     used_from: u64,
     pub(super) outcomes: Vec<LookaheadTrial>,
@@ -76,10 +79,17 @@ impl Trials {
             // which decide what goes to the thread, are measured by then.
             next: block,
             sums: [(0.0, 0); 2],
+            origin: Instant::now(),
             started: None,
             used_from: 0,
             outcomes: Vec::new(),
         })
+    }
+
+    /// Seconds since the trials were set up: the time [`Self::before`] and [`Self::after`]
+    /// are given.
+    pub(super) fn now(&self) -> f64 {
+        self.origin.elapsed().as_secs_f64()
     }
 
     /// Where base step `k` falls in the current trial: (block, step in the block).
@@ -89,12 +99,12 @@ impl Trials {
         (b < 4).then(|| (b as usize, pos % self.block))
     }
 
-    /// Before base step `k`, with the look-ahead's steps so far: the side to switch to when a
-    /// block begins.
-    pub(super) fn before(&mut self, k: u64, lookahead_steps: u64) -> Option<bool> {
+    /// Before base step `k`, at time `now` (s), with the look-ahead's steps so far: the side to
+    /// switch to when a block begins.
+    pub(super) fn before(&mut self, k: u64, now: f64, lookahead_steps: u64) -> Option<bool> {
         let (b, p) = self.at(k)?;
         if p == self.warm {
-            self.started = Some(Instant::now());
+            self.started = Some(now);
         }
         if p == 0 && b == 0 {
             self.used_from = lookahead_steps;
@@ -102,16 +112,16 @@ impl Trials {
         (p == 0 && (b == 0 || SIDES[b] != SIDES[b - 1])).then_some(SIDES[b])
     }
 
-    /// After base step `k`, with the look-ahead's steps so far: at the trial's end, the side
-    /// to keep until the next.
-    pub(super) fn after(&mut self, k: u64, lookahead_steps: u64) -> Option<bool> {
+    /// After base step `k`, at time `now` (s), with the look-ahead's steps so far: at the
+    /// trial's end, the side to keep until the next.
+    pub(super) fn after(&mut self, k: u64, now: f64, lookahead_steps: u64) -> Option<bool> {
         let (b, p) = self.at(k)?;
         if p + 1 != self.block {
             return None;
         }
         if let Some(t0) = self.started.take() {
             let side = &mut self.sums[usize::from(SIDES[b])];
-            side.0 += t0.elapsed().as_secs_f64();
+            side.0 += now - t0;
             side.1 += self.block - self.warm;
         }
         let [without, with] = self.sums.map(|(s, n)| s / n.max(1) as f64);
@@ -141,22 +151,23 @@ mod tests {
     /// Base steps and the side asked or chosen there.
     type Events = Vec<(u64, bool)>;
 
-    /// Feeds base steps `ks` to `t`, each given `used` look-ahead steps so far and taking
-    /// `secs(k, on)` seconds; returns the switches asked and the decisions made.
+    /// Feeds base steps `ks` to `t` on a clock of its own, each given `used(k)` look-ahead
+    /// steps so far and taking `secs(on)` seconds; returns the switches asked and the
+    /// decisions made.
     fn drive(
         t: &mut Trials,
         ks: std::ops::Range<u64>,
         used: impl Fn(u64) -> u64,
         secs: impl Fn(bool) -> f64,
     ) -> (Events, Events) {
-        let (mut on, mut switches, mut decided) = (true, Vec::new(), Vec::new());
+        let (mut on, mut now, mut switches, mut decided) = (true, 0.0, Vec::new(), Vec::new());
         for k in ks {
-            if let Some(s) = t.before(k, used(k)) {
+            if let Some(s) = t.before(k, now, used(k)) {
                 switches.push((k, s));
                 on = s;
             }
-            std::thread::sleep(std::time::Duration::from_secs_f64(secs(on)));
-            if let Some(kept) = t.after(k, used(k)) {
+            now += secs(on);
+            if let Some(kept) = t.after(k, now, used(k)) {
                 decided.push((k, kept));
                 on = kept;
             }
@@ -166,33 +177,59 @@ mod tests {
 
     /// The blocks fall where the documentation says, and a trial decides after its first block
     /// when the thread took no step, after its second when the sides differ clearly, after its
-    /// fourth in a close call.
+    /// fourth in a close call (ties keep the thread), each by the timings it was given.
     #[test]
     fn a_trial_switches_at_its_blocks_and_decides_when_it_can() {
         assert!(Trials::new(0, 10).is_none() && Trials::new(40, 10).is_none());
         assert!(Trials::new(100, 9).is_none());
         // Blocks of 11 base steps (1 not timed), the first trial from base step 11.
         let new = || Trials::new(100, 10).expect("trials");
+        // Step times that the clock adds up exactly (powers of two and their multiples).
+        let base = 2f64.powi(-13);
         // The thread twice as fast: decided after the second block, kept.
         let mut t = new();
-        let (sw, dec) = drive(&mut t, 0..60, |k| k, |on| if on { 1e-4 } else { 2e-4 });
+        let (sw, dec) = drive(
+            &mut t,
+            0..60,
+            |k| k,
+            |on| if on { base } else { 2.0 * base },
+        );
         assert_eq!(sw, vec![(11, true), (22, false)]);
         assert_eq!(dec, vec![(32, true)]);
-        assert!(t.outcomes[0].with_seconds < t.outcomes[0].without_seconds);
+        let o = t.outcomes[0];
+        assert_eq!((o.with_seconds, o.without_seconds), (base, 2.0 * base));
         // Twice as fast without it: dropped after the second block, until the next trial.
         let mut t = new();
-        let (sw, dec) = drive(&mut t, 0..140, |k| k, |on| if on { 2e-4 } else { 1e-4 });
+        let (sw, dec) = drive(
+            &mut t,
+            0..140,
+            |k| k,
+            |on| if on { 2.0 * base } else { base },
+        );
         assert_eq!(sw, vec![(11, true), (22, false), (111, true), (122, false)]);
         assert_eq!(dec, vec![(32, false), (132, false)]);
         // A close call (equal sides): all four blocks, ties keep the thread.
         let mut t = new();
-        let (sw, dec) = drive(&mut t, 0..60, |k| k, |_| 1e-4);
+        let (sw, dec) = drive(&mut t, 0..60, |k| k, |_| base);
         assert_eq!(sw, vec![(11, true), (22, false), (44, true)]);
-        assert_eq!(dec.len(), 1);
-        assert_eq!(dec[0].0, 54);
+        assert_eq!(dec, vec![(54, true)]);
+        // A close call the thread loses (an eighth slower with it): dropped after four blocks.
+        let mut t = new();
+        let (_, dec) = drive(
+            &mut t,
+            0..60,
+            |k| k,
+            |on| if on { 1.125 * base } else { base },
+        );
+        assert_eq!(dec, vec![(54, false)]);
+        let o = t.outcomes[0];
+        assert_eq!(
+            (o.step, o.with_seconds, o.without_seconds),
+            (11, 1.125 * base, base)
+        );
         // Nothing went to the thread in the first block: kept at once, no switch off.
         let mut t = new();
-        let (sw, dec) = drive(&mut t, 0..60, |_| 7, |_| 0.0);
+        let (sw, dec) = drive(&mut t, 0..60, |_| 7, |_| base);
         assert_eq!((sw, dec), (vec![(11, true)], vec![(21, true)]));
         assert!(t.outcomes[0].without_seconds.is_nan());
     }
