@@ -134,14 +134,7 @@ impl Simulation {
     pub fn step(&mut self) -> Result<()> {
         let k = self.n_steps;
         // A block of the look-ahead's timed trial begins: the thread on or off.
-        let ahead = self.lookahead_steps();
-        if let Some(on) = self
-            .trials
-            .as_mut()
-            .and_then(|tr| tr.before(k, tr.now(), ahead))
-        {
-            self.trial_switch(on)?;
-        }
+        self.trial_turn(k, false)?;
         let t = self.time;
         let h = self.step;
         // Base steps left before the stop time, this one included: a slower component's last
@@ -156,15 +149,29 @@ impl Simulation {
         self.n_steps += 1;
         self.time = self.start + self.n_steps as f64 * h;
         // A trial ends: the faster side kept.
-        let ahead = self.lookahead_steps();
-        if let Some(on) = self
-            .trials
-            .as_mut()
-            .and_then(|tr| tr.after(k, tr.now(), ahead))
-        {
-            self.trial_switch(on)?;
-        }
+        self.trial_turn(k, true)?;
         Ok(())
+    }
+
+    /// The look-ahead's timed trial before (`after` false) or after base step `k`: outside a
+    /// trial nothing (no clock read); in one, the block's timing and the switch it asks for.
+    fn trial_turn(&mut self, k: u64, after: bool) -> Result<()> {
+        if !self.trials.as_ref().is_some_and(|tr| tr.active(k)) {
+            return Ok(());
+        }
+        let ahead = self.lookahead_steps();
+        let on = self.trials.as_mut().and_then(|tr| {
+            let now = tr.now();
+            if after {
+                tr.after(k, now, ahead)
+            } else {
+                tr.before(k, now, ahead)
+            }
+        });
+        match on {
+            Some(on) => self.trial_switch(on),
+            None => Ok(()),
+        }
     }
 
     /// A trial's switch of the look-ahead thread: off after the steps in flight there are back

@@ -92,6 +92,12 @@ impl Trials {
         self.origin.elapsed().as_secs_f64()
     }
 
+    /// Whether base step `k` is in a trial (the only steps [`Self::before`] and [`Self::after`]
+    /// need to be asked about).
+    pub(super) fn active(&self, k: u64) -> bool {
+        self.at(k).is_some()
+    }
+
     /// Where base step `k` falls in the current trial: (block, step in the block).
     fn at(&self, k: u64) -> Option<(usize, u64)> {
         let pos = k.checked_sub(self.next)?;

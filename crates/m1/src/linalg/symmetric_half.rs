@@ -42,19 +42,10 @@ pub enum HalfPath {
 impl HalfPath {
     /// The widest path this processor supports.
     pub fn detect() -> Self {
-        #[cfg(target_arch = "x86_64")]
-        {
-            if std::arch::is_x86_feature_detected!("avx512f") {
-                return Self::Avx512;
-            }
-            if std::arch::is_x86_feature_detected!("avx2")
-                && std::arch::is_x86_feature_detected!("fma")
-                && std::arch::is_x86_feature_detected!("f16c")
-            {
-                return Self::Avx2;
-            }
-        }
-        Self::Scalar
+        [Self::Avx512, Self::Avx2]
+            .into_iter()
+            .find(|p| p.available())
+            .unwrap_or(Self::Scalar)
     }
 
     /// Whether this processor can run the path.
@@ -75,10 +66,6 @@ impl HalfPath {
     }
 }
 
-fn detected() -> HalfPath {
-    HalfPath::detect()
-}
-
 /// A symmetric `m x m` matrix `A = S A' S` with `A'` in half precision, stored as
 /// [`SymPacked32`](super::symmetric::SymPacked32) stores (padded with zeros to `n = m` rounded up
 /// to [`BLOCK`], by block rows from each diagonal block on), and the diagonal scale `S` in
@@ -91,7 +78,7 @@ pub struct SymPackedHalf {
     scale: Vec<f32>,
     /// The bits of `A'`'s stored entries.
     data: Vec<u16>,
-    #[serde(skip, default = "detected")]
+    #[serde(skip, default = "HalfPath::detect")]
     path: HalfPath,
 }
 
@@ -220,43 +207,6 @@ impl SymPackedHalf {
                 #[cfg(target_arch = "x86_64")]
                 HalfPath::Avx2 => x86::rows_avx2::<L>(self, xs, y, t, blocks),
                 _ => rows_impl::<Scalar, L>(self, xs, y, t, blocks),
-            }
-        }
-    }
-
-    /// `y_l = A x_l` for `L` (1 or 2) right-hand sides, all rows: `xs_l` and `t_l` are scratch
-    /// of at least the padded order, `x_l` at least the padded order, `y_l` at least the order.
-    ///
-    /// # Panics
-    /// As [`Self::scaled_rows`].
-    pub fn dot<const L: usize>(
-        &self,
-        x: [&[f32]; L],
-        y: [&mut [f64]; L],
-        t: [&mut [f32]; L],
-        xs: [&mut [f32]; L],
-    ) {
-        let n = self.n;
-        let mut xs = xs;
-        for (xl, sl) in xs.iter_mut().zip(x) {
-            for ((d, a), s) in xl[..n].iter_mut().zip(&sl[..n]).zip(&self.scale) {
-                *d = a * s;
-            }
-        }
-        let mut y = y.map(|yl| &mut yl[..self.m]);
-        for yl in y.iter_mut() {
-            yl.fill(0.0);
-        }
-        let mut t = t;
-        self.scaled_rows::<L>(
-            xs.each_ref().map(|v| &**v),
-            y.each_mut().map(|v| &mut **v),
-            t.each_mut().map(|v| &mut **v),
-            0..n / BLOCK,
-        );
-        for (yl, tl) in y.iter_mut().zip(&t) {
-            for ((yj, tj), s) in yl.iter_mut().zip(tl.iter()).zip(&self.scale) {
-                *yj = (*yj + f64::from(*tj)) * f64::from(*s);
             }
         }
     }
@@ -556,15 +506,21 @@ mod tests {
                 continue;
             }
             paths += 1;
-            // Whole, two right-hand sides.
+            // Whole, two right-hand sides: the vectors scaled, the rows' and the columns'
+            // sums added, the result scaled.
+            let xs: [Vec<f32>; 2] =
+                std::array::from_fn(|l| x[l].iter().zip(a.scale()).map(|(v, s)| v * s).collect());
             let mut y = [vec![0.0f64; m], vec![0.0f64; m]];
             let mut t = [vec![f32::NAN; n], vec![f32::NAN; n]];
-            let mut xs = [vec![0.0f32; n], vec![0.0f32; n]];
             {
                 let [y0, y1] = &mut y;
                 let [t0, t1] = &mut t;
-                let [s0, s1] = &mut xs;
-                a.dot::<2>([&x[0], &x[1]], [y0, y1], [t0, t1], [s0, s1]);
+                a.scaled_rows::<2>([&xs[0], &xs[1]], [y0, y1], [t0, t1], 0..n / BLOCK);
+            }
+            for (yl, tl) in y.iter_mut().zip(&t) {
+                for ((yj, tj), s) in yl.iter_mut().zip(tl).zip(a.scale()) {
+                    *yj = (*yj + f64::from(*tj)) * f64::from(*s);
+                }
             }
             for l in 0..2 {
                 for i in 0..m {
@@ -578,13 +534,13 @@ mod tests {
                 }
             }
             // One right-hand side in two parts of block rows, summed as the mirror does.
-            let xs0: Vec<f32> = x[0].iter().zip(a.scale()).map(|(v, s)| v * s).collect();
+            let xs0 = &xs[0];
             let cut = 2;
             let mut lo = vec![0.0f64; m];
             let (y0, y1) = lo.split_at_mut(BLOCK * cut);
             let (mut t0, mut t1) = (vec![0.0f32; n], vec![0.0f32; n]);
-            a.scaled_rows::<1>([&xs0], [y0], [&mut t0], 0..cut);
-            a.scaled_rows::<1>([&xs0], [y1], [&mut t1], cut..n / BLOCK);
+            a.scaled_rows::<1>([xs0], [y0], [&mut t0], 0..cut);
+            a.scaled_rows::<1>([xs0], [y1], [&mut t1], cut..n / BLOCK);
             for j in 0..m {
                 let v = (lo[j] + f64::from(t0[j]) + f64::from(t1[j])) * f64::from(a.scale()[j]);
                 assert!(
