@@ -796,36 +796,48 @@ impl CoupledMirror {
     }
 
     /// The matrices a communication step of `h` seconds streams, with how many times each is
-    /// read: `(name, bytes, reads)`, each a distinct array. Their sum is the step's unavoidable memory traffic once
-    /// the matrices no longer fit a core's cache (a floor for benchmarks: at TMT size with 300
-    /// modes, about 8 MB per 1 ms step).
-    pub fn streamed_per_step(&self, h: f64) -> Result<Vec<(&'static str, usize, u64)>, M1Error> {
+    /// read per step on average when the command and the wind forces change every
+    /// `inputs_every` steps (at least 1; the standard systems' 100 Hz wind changes them every
+    /// 10 steps of 1 ms): `(name, bytes, reads per step)`, each a distinct array. The inputs'
+    /// pass over the shapes is made only in a step whose inputs changed (otherwise their
+    /// projection is the last step's), so it counts `1 / inputs_every` per step. The sum is the
+    /// step's unavoidable memory traffic once the matrices no longer fit a core's cache (a
+    /// floor for benchmarks: at TMT size with 300 modes, about 6 MB per 1 ms step).
+    ///
+    /// # Errors
+    /// [`M1Error::InvalidParameter`] if `h` is not a whole number of servo periods.
+    pub fn streamed_per_step(
+        &self,
+        h: f64,
+        inputs_every: u64,
+    ) -> Result<Vec<(&'static str, usize, f64)>, M1Error> {
         let samples = self.ticks_in(h)?;
         let ticks = samples * u64::from(self.substeps);
+        let inputs = 1.0 / inputs_every.max(1) as f64;
         let shapes = if self.phit32.is_empty() {
             vec![(
-                "mode shapes (single precision): inputs onto the modes, the mirror's \
-                 displacement back",
+                "mode shapes (single precision): inputs onto the modes (when they change), the \
+                 mirror's displacement back",
                 std::mem::size_of_val(self.phic32.as_slice()),
-                2,
+                1.0 + inputs,
             )]
         } else {
             vec![
                 (
-                    "mode shapes by rows (single precision): inputs onto the modes",
+                    "mode shapes by rows (single precision): inputs onto the modes, when they \
+                     change",
                     std::mem::size_of_val(self.phic32.as_slice()),
-                    1,
+                    inputs,
                 ),
                 (
                     "mode shapes by columns (single precision): the mirror's displacement back",
                     std::mem::size_of_val(self.phit32.as_slice()),
-                    1,
+                    1.0,
                 ),
             ]
         };
-        Ok(shapes
-            .into_iter()
-            .chain([
+        // Read at every coupled tick or servo sample (`u64` counts).
+        let on_ticks: [(&'static str, usize, u64); 3] = [
             (
                 "[W G_p, W G_t], one per coupled tick (in single precision: between samples)",
                 if self.coupling_single {
@@ -865,7 +877,10 @@ impl CoupledMirror {
                     if self.coupling_single { samples } else { 0 },
                 ),
             },
-        ])
+        ];
+        Ok(shapes
+            .into_iter()
+            .chain(on_ticks.map(|(name, bytes, reads)| (name, bytes, reads as f64)))
             .collect())
     }
 
