@@ -524,6 +524,9 @@ fn mirror(layout: &str, modes: i32, steps: Option<usize>, arch: pulp::Arch, rows
         .and_then(|r| r.solver())
         .expect("the mirror FMU runs the coupled solver");
     let retained = solver.structure().n_modes();
+    // Whether the mirror splits its products between two threads now (its default from 500
+    // modes; between 150 and 500 its timed trial decides while it runs).
+    let two_threads = solver.two_threads();
     let streamed = solver
         .streamed_per_step(STEP, WIND_EVERY as u64)
         .expect("the mirror's streamed matrices");
@@ -585,6 +588,38 @@ fn mirror(layout: &str, modes: i32, steps: Option<usize>, arch: pulp::Arch, rows
             black_box(s);
         }
     });
+    // The same traffic on both cores at once: each thread streams its half of every buffer as
+    // often, with no hand-over between them (what two cores' caches and memory deliver
+    // together; the mirror on two threads cannot stream faster).
+    let halves: Vec<([&[f32]; 2], f64)> = buffers
+        .iter()
+        .map(|(b, reads, _)| {
+            let (lo, hi) = b.split_at(b.len() / 2);
+            ([lo, hi], *reads)
+        })
+        .collect();
+    let floor2 = two_threads.then(|| {
+        measure(steps, 1, |n| {
+            let half = |h: usize| {
+                let mut owed = vec![0.0; halves.len()];
+                let mut s = 0.0;
+                for _ in 0..n {
+                    for ((b, reads), owed) in halves.iter().zip(owed.iter_mut()) {
+                        *owed += *reads;
+                        while *owed >= 1.0 - 1e-9 {
+                            s += stream(arch, black_box(b[h]));
+                            *owed -= 1.0;
+                        }
+                    }
+                }
+                black_box(s);
+            };
+            std::thread::scope(|scope| {
+                scope.spawn(|| half(1));
+                half(0);
+            });
+        })
+    });
     // Single-precision multiply-adds count half: a vector holds twice as many.
     let fmas: u64 = arithmetic
         .iter()
@@ -620,6 +655,27 @@ fn mirror(layout: &str, modes: i32, steps: Option<usize>, arch: pulp::Arch, rows
                 .collect::<Vec<_>>(),
         }),
     });
+    if let Some(floor2) = floor2 {
+        let gbs = bytes / floor2.median / 1e9;
+        rows.push(Row {
+            component: "mirror",
+            case: format!(
+                "voice coil, {modes} modes ({retained} retained), 1 ms step, on its two threads"
+            ),
+            time: Some(time),
+            floor: floor2,
+            basis: format!(
+                "{} streamed per step by two cores at once, each half of every buffer, at {gbs:.1} GB/s together",
+                mb(bytes),
+            ),
+            details: json!({
+                "modes": modes,
+                "bytes_per_step": bytes,
+                "floor_gb_per_s": gbs,
+                "threads": 2,
+            }),
+        });
+    }
     rows.push(Row {
         component: "mirror",
         case: format!("voice coil, {modes} modes ({retained} retained), 1 ms step"),
