@@ -15,6 +15,8 @@
 
 use pulp::Simd;
 
+use super::kernels::prefetch;
+
 /// Side of the diagonal blocks, which are stored whole: a multiple of the widest single-
 /// precision vector (16 lanes), so that every stored row is a whole number of vectors.
 pub const BLOCK: usize = 16;
@@ -194,7 +196,13 @@ pub fn sym_dot_rows_f32<S: Simd, const L: usize>(
             // Past it: each entry also adds its row's value to its column's sum.
             let bc: [[S::f32s; L]; R] =
                 std::array::from_fn(|k| std::array::from_fn(|l| simd.splat_f32s(x[l][i + k])));
+            // The next group of rows, a group ahead (its 16 kB at 1000 modes cover the L3's
+            // latency): each row is a stream of its own, a page or less long.
+            let next = a.data.as_ptr().wrapping_add(off + R * len);
             for c in vpb..len / S::F32_LANES {
+                for k in 0..R {
+                    prefetch(next.wrapping_add(k * len + c * S::F32_LANES));
+                }
                 for l in 0..L {
                     let xv = xh[l][c0 + c];
                     let mut tv = th[l][c0 + c];

@@ -26,6 +26,7 @@
 
 use half::f16;
 
+use super::kernels::prefetch;
 use super::symmetric::{BLOCK, packed_offset, padded_order};
 
 /// The instructions a [`SymPackedHalf`] product runs on (chosen by [`HalfPath::detect`]).
@@ -309,7 +310,12 @@ unsafe fn rows_impl<T: Lanes, const L: usize>(
                 // Past it: each entry also adds its row's value to its column's sum.
                 let bc: [[T::V; L]; R] =
                     std::array::from_fn(|k| std::array::from_fn(|l| T::splat(*xp[l].add(i + k))));
+                // The next group of rows, a group ahead (as in `sym_dot_rows_f32`).
+                let next = data.wrapping_add(off + R * len);
                 while c < len {
+                    for k in 0..R {
+                        prefetch(next.wrapping_add(k * len + c));
+                    }
                     let v: [T::V; R] = std::array::from_fn(|k| T::load_half(rp[k].add(c)));
                     for l in 0..L {
                         let xv = T::load(xp[l].add(col0 + c));
