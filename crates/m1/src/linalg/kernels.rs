@@ -97,10 +97,10 @@ pub fn rows_dot<S: Simd, const L: usize>(
 /// values, no fault on any address). The streaming products prefetch the next group of rows
 /// while they read one: each row is a stream of its own, a page or less long (4 kB at 1000
 /// modes), which the processor's own prefetchers start on only after its first misses
-/// (TMT at 1000 modes, the mirror 9-13 % faster per step on two threads; BENCHMARKS.md,
-/// twenty-fifth round).
+/// (TMT at 1000 modes, the mirror about a tenth faster per step; BENCHMARKS.md, twenty-fifth
+/// round).
 #[inline(always)]
-pub(crate) fn prefetch<T>(p: *const T) {
+pub fn prefetch<T>(p: *const T) {
     #[cfg(target_arch = "x86_64")]
     // SAFETY: a prefetch reads nothing and does not fault, whatever the address.
     unsafe {

@@ -62,6 +62,10 @@
 //! kernels of [`crate::linalg::kernels`] (each matrix read once, every right-hand side applied while a
 //! chunk is in registers), and the whole coupled part of a step runs inside one
 //! [`pulp::Arch::dispatch`], so that it is compiled for the processor's vector instructions.
+//! The products read four rows at a time and ask for the next four rows' cache lines meanwhile
+//! ([`crate::linalg::kernels::prefetch`]): each row is a stream of its own, about a page long at
+//! 1000 modes, which the processor's prefetchers would start on only after its first misses (TMT at
+//! 1000 modes, the step about a tenth shorter; BENCHMARKS.md, twenty-fifth round).
 //! The general matrix products used before (which pack their operand first) took 1.44 times as
 //! long per step at r = 300 (BENCHMARKS.md). The channels' 12-state maps, on the modes and in
 //! actuator space alike, go through [`crate::linalg::kernels::state_map`], which computes four
