@@ -11,7 +11,7 @@
 //!
 //! | component | step | floor |
 //! |---|---|---|
-//! | mirror (`mirror_voicecoil`, each `--modes`; its wind forces changing every 10 steps and its command every 50, as in the standard system) | 1 ms | memory: the matrices one step streams ([`m1::plant::mirror::CoupledMirror::streamed_per_step`]: the inputs' pass over the shapes in the steps whose inputs change), as separate single-precision buffers summed with SIMD as often; arithmetic: the multiply-adds of a step at those rates ([`m1::plant::mirror::CoupledMirror::multiply_adds_per_step`]) as independent fused multiply-adds in registers at the peak rate |
+//! | mirror (`mirror_voicecoil`, each `--modes`; its wind forces changing every 10 steps and its command every 50, as in the standard system) | 1 ms | memory: the matrices one step streams ([`m1::plant::mirror::CoupledMirror::streamed_per_step`]: the inputs' pass over the shapes in the steps whose inputs change), as separate single-precision buffers summed with SIMD as often and in the mirror's order (the ticks' matrices in turn, tick by tick), on one core and, for a mirror on two threads, on both at once (each its half of every buffer); arithmetic: the multiply-adds of a step at those rates ([`m1::plant::mirror::CoupledMirror::multiply_adds_per_step`]) as independent fused multiply-adds in registers at the peak rate |
 //! | edge sensors | 1 ms | arithmetic: one multiply-add per non-zero of `y = H z`, `gap = g0 + G z` at the peak rate; memory: the non-zeros and `z` read once (a plain CSR product with the same non-zeros is timed too, for scale, in the JSON) |
 //! | optics | 1 ms | metrics: one dot-product pass over `z`; PSSN: the FFTs of one evaluation (`m1::optics::pssn`) in the precision of the FMU's `pssn_single_precision`, and with `OtfMethod::Correlation` (the default's choice) its complex multiply-adds at the peak rate, per step |
 //! | wind | 10 ms (100 Hz) | streaming the table entries one sample interpolates and the forces it writes |
@@ -356,6 +356,33 @@ fn stream(arch: pulp::Arch, x: &[f32]) -> f32 {
     arch.dispatch(Sum(x))
 }
 
+/// Streams `n` steps of the mirror's buffers `(buffer, mean reads per step)` in the order its
+/// step reads them: a buffer read less than once per step (the inputs' pass over the shapes)
+/// whenever a whole read is owed, and those read at every servo tick in turn, tick by tick (the
+/// Gram matrices, then the correction, then the Gram matrices again...), so that a buffer
+/// stays in a cache only as long as it does in the mirror.
+fn stream_steps(arch: pulp::Arch, buffers: &[(&[f32], f64)], n: usize) -> f32 {
+    let mut owed = vec![0.0; buffers.len()];
+    let mut now = vec![0u32; buffers.len()];
+    let mut s = 0.0;
+    for _ in 0..n {
+        for ((_, reads), (owed, now)) in buffers.iter().zip(owed.iter_mut().zip(now.iter_mut())) {
+            *owed += *reads;
+            *now = (*owed + 1e-9).floor() as u32;
+            *owed -= f64::from(*now);
+        }
+        while now.iter().any(|&k| k > 0) {
+            for ((b, _), k) in buffers.iter().zip(now.iter_mut()) {
+                if *k > 0 {
+                    s += stream(arch, black_box(b));
+                    *k -= 1;
+                }
+            }
+        }
+    }
+    s
+}
+
 /// A buffer of `bytes` bytes of single-precision values (rounded up to whole values).
 fn buffer(bytes: usize) -> Vec<f32> {
     (0..bytes.div_ceil(4))
@@ -566,57 +593,33 @@ fn mirror(layout: &str, modes: i32, steps: Option<usize>, arch: pulp::Arch, rows
     });
     drop(fmu);
 
-    // Each buffer with its mean reads per step and the reads owed so far: a buffer read less
-    // than once per step (the inputs' pass over the shapes) is read whenever a whole read is
-    // owed, as often on average as the mirror reads it.
-    let mut buffers: Vec<(Vec<f32>, f64, f64)> = streamed
+    let buffers: Vec<(Vec<f32>, f64)> = streamed
         .iter()
-        .map(|&(_, bytes, reads)| (buffer(bytes), reads, 0.0))
+        .map(|&(_, bytes, reads)| (buffer(bytes), reads))
         .collect();
     let bytes: f64 = streamed.iter().map(|&(_, b, r)| b as f64 * r).sum();
     let footprint: usize = streamed.iter().map(|&(_, b, _)| b).sum();
+    let whole: Vec<(&[f32], f64)> = buffers.iter().map(|(b, r)| (b.as_slice(), *r)).collect();
     let floor = measure(steps, 1, |n| {
-        for _ in 0..n {
-            let mut s = 0.0;
-            for (b, reads, owed) in &mut buffers {
-                *owed += *reads;
-                while *owed >= 1.0 - 1e-9 {
-                    s += stream(arch, black_box(b));
-                    *owed -= 1.0;
-                }
-            }
-            black_box(s);
-        }
+        black_box(stream_steps(arch, &whole, n));
     });
     // The same traffic on both cores at once: each thread streams its half of every buffer as
     // often, with no hand-over between them (what two cores' caches and memory deliver
     // together; the mirror on two threads cannot stream faster).
-    let halves: Vec<([&[f32]; 2], f64)> = buffers
-        .iter()
-        .map(|(b, reads, _)| {
-            let (lo, hi) = b.split_at(b.len() / 2);
-            ([lo, hi], *reads)
-        })
-        .collect();
+    let halves: [Vec<(&[f32], f64)>; 2] = std::array::from_fn(|h| {
+        buffers
+            .iter()
+            .map(|(b, reads)| {
+                let (lo, hi) = b.split_at(b.len() / 2);
+                (if h == 0 { lo } else { hi }, *reads)
+            })
+            .collect()
+    });
     let floor2 = two_threads.then(|| {
         measure(steps, 1, |n| {
-            let half = |h: usize| {
-                let mut owed = vec![0.0; halves.len()];
-                let mut s = 0.0;
-                for _ in 0..n {
-                    for ((b, reads), owed) in halves.iter().zip(owed.iter_mut()) {
-                        *owed += *reads;
-                        while *owed >= 1.0 - 1e-9 {
-                            s += stream(arch, black_box(b[h]));
-                            *owed -= 1.0;
-                        }
-                    }
-                }
-                black_box(s);
-            };
             std::thread::scope(|scope| {
-                scope.spawn(|| half(1));
-                half(0);
+                scope.spawn(|| black_box(stream_steps(arch, &halves[1], n)));
+                black_box(stream_steps(arch, &halves[0], n));
             });
         })
     });
