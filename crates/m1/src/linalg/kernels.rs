@@ -110,6 +110,10 @@ pub fn prefetch<T>(p: *const T) {
     let _ = p;
 }
 
+/// Single-precision values in a 64-byte cache line: the products prefetch every this many
+/// values along a row (once per line, whatever their vectors' width).
+pub const LINE_F32: usize = 16;
+
 /// `y += A x` for a single-precision `A` (`m x k` row-major, row stride `lda`) and `x`, each
 /// row's products summed in single precision, by lane and then across the lanes (one vector
 /// reduction), and added to the double-precision `y`: half the memory traffic of
@@ -148,8 +152,10 @@ pub fn rows_dot_f32<S: Simd>(
         // The next four rows, a group ahead.
         let next = a.as_ptr().wrapping_add((i + 4) * lda);
         for c in 0..n {
-            for j in 0..4 {
-                prefetch(next.wrapping_add(j * lda + c * S::F32_LANES));
+            if (c * S::F32_LANES).is_multiple_of(LINE_F32) {
+                for j in 0..4 {
+                    prefetch(next.wrapping_add(j * lda + c * S::F32_LANES));
+                }
             }
             let xv = xh[c];
             a0 = simd.mul_add_f32s(r0[c], xv, a0);
@@ -209,8 +215,10 @@ pub fn rows_dot2_f32<S: Simd>(
         // The next four rows, a group ahead.
         let next = a.as_ptr().wrapping_add((i + 4) * lda);
         for c in 0..n {
-            for j in 0..4 {
-                prefetch(next.wrapping_add(j * lda + c * S::F32_LANES));
+            if (c * S::F32_LANES).is_multiple_of(LINE_F32) {
+                for j in 0..4 {
+                    prefetch(next.wrapping_add(j * lda + c * S::F32_LANES));
+                }
             }
             let (u, w) = (x0[c], x1[c]);
             let (v0, v1, v2, v3) = (r0[c], r1[c], r2[c], r3[c]);

@@ -15,7 +15,7 @@
 
 use pulp::Simd;
 
-use super::kernels::prefetch;
+use super::kernels::{LINE_F32, prefetch};
 
 /// Side of the diagonal blocks, which are stored whole: a multiple of the widest single-
 /// precision vector (16 lanes), so that every stored row is a whole number of vectors.
@@ -200,8 +200,10 @@ pub fn sym_dot_rows_f32<S: Simd, const L: usize>(
             // latency): each row is a stream of its own, a page or less long.
             let next = a.data.as_ptr().wrapping_add(off + R * len);
             for c in vpb..len / S::F32_LANES {
-                for k in 0..R {
-                    prefetch(next.wrapping_add(k * len + c * S::F32_LANES));
+                if (c * S::F32_LANES).is_multiple_of(LINE_F32) {
+                    for k in 0..R {
+                        prefetch(next.wrapping_add(k * len + c * S::F32_LANES));
+                    }
                 }
                 for l in 0..L {
                     let xv = xh[l][c0 + c];

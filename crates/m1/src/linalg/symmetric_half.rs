@@ -26,7 +26,7 @@
 
 use half::f16;
 
-use super::kernels::prefetch;
+use super::kernels::{LINE_F32, prefetch};
 use super::symmetric::{BLOCK, packed_offset, padded_order};
 
 /// The instructions a [`SymPackedHalf`] product runs on (chosen by [`HalfPath::detect`]).
@@ -313,8 +313,11 @@ unsafe fn rows_impl<T: Lanes, const L: usize>(
                 // The next group of rows, a group ahead (as in `sym_dot_rows_f32`).
                 let next = data.wrapping_add(off + R * len);
                 while c < len {
-                    for k in 0..R {
-                        prefetch(next.wrapping_add(k * len + c));
+                    // Once per cache line of half-precision values.
+                    if c.is_multiple_of(2 * LINE_F32) {
+                        for k in 0..R {
+                            prefetch(next.wrapping_add(k * len + c));
+                        }
                     }
                     let v: [T::V; R] = std::array::from_fn(|k| T::load_half(rp[k].add(c)));
                     for l in 0..L {
