@@ -802,7 +802,8 @@ impl CoupledMirror {
     /// pass over the shapes is made only in a step whose inputs changed (otherwise their
     /// projection is the last step's), so it counts `1 / inputs_every` per step. The sum is the
     /// step's unavoidable memory traffic once the matrices no longer fit a core's cache (a
-    /// floor for benchmarks: at TMT size with 300 modes, about 6 MB per 1 ms step).
+    /// floor for benchmarks: at TMT size with 300 modes and inputs changing every tenth step,
+    /// 6.6 MB per 1 ms step).
     ///
     /// # Errors
     /// [`M1Error::InvalidParameter`] if `h` is not a whole number of servo periods.
