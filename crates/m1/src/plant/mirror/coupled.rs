@@ -202,6 +202,12 @@ pub struct CoupledMirror {
     /// `ld32`, zero past `r`: the mirror's displacement one per kind, the cell's two per kind).
     pub(super) w32: [Vec<f32>; 2],
     pub(super) acc32: [Vec<f32>; 2],
+    /// The second part's sums of the inputs' projection in two parts (the large models'
+    /// form, [`Self::project_inputs`]): its scratch and its tilt sums.
+    #[serde(skip)]
+    pub(super) acc32_part: [Vec<f32>; 2],
+    #[serde(skip)]
+    pub(super) tilt_part: [Vec<f64>; 2],
     pub(super) cols32: Vec<f32>,
     /// `[W G_p, W G_t]` with `W = (I - M B1)^-1` and `G_k` the Gram matrices of the shapes'
     /// piston and tilt rows: r x 2r row-major, the coupled solve of a tick in one product
@@ -593,6 +599,8 @@ impl CoupledMirror {
             ldt: padded_len(na),
             w32: [vec![0.0f32; 2 * n], vec![0.0f32; 4 * n]],
             acc32: [vec![0.0f32; padded_len(r)], vec![0.0f32; padded_len(r)]],
+            acc32_part: [vec![0.0f32; padded_len(r)], vec![0.0f32; padded_len(r)]],
+            tilt_part: [vec![0.0; r], vec![0.0; r]],
             cols32: vec![0.0f32; 4 * padded_len(r)],
             wg32: kinds_padded_f32(&wg, r),
             wg,
@@ -1102,7 +1110,7 @@ impl CoupledMirror {
     /// projection of `w32`): in the standard system the command changes at the global loop's
     /// 20 Hz and the wind at 100 Hz, so most 1 ms steps skip the pass.
     #[inline(always)]
-    pub(super) fn project_inputs<S: pulp::Simd>(&mut self, simd: S) {
+    pub(super) fn project_inputs<S: pulp::Simd, const LARGE: bool>(&mut self, simd: S) {
         // Inputs given as at the last step, to the bit: their projection is the last one.
         if self.free.inputs_unchanged() {
             return;
@@ -1123,17 +1131,62 @@ impl CoupledMirror {
         if changed == [false; 2] {
             return;
         }
-        let [a0, a1] = &mut self.acc32;
-        Project {
-            phic: &self.phic32,
-            ld: self.ld32,
-            n: self.n_segments,
+        let (ld, n) = (self.ld32, self.n_segments);
+        let phic = &self.phic32[..];
+        let w = [&self.w32[0][..], &self.w32[1][..]];
+        let project = |rows, acc, out| Project {
+            phic,
+            ld,
+            n,
+            rows,
             kinds: changed,
-            w: [&self.w32[0], &self.w32[1]],
-            acc: [a0, a1],
-            out: [pu, pf, tu, tf],
+            w,
+            acc,
+            out,
+        };
+        let [a0, a1] = &mut self.acc32;
+        // In two parts of channel rows, at once on two threads (on one, whatever the model, the
+        // same two parts in turn: the same sums): the piston rows and the first tilt rows, the
+        // other tilt rows into `tilt_part`, then added. Whole rows each (split by modes, the
+        // two cores' halves of a row shared its cache lines' prefetches: no faster than one
+        // core).
+        let cut = n + ((n / 2) & !3);
+        let r = self.r;
+        let [part_u, part_f] = &mut self.tilt_part;
+        // (Scratch, not serialised: sized here after a deserialisation.)
+        for part in [&mut *part_u, &mut *part_f] {
+            part.resize(r, 0.0);
         }
-        .with_simd(simd);
+        let [b0, b1] = &mut self.acc32_part;
+        for b in [&mut *b0, &mut *b1] {
+            b.resize(a0.len(), 0.0);
+        }
+        let lo = project(0..cut, [a0, a1], [pu, pf, &mut *tu, &mut *tf]);
+        let hi = project(
+            cut..3 * n,
+            [b0, b1],
+            [&mut [], &mut [], &mut *part_u, &mut *part_f],
+        );
+        let pair = if LARGE && self.two_threads {
+            self.pair.get()
+        } else {
+            None
+        };
+        match pair {
+            Some(p) => p.join(|| simd.vectorize(lo), move || simd.vectorize(hi)),
+            None => {
+                lo.with_simd(simd);
+                hi.with_simd(simd);
+            }
+        }
+        if changed[1] {
+            for (t, p) in tu.iter_mut().zip(part_u.iter()) {
+                *t += p;
+            }
+            for (t, p) in tf.iter_mut().zip(part_f.iter()) {
+                *t += p;
+            }
+        }
     }
 
     /// Mirror displacement `z` at each actuator (length 3N).

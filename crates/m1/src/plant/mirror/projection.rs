@@ -12,14 +12,19 @@ pub(super) fn input_columns(w: &mut [f64], r: usize) -> (&mut [f64], &mut [f64])
     (u, &mut rest[r..2 * r])
 }
 
-/// `Phi_k^T w_k` (command and wind columns) for both kinds, from the single-precision shapes:
-/// `out` is (piston command, piston wind, tilt command, tilt wind), each `r` long; `w[kind]` is
-/// the kind's command column then its wind column.
+/// `Phi_k^T w_k` (command and wind columns) for both kinds, from the single-precision shapes,
+/// over the channel rows `rows` (piston `0..n`, tilt `n..3n`): `out` is (piston command,
+/// piston wind, tilt command, tilt wind), each `r` long, set to the sums over those of the
+/// kind's rows that `rows` holds (left as they are for a kind it holds none of, or whose
+/// inputs are unchanged: `kinds`); `w[kind]` is the kind's command column then its wind column.
+/// Two ranges of rows give two parts of a kind's sums, which two threads may compute at once.
 pub(super) struct Project<'a> {
     pub(super) phic: &'a [f32],
     /// Row stride of `phic` (its rows zero-padded to whole vectors).
     pub(super) ld: usize,
     pub(super) n: usize,
+    /// The channel rows to project.
+    pub(super) rows: std::ops::Range<usize>,
     /// The kinds to project (the others keep their outputs).
     pub(super) kinds: [bool; 2],
     pub(super) w: [&'a [f32]; 2],
@@ -35,19 +40,23 @@ impl pulp::WithSimd for Project<'_> {
         let (ld, n) = (self.ld, self.n);
         let [pu, pf, tu, tf] = self.out;
         let [a0, a1] = self.acc;
-        for (kind, (lo, count), yu, yf) in [(0usize, (0usize, n), pu, pf), (1, (n, 2 * n), tu, tf)]
-        {
-            if !self.kinds[kind] {
+        for (kind, kinds, yu, yf) in [(0usize, 0..n, pu, pf), (1, n..3 * n, tu, tf)] {
+            let (lo, hi) = (
+                self.rows.start.max(kinds.start),
+                self.rows.end.min(kinds.end),
+            );
+            if !self.kinds[kind] || lo >= hi {
                 continue;
             }
             let x = self.w[kind];
+            let (i0, i1, count) = (lo - kinds.start, hi - kinds.start, kinds.len());
             rows_axpy2_f32::<S>(
                 simd,
                 &self.phic[lo * ld..],
                 ld,
-                count,
+                hi - lo,
                 ld,
-                [&x[..count], &x[count..2 * count]],
+                [&x[i0..i1], &x[count + i0..count + i1]],
                 [yu, yf],
                 [&mut *a0, &mut *a1],
             );

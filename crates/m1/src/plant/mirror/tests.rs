@@ -469,7 +469,8 @@ fn held_inputs_keep_their_projection() {
 /// too, in half precision), Keck's piezo at 60 modes with two sub-steps per servo period
 /// (ticks between samples too), all with the coupled solve in single precision (the split
 /// products); and a clone taken during the run (with its own helper thread) goes on with the
-/// same values.
+/// same values. The inputs change at every step, so that every step projects them onto the
+/// modes (in two parts of channel rows, at once on two threads).
 #[test]
 fn two_threads_give_the_same_values_to_the_bit() {
     let tmt = Layout::tmt();

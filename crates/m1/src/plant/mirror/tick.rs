@@ -753,7 +753,7 @@ impl<const LARGE: bool> pulp::WithSimd for StepAs<'_, LARGE> {
             ticks,
             pier_z,
         } = self.0;
-        m.project_inputs(simd);
+        m.project_inputs::<S, LARGE>(simd);
         // The ticks in chunks of at most FREE_CHUNK_TICKS, each with its free part composed.
         let sub = m.substeps as usize;
         let mut t = 0;
