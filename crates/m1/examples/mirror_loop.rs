@@ -12,7 +12,8 @@
 //! (`CoupledMirror::set_two_threads`) or `a` for the automatic choice, with a `p` suffix for
 //! the Gram matrices stored by half (`CoupledMirror::set_gram_packed`), without it whole; `h`:
 //! stored by half in half precision (`CoupledMirror::set_coupling_half`), `s`: by half in single
-//! precision (`p` and `s` alike, but `p` keeps the mirror's default precision).
+//! precision (`p` and `s` alike, but `p` keeps the mirror's default precision); `x`: as `h` with
+//! the Gram matrices in 24-bit fixed point (`CoupledMirror::set_gram_fixed24`).
 //! Three rounds of the variants in turn; each prints the median and the fastest of five
 //! blocks (microseconds per step) and the sum of the last step's |z|, which must agree between
 //! thread counts to every digit.
@@ -40,10 +41,23 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     for v in &variants {
         if !matches!(
             *v,
-            "1" | "2" | "a" | "1p" | "2p" | "ap" | "1h" | "2h" | "ah" | "1s" | "2s" | "as"
+            "1" | "2"
+                | "a"
+                | "1p"
+                | "2p"
+                | "ap"
+                | "1h"
+                | "2h"
+                | "ah"
+                | "1s"
+                | "2s"
+                | "as"
+                | "1x"
+                | "2x"
+                | "ax"
         ) {
             return Err(format!(
-                "variant {v:?}: expected 1, 2 or a, each alone or followed by p, h or s"
+                "variant {v:?}: expected 1, 2 or a, each alone or followed by p, h, s or x"
             )
             .into());
         }
@@ -75,8 +89,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 m.set_two_threads(v.starts_with('2'));
             }
             m.set_gram_packed(v.len() > 1);
-            if v.len() == 1 || v.ends_with('s') || v.ends_with('h') {
-                m.set_correction_half(v.ends_with('h'));
+            m.set_gram_fixed24(v.ends_with('x'));
+            if v.len() == 1 || v.ends_with('s') || v.ends_with('h') || v.ends_with('x') {
+                m.set_correction_half(v.ends_with('h') || v.ends_with('x'));
             }
             let u = vec![0.0; na];
             let mut f: Vec<f64> = (0..na).map(|i| (i % 7) as f64).collect();

@@ -8,7 +8,10 @@
 //! in norm for the voice coil, 8e-5 for the piezo), so its entries need no more than half
 //! precision, and at a thousand retained modes storing it so saves 5 of the 42.9 MB a TMT step
 //! streams ([`CoupledMirror::set_correction_half`](crate::plant::mirror::CoupledMirror::set_correction_half)).
-//! Matrices whose product is not a small correction (the Gram matrices) need single precision.
+//! Matrices whose product is not a small correction (the Gram matrices) need more: for them
+//! [`SymPacked24`] stores the same scaled entries in 24-bit fixed point (three bytes an entry,
+//! within `2^-24 s_i s_j` of the exact one), read by the same kernels with a decoding of their
+//! own (a byte permutation with AVX-512 VBMI, a byte shuffle with AVX2).
 //!
 //! **Scaling.** With `s_i = sqrt(max_j |A_ij|)` (1 for a zero row), `A = S A' S`,
 //! `S = diag(s)`, and `|A'_ij| <= |A_ij| / sqrt(|A_ij| |A_ji|) = 1`: the stored entries use
@@ -204,12 +207,264 @@ impl SymPackedHalf {
         unsafe {
             match self.path {
                 #[cfg(target_arch = "x86_64")]
-                HalfPath::Avx512 => x86::rows_avx512::<L>(self, xs, y, t, blocks),
+                HalfPath::Avx512 => x86::rows_avx512::<Half, L>(&self.stored(), xs, y, t, blocks),
                 #[cfg(target_arch = "x86_64")]
-                HalfPath::Avx2 => x86::rows_avx2::<L>(self, xs, y, t, blocks),
-                _ => rows_impl::<Scalar, L>(self, xs, y, t, blocks),
+                HalfPath::Avx2 => x86::rows_avx2::<Half, L>(&self.stored(), xs, y, t, blocks),
+                _ => rows_impl::<Scalar, Half, L>(&self.stored(), xs, y, t, blocks),
             }
         }
+    }
+}
+
+/// Bytes the 24-bit paths read past the last entry they use (the storage's padding).
+pub const FIXED24_OVER_READ: usize = 16;
+
+/// The largest stored 24-bit integer: `A'`'s entries in `[-1, 1]` are stored as
+/// `round(A'_ij Q)`.
+const Q24: f64 = 8_388_607.0;
+
+/// Whether a [`SymPacked24`] product can run on `path` on this processor (the 512-bit path
+/// needs AVX-512 VBMI for the entries' byte permutation).
+pub fn fixed24_available(path: HalfPath) -> bool {
+    match path {
+        #[cfg(target_arch = "x86_64")]
+        HalfPath::Avx512 => {
+            std::arch::is_x86_feature_detected!("avx512f")
+                && std::arch::is_x86_feature_detected!("avx512bw")
+                && std::arch::is_x86_feature_detected!("avx512vbmi")
+        }
+        _ => path.available(),
+    }
+}
+
+/// Whether [`SymPacked24`] products run on vector instructions here (AVX-512 VBMI, or AVX2,
+/// FMA and F16C), not on the portable scalar path.
+pub fn fixed24_vectorised() -> bool {
+    fixed24_detect() != HalfPath::Scalar
+}
+
+/// The widest path a [`SymPacked24`] product runs on here.
+fn fixed24_detect() -> HalfPath {
+    [HalfPath::Avx512, HalfPath::Avx2]
+        .into_iter()
+        .find(|&p| fixed24_available(p))
+        .unwrap_or(HalfPath::Scalar)
+}
+
+/// A symmetric `m x m` matrix `A = C A'' C` stored as [`SymPackedHalf`] stores, its scaled
+/// entries in 24-bit fixed point: with `s` as there (every `|A'_ij| = |A_ij| / (s_i s_j) <=
+/// 1`), `q_ij = round(A'_ij Q)` (`Q = 2^23 - 1`) in three bytes, read as the single-precision
+/// value `A''_ij = 256 q_ij` (exactly), and `c_i = s_i / sqrt(256 Q)`: `|A_ij - c_i A''_ij c_j|
+/// <= s_i s_j / (2 Q)`, about `6e-8 s_i s_j`. Three quarters of the single-precision traffic,
+/// and for the largest entries of each row and column single precision's rounding. For the
+/// coupled mirror's Gram matrices, whose products are not small corrections
+/// ([`CoupledMirror::set_gram_fixed24`](crate::plant::mirror::CoupledMirror::set_gram_fixed24)).
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct SymPacked24 {
+    m: usize,
+    n: usize,
+    /// `c_i`, zero past the order.
+    scale: Vec<f32>,
+    /// Three bytes per stored entry, then [`FIXED24_OVER_READ`] bytes of padding.
+    data: Vec<u8>,
+    #[serde(skip, default = "fixed24_detect")]
+    path: HalfPath,
+}
+
+impl SymPacked24 {
+    /// The matrix whose entry `(i, j)` is `f(i, j)` (`f` symmetric, which this does not check;
+    /// every entry is read, to find the scale), scaled and rounded to 24-bit fixed point, or
+    /// `None` if an entry is not finite.
+    pub fn from_fn(m: usize, f: impl Fn(usize, usize) -> f64) -> Option<Self> {
+        let n = padded_order(m);
+        let mut row_max = vec![0.0f64; m];
+        for (i, mx) in row_max.iter_mut().enumerate() {
+            for j in 0..m {
+                let v = f(i, j);
+                if !v.is_finite() {
+                    return None;
+                }
+                *mx = mx.max(v.abs());
+            }
+        }
+        let s: Vec<f64> = row_max
+            .iter()
+            .map(|&x| if x > 0.0 { x.sqrt() } else { 1.0 })
+            .collect();
+        let mut data = vec![0u8; 3 * packed_offset(n, n) + FIXED24_OVER_READ];
+        for i in 0..m {
+            let start = BLOCK * (i / BLOCK);
+            let row = &mut data[3 * packed_offset(n, i)..][..3 * (n - start)];
+            for (j, d) in (start..m).zip(row.chunks_exact_mut(3)) {
+                let q = (f(i, j) / (s[i] * s[j]) * Q24).round().clamp(-Q24, Q24) as i32;
+                d.copy_from_slice(&q.to_le_bytes()[..3]);
+            }
+        }
+        let c = (256.0 * Q24).sqrt();
+        let mut scale: Vec<f32> = s.iter().map(|&x| (x / c) as f32).collect();
+        scale.resize(n, 0.0);
+        Some(Self {
+            m,
+            n,
+            scale,
+            data,
+            path: fixed24_detect(),
+        })
+    }
+
+    /// Order of the matrix.
+    pub fn order(&self) -> usize {
+        self.m
+    }
+
+    /// The padded order: the length the vectors of a product need.
+    pub fn padded_order(&self) -> usize {
+        self.n
+    }
+
+    /// The diagonal scale `c` (the padded order's length, zero past the order): `A = C A'' C`.
+    pub fn scale(&self) -> &[f32] {
+        &self.scale
+    }
+
+    /// The stored bytes (the memory a product streams is their size).
+    pub fn as_bytes(&self) -> &[u8] {
+        &self.data
+    }
+
+    /// The path the products run on.
+    pub fn path(&self) -> HalfPath {
+        self.path
+    }
+
+    /// Runs the products on `path` instead of the detected one (for tests and comparisons):
+    /// `false`, and nothing changed, if this processor cannot run it.
+    pub fn set_path(&mut self, path: HalfPath) -> bool {
+        let ok = fixed24_available(path);
+        if ok {
+            self.path = path;
+        }
+        ok
+    }
+
+    /// Entry `(i, j)` of `A` as stored (either triangle).
+    pub fn get(&self, i: usize, j: usize) -> f64 {
+        let (i, j) = if j / BLOCK < i / BLOCK {
+            (j, i)
+        } else {
+            (i, j)
+        };
+        let at = 3 * (packed_offset(self.n, i) + j - BLOCK * (i / BLOCK));
+        let b = &self.data[at..at + 3];
+        let v = f64::from(i32::from_le_bytes([0, b[0], b[1], b[2]]));
+        f64::from(self.scale[i]) * v * f64::from(self.scale[j])
+    }
+
+    /// Block rows `blocks` of the product with the scaled matrix `A''`, for `L` (1 or 2)
+    /// right-hand sides `xs_l` already multiplied by [`Self::scale`]: as
+    /// [`SymPackedHalf::scaled_rows`].
+    ///
+    /// # Panics
+    /// If a slice is shorter than that, the blocks run past the padded order, or `L` is not 1
+    /// or 2 (programming errors).
+    pub fn scaled_rows<const L: usize>(
+        &self,
+        xs: [&[f32]; L],
+        y: [&mut [f64]; L],
+        t: [&mut [f32]; L],
+        blocks: std::ops::Range<usize>,
+    ) {
+        assert!(L == 1 || L == 2, "one or two right-hand sides");
+        assert!(blocks.start <= blocks.end && blocks.end <= self.n / BLOCK);
+        let rows = (BLOCK * blocks.end).min(self.m);
+        let rows = rows.saturating_sub(BLOCK * blocks.start);
+        for l in 0..L {
+            assert!(xs[l].len() >= self.n && t[l].len() >= self.n && y[l].len() >= rows);
+        }
+        assert!(self.data.len() == 3 * packed_offset(self.n, self.n) + FIXED24_OVER_READ);
+        let mut t = t;
+        for tl in t.iter_mut() {
+            tl[..self.n].fill(0.0);
+        }
+        let a = Stored::<Fixed24> {
+            m: self.m,
+            n: self.n,
+            data: &self.data,
+        };
+        // SAFETY: the slices' lengths are checked above (the data with its padding for the
+        // paths' over-reads); the path was checked to run on this processor (detected at
+        // construction, or `set_path`).
+        unsafe {
+            match self.path {
+                #[cfg(target_arch = "x86_64")]
+                HalfPath::Avx512 => x86::rows_avx512_vbmi::<Fixed24, L>(&a, xs, y, t, blocks),
+                #[cfg(target_arch = "x86_64")]
+                HalfPath::Avx2 => x86::rows_avx2::<Fixed24, L>(&a, xs, y, t, blocks),
+                _ => rows_impl::<Scalar, Fixed24, L>(&a, xs, y, t, blocks),
+            }
+        }
+    }
+}
+
+impl SymPackedHalf {
+    /// The stored entries as the kernels read them.
+    fn stored(&self) -> Stored<'_, Half> {
+        Stored {
+            m: self.m,
+            n: self.n,
+            data: &self.data,
+        }
+    }
+}
+
+/// A scaled symmetric matrix's stored entries as the kernels read them: order `m`, padded
+/// order `n`, the entries by block rows ([`packed_offset`]), `E::UNITS` units each.
+struct Stored<'a, E: Encoding> {
+    m: usize,
+    n: usize,
+    data: &'a [E::Unit],
+}
+
+/// How a scaled matrix's entries are stored, and read into single-precision lanes.
+trait Encoding {
+    /// The storage unit.
+    type Unit: Copy;
+    /// Units per entry.
+    const UNITS: usize;
+    /// The kernels prefetch a row's next stretch every this many entries (about a cache line).
+    const PREFETCH_EVERY: usize;
+    /// `T::N` entries from `p`, in single precision.
+    ///
+    /// # Safety
+    /// `p` points at `T::N` stored entries, followed by at least [`FIXED24_OVER_READ`] bytes
+    /// (read, not used, by the 24-bit paths).
+    unsafe fn load<T: Lanes>(p: *const Self::Unit) -> T::V;
+}
+
+/// Half precision: one `u16` (IEEE 754 binary16 bits) per entry.
+struct Half;
+
+impl Encoding for Half {
+    type Unit = u16;
+    const UNITS: usize = 1;
+    const PREFETCH_EVERY: usize = 2 * LINE_F32;
+    #[inline(always)]
+    unsafe fn load<T: Lanes>(p: *const u16) -> T::V {
+        unsafe { T::load_half(p) }
+    }
+}
+
+/// 24-bit fixed point: three bytes per entry, a two's complement integer `q` with its least
+/// significant byte first, read as the single-precision value `256 q` (exact).
+struct Fixed24;
+
+impl Encoding for Fixed24 {
+    type Unit = u8;
+    const UNITS: usize = 3;
+    const PREFETCH_EVERY: usize = 16;
+    #[inline(always)]
+    unsafe fn load<T: Lanes>(p: *const u8) -> T::V {
+        unsafe { T::load_fixed24(p) }
     }
 }
 
@@ -222,6 +477,9 @@ trait Lanes {
     unsafe fn load(p: *const f32) -> Self::V;
     unsafe fn store(p: *mut f32, v: Self::V);
     unsafe fn load_half(p: *const u16) -> Self::V;
+    /// `N` 24-bit entries ([`Fixed24`]) from `p`, reading at most [`FIXED24_OVER_READ`] bytes
+    /// past them.
+    unsafe fn load_fixed24(p: *const u8) -> Self::V;
     unsafe fn fma(a: Self::V, b: Self::V, c: Self::V) -> Self::V;
     unsafe fn sum(v: Self::V) -> f32;
 }
@@ -252,6 +510,12 @@ impl Lanes for Scalar {
         f16::from_bits(unsafe { *p }).to_f32()
     }
     #[inline(always)]
+    unsafe fn load_fixed24(p: *const u8) -> f32 {
+        // SAFETY: the caller's: three bytes at `p`.
+        let b = unsafe { [*p, *p.add(1), *p.add(2)] };
+        i32::from_le_bytes([0, b[0], b[1], b[2]]) as f32
+    }
+    #[inline(always)]
     unsafe fn fma(a: f32, b: f32, c: f32) -> f32 {
         a * b + c
     }
@@ -267,8 +531,8 @@ impl Lanes for Scalar {
 /// The processor runs `T`'s instructions; the slices have the lengths
 /// [`SymPackedHalf::scaled_rows`] checks, `t_l` is zero.
 #[inline(always)]
-unsafe fn rows_impl<T: Lanes, const L: usize>(
-    a: &SymPackedHalf,
+unsafe fn rows_impl<T: Lanes, E: Encoding, const L: usize>(
+    a: &Stored<'_, E>,
     xs: [&[f32]; L],
     y: [&mut [f64]; L],
     t: [&mut [f32]; L],
@@ -293,12 +557,14 @@ unsafe fn rows_impl<T: Lanes, const L: usize>(
             let col0 = BLOCK * b;
             let mut i = col0;
             while i < col0 + BLOCK {
-                let rp: [*const u16; R] = std::array::from_fn(|k| data.add(off + k * len));
+                let rp: [*const E::Unit; R] =
+                    std::array::from_fn(|k| data.add((off + k * len) * E::UNITS));
                 let mut acc = [[T::zero(); L]; R];
                 // The diagonal block, stored whole: dot products only.
                 let mut c = 0;
                 while c < BLOCK {
-                    let v: [T::V; R] = std::array::from_fn(|k| T::load_half(rp[k].add(c)));
+                    let v: [T::V; R] =
+                        std::array::from_fn(|k| E::load::<T>(rp[k].add(c * E::UNITS)));
                     for l in 0..L {
                         let xv = T::load(xp[l].add(col0 + c));
                         for k in 0..R {
@@ -311,15 +577,16 @@ unsafe fn rows_impl<T: Lanes, const L: usize>(
                 let bc: [[T::V; L]; R] =
                     std::array::from_fn(|k| std::array::from_fn(|l| T::splat(*xp[l].add(i + k))));
                 // The next group of rows, a group ahead (as in `sym_dot_rows_f32`).
-                let next = data.wrapping_add(off + R * len);
+                let next = data.wrapping_add((off + R * len) * E::UNITS);
                 while c < len {
-                    // Once per cache line of half-precision values.
-                    if c.is_multiple_of(2 * LINE_F32) {
+                    // About once per cache line.
+                    if c.is_multiple_of(E::PREFETCH_EVERY) {
                         for k in 0..R {
-                            prefetch(next.wrapping_add(k * len + c));
+                            prefetch(next.wrapping_add((k * len + c) * E::UNITS));
                         }
                     }
-                    let v: [T::V; R] = std::array::from_fn(|k| T::load_half(rp[k].add(c)));
+                    let v: [T::V; R] =
+                        std::array::from_fn(|k| E::load::<T>(rp[k].add(c * E::UNITS)));
                     for l in 0..L {
                         let xv = T::load(xp[l].add(col0 + c));
                         let mut tv = T::load(tp[l].add(col0 + c));
@@ -347,8 +614,36 @@ unsafe fn rows_impl<T: Lanes, const L: usize>(
 
 #[cfg(target_arch = "x86_64")]
 mod x86 {
-    use super::{Lanes, SymPackedHalf, rows_impl};
+    use super::{Encoding, Lanes, Stored, rows_impl};
     use core::arch::x86_64::*;
+
+    /// Byte `4 l + 1 + b` of the result from byte `3 l + b` (lane `l`, `b < 3`), byte `4 l`
+    /// zero: a 24-bit entry in the upper three bytes of its lane, `256 q`.
+    const SPREAD24: [u8; 64] = {
+        let mut t = [0u8; 64];
+        let mut l = 0;
+        while l < 16 {
+            t[4 * l + 1] = (3 * l) as u8;
+            t[4 * l + 2] = (3 * l + 1) as u8;
+            t[4 * l + 3] = (3 * l + 2) as u8;
+            l += 1;
+        }
+        t
+    };
+
+    /// The same within each 128-bit half (four lanes from twelve bytes), `0x80` for a zero.
+    const SPREAD24_HALF: [u8; 32] = {
+        let mut t = [0x80u8; 32];
+        let mut l = 0;
+        while l < 8 {
+            let b = 3 * (l % 4);
+            t[4 * l + 1] = b as u8;
+            t[4 * l + 2] = (b + 1) as u8;
+            t[4 * l + 3] = (b + 2) as u8;
+            l += 1;
+        }
+        t
+    };
 
     pub(super) struct Avx512;
 
@@ -374,6 +669,17 @@ mod x86 {
         #[inline(always)]
         unsafe fn load_half(p: *const u16) -> __m512 {
             unsafe { _mm512_cvtph_ps(_mm256_loadu_si256(p.cast())) }
+        }
+        /// Needs AVX-512 VBMI (`rows_avx512_vbmi`): 64 bytes read for 48.
+        #[inline(always)]
+        unsafe fn load_fixed24(p: *const u8) -> __m512 {
+            unsafe {
+                let raw = _mm512_loadu_si512(p.cast());
+                let idx = _mm512_loadu_si512(SPREAD24.as_ptr().cast());
+                // Byte 0 of every lane zero (mask 0b1110 per lane).
+                let q = _mm512_maskz_permutexvar_epi8(0xEEEE_EEEE_EEEE_EEEE, idx, raw);
+                _mm512_cvtepi32_ps(q)
+            }
         }
         #[inline(always)]
         unsafe fn fma(a: __m512, b: __m512, c: __m512) -> __m512 {
@@ -410,6 +716,17 @@ mod x86 {
         unsafe fn load_half(p: *const u16) -> __m256 {
             unsafe { _mm256_cvtph_ps(_mm_loadu_si128(p.cast())) }
         }
+        /// Bytes 0-15 and 12-27 read for 0-23.
+        #[inline(always)]
+        unsafe fn load_fixed24(p: *const u8) -> __m256 {
+            unsafe {
+                let lo = _mm_loadu_si128(p.cast());
+                let hi = _mm_loadu_si128(p.add(12).cast());
+                let v = _mm256_set_m128i(hi, lo);
+                let ctrl = _mm256_loadu_si256(SPREAD24_HALF.as_ptr().cast());
+                _mm256_cvtepi32_ps(_mm256_shuffle_epi8(v, ctrl))
+            }
+        }
         #[inline(always)]
         unsafe fn fma(a: __m256, b: __m256, c: __m256) -> __m256 {
             unsafe { _mm256_fmadd_ps(a, b, c) }
@@ -428,27 +745,41 @@ mod x86 {
     /// # Safety
     /// As [`rows_impl`], on a processor with AVX-512F.
     #[target_feature(enable = "avx512f")]
-    pub(super) unsafe fn rows_avx512<const L: usize>(
-        a: &SymPackedHalf,
+    pub(super) unsafe fn rows_avx512<E: Encoding, const L: usize>(
+        a: &Stored<'_, E>,
         xs: [&[f32]; L],
         y: [&mut [f64]; L],
         t: [&mut [f32]; L],
         blocks: std::ops::Range<usize>,
     ) {
-        unsafe { rows_impl::<Avx512, L>(a, xs, y, t, blocks) }
+        unsafe { rows_impl::<Avx512, E, L>(a, xs, y, t, blocks) }
+    }
+
+    /// # Safety
+    /// As [`rows_impl`], on a processor with AVX-512F, BW and VBMI (the 24-bit entries'
+    /// byte permutation).
+    #[target_feature(enable = "avx512f,avx512bw,avx512vbmi")]
+    pub(super) unsafe fn rows_avx512_vbmi<E: Encoding, const L: usize>(
+        a: &Stored<'_, E>,
+        xs: [&[f32]; L],
+        y: [&mut [f64]; L],
+        t: [&mut [f32]; L],
+        blocks: std::ops::Range<usize>,
+    ) {
+        unsafe { rows_impl::<Avx512, E, L>(a, xs, y, t, blocks) }
     }
 
     /// # Safety
     /// As [`rows_impl`], on a processor with AVX2, FMA and F16C.
     #[target_feature(enable = "avx2,fma,f16c")]
-    pub(super) unsafe fn rows_avx2<const L: usize>(
-        a: &SymPackedHalf,
+    pub(super) unsafe fn rows_avx2<E: Encoding, const L: usize>(
+        a: &Stored<'_, E>,
         xs: [&[f32]; L],
         y: [&mut [f64]; L],
         t: [&mut [f32]; L],
         blocks: std::ops::Range<usize>,
     ) {
-        unsafe { rows_impl::<Avx2, L>(a, xs, y, t, blocks) }
+        unsafe { rows_impl::<Avx2, E, L>(a, xs, y, t, blocks) }
     }
 }
 
@@ -470,15 +801,78 @@ mod tests {
     /// precision's bound of the module's documentation).
     #[test]
     fn products_match_the_stored_matrix_on_every_path() {
-        let m = 83;
-        let a = SymPackedHalf::from_fn(m, entry).expect("finite");
+        // Half precision: each entry within 2^-11 of itself, or 2^-24 of s_i s_j.
+        let half = SymPackedHalf::from_fn(83, entry).expect("finite");
+        products_match_on_every_path(&half, |exact, s| {
+            2f64.powi(-11) * exact.abs() + 2f64.powi(-24) * s
+        });
+        // 24-bit fixed point: each entry within 2^-24 of s_i s_j (the scale's single-precision
+        // rounding adds 2^-23 of the entry); s_i s_j is 256 (2^23 - 1) c_i c_j.
+        let fixed = SymPacked24::from_fn(83, entry).expect("finite");
+        products_match_on_every_path(&fixed, |exact, c| {
+            2f64.powi(-22) * exact.abs() + 0.5 * 256.0 * c
+        });
+    }
+
+    /// A scaled symmetric storage, for the tests common to both.
+    trait Scaled: Clone {
+        fn order(&self) -> usize;
+        fn padded_order(&self) -> usize;
+        fn get(&self, i: usize, j: usize) -> f64;
+        fn scale(&self) -> &[f32];
+        fn set_path(&mut self, path: HalfPath) -> bool;
+        fn rows<const L: usize>(
+            &self,
+            xs: [&[f32]; L],
+            y: [&mut [f64]; L],
+            t: [&mut [f32]; L],
+            blocks: std::ops::Range<usize>,
+        );
+    }
+
+    macro_rules! scaled {
+        ($t:ty) => {
+            impl Scaled for $t {
+                fn order(&self) -> usize {
+                    <$t>::order(self)
+                }
+                fn padded_order(&self) -> usize {
+                    <$t>::padded_order(self)
+                }
+                fn get(&self, i: usize, j: usize) -> f64 {
+                    <$t>::get(self, i, j)
+                }
+                fn scale(&self) -> &[f32] {
+                    <$t>::scale(self)
+                }
+                fn set_path(&mut self, path: HalfPath) -> bool {
+                    <$t>::set_path(self, path)
+                }
+                fn rows<const L: usize>(
+                    &self,
+                    xs: [&[f32]; L],
+                    y: [&mut [f64]; L],
+                    t: [&mut [f32]; L],
+                    blocks: std::ops::Range<usize>,
+                ) {
+                    self.scaled_rows::<L>(xs, y, t, blocks)
+                }
+            }
+        };
+    }
+    scaled!(SymPackedHalf);
+    scaled!(SymPacked24);
+
+    /// The stored matrix against the exact one (within `bound(exact, scale_i scale_j)`), and
+    /// every path's products as the first test's documentation says.
+    fn products_match_on_every_path<A: Scaled>(a: &A, bound: impl Fn(f64, f64) -> f64) {
+        let m = a.order();
         let n = a.padded_order();
         assert_eq!(n, 96);
         for i in 0..m {
             for j in 0..m {
                 let (exact, stored) = (entry(i, j), a.get(i, j));
-                let bound = 2f64.powi(-11) * exact.abs()
-                    + 2f64.powi(-24) * f64::from(a.scale()[i] * a.scale()[j]);
+                let bound = bound(exact, f64::from(a.scale()[i]) * f64::from(a.scale()[j]));
                 assert!(
                     (exact - stored).abs() <= bound,
                     "({i}, {j}): {exact} {stored}"
@@ -524,7 +918,7 @@ mod tests {
             {
                 let [y0, y1] = &mut y;
                 let [t0, t1] = &mut t;
-                a.scaled_rows::<2>([&xs[0], &xs[1]], [y0, y1], [t0, t1], 0..n / BLOCK);
+                a.rows::<2>([&xs[0], &xs[1]], [y0, y1], [t0, t1], 0..n / BLOCK);
             }
             for (yl, tl) in y.iter_mut().zip(&t) {
                 for ((yj, tj), s) in yl.iter_mut().zip(tl).zip(a.scale()) {
@@ -548,8 +942,8 @@ mod tests {
             let mut lo = vec![0.0f64; m];
             let (y0, y1) = lo.split_at_mut(BLOCK * cut);
             let (mut t0, mut t1) = (vec![0.0f32; n], vec![0.0f32; n]);
-            a.scaled_rows::<1>([xs0], [y0], [&mut t0], 0..cut);
-            a.scaled_rows::<1>([xs0], [y1], [&mut t1], cut..n / BLOCK);
+            a.rows::<1>([xs0], [y0], [&mut t0], 0..cut);
+            a.rows::<1>([xs0], [y1], [&mut t1], cut..n / BLOCK);
             for j in 0..m {
                 let v = (lo[j] + f64::from(t0[j]) + f64::from(t1[j])) * f64::from(a.scale()[j]);
                 assert!(

@@ -13,7 +13,7 @@ use crate::M1Error;
 use crate::linalg::kernels::{SourceMasks, padded_len};
 use crate::linalg::pair::LazyPair;
 use crate::linalg::symmetric::{SymPacked32, balanced_split, padded_order};
-use crate::linalg::symmetric_half::SymPackedHalf;
+use crate::linalg::symmetric_half::{SymPacked24, SymPackedHalf, fixed24_vectorised};
 use crate::plant::segment::{
     Channel, Gamma, N_IN, N_STATE, Phi, SegmentArray, SegmentModel, modal_basis, propagate, state,
 };
@@ -96,6 +96,15 @@ const _: () = assert!(
 /// triangles ([`CoupledMirror::set_gram_packed`]): TMT at 800 modes 21-27 % faster per step on
 /// one thread, at 600 modes 6 % slower (BENCHMARKS.md, eleventh round).
 pub const PACKED_GRAM_MIN_MODES: usize = 700;
+
+/// Retained modes from which [`CoupledMirror`] streams the Gram matrices by their upper block
+/// triangles in 24-bit fixed point ([`CoupledMirror::set_gram_fixed24`]), where the processor
+/// decodes them with vector instructions
+/// ([`fixed24_vectorised`](crate::linalg::symmetric_half::fixed24_vectorised)): TMT on two
+/// threads at 1000 modes 825-850 against 835-920 us per step, at 700 modes 465-481 against
+/// 478-505; at 500 modes, where they are whole in single precision, 300-312 against 290-303
+/// (BENCHMARKS.md, twenty-sixth round).
+pub const FIXED24_GRAM_MIN_MODES: usize = 700;
 
 /// Most coupled ticks whose free part [`CoupledMirror`] composes into one map (a chunk): the
 /// default 1 ms TMT step (five ticks) is one chunk; the composed map's rows grow with the
@@ -232,6 +241,13 @@ pub struct CoupledMirror {
     /// results per kind (`G_k psi_k`, `G_k drive_k`) and their column sums' scratch.
     #[serde(default)]
     pub(super) gram_packed: Option<Box<[SymPacked32; 2]>>,
+    /// `G_p` and `G_t` by their upper block triangles in 24-bit fixed point, read instead of
+    /// `gram_packed` and `gg32` when present ([`CoupledMirror::set_gram_fixed24`]), and the
+    /// scaled right-hand sides' scratch (by kind).
+    #[serde(default)]
+    pub(super) gram_24: Option<Box<[SymPacked24; 2]>>,
+    #[serde(skip)]
+    pub(super) gram_xs: [[Vec<f32>; 2]; 2],
     /// The correction `K` in half precision, read instead of `corr32` when present
     /// ([`CoupledMirror::set_correction_half`]).
     #[serde(default)]
@@ -615,6 +631,8 @@ impl CoupledMirror {
             threads_auto: true,
             trial: ThreadsTrial::default(),
             gram_packed: None,
+            gram_24: None,
+            gram_xs: Default::default(),
             corr_half: None,
             gram_y: Default::default(),
             gram_t: Default::default(),
@@ -657,6 +675,7 @@ impl CoupledMirror {
             free_z: vec![0.0; na],
         };
         mirror.set_gram_packed(r >= PACKED_GRAM_MIN_MODES);
+        mirror.set_gram_fixed24(r >= FIXED24_GRAM_MIN_MODES && fixed24_vectorised());
         mirror.set_correction_half(r >= HALF_CORRECTION_MIN_MODES);
         Ok(mirror)
     }
@@ -703,12 +722,47 @@ impl CoupledMirror {
             let kind =
                 |k: usize| SymPacked32::from_fn(r, |i, j| f64::from(gg[i * 2 * ld + k * ld + j]));
             self.gram_packed = Some(Box::new([kind(0), kind(1)]));
-            self.gram_y = std::array::from_fn(|_| std::array::from_fn(|_| vec![0.0; r]));
-            let n = padded_order(r);
-            self.gram_t = std::array::from_fn(|_| std::array::from_fn(|_| vec![0.0f32; n]));
+            self.gram_by_kind_scratch();
         } else if !packed {
             self.gram_packed = None;
         }
+    }
+
+    /// Streams the Gram matrices by their upper block triangles in 24-bit fixed point
+    /// ([`SymPacked24`]: three quarters of the traffic of [`Self::set_gram_packed`]'s single
+    /// precision, each entry within about `6e-8 sqrt(max_j |G_ij| max_j |G_kj|)` of the
+    /// single-precision one) (`true`, the default from [`FIXED24_GRAM_MIN_MODES`] modes where
+    /// the processor decodes them with vector instructions) or not (`false`: the storage of
+    /// [`Self::set_gram_packed`]). Read instead of that storage by the single-precision
+    /// one-pass solve of the large models' step ([`Self::set_coupling_single`]).
+    pub fn set_gram_fixed24(&mut self, on: bool) {
+        let r = self.r;
+        if on && self.gram_24.is_none() {
+            let (gg, ld) = (&self.gg32, self.ld32);
+            let kind =
+                |k: usize| SymPacked24::from_fn(r, |i, j| f64::from(gg[i * 2 * ld + k * ld + j]));
+            // The single-precision Gram matrices are finite (checked when formed).
+            if let (Some(p), Some(t)) = (kind(0), kind(1)) {
+                self.gram_24 = Some(Box::new([p, t]));
+                self.gram_by_kind_scratch();
+            }
+        } else if !on {
+            self.gram_24 = None;
+        }
+    }
+
+    /// Whether the Gram matrices are streamed in 24-bit fixed point
+    /// ([`Self::set_gram_fixed24`]).
+    pub fn gram_fixed24(&self) -> bool {
+        self.gram_24.is_some()
+    }
+
+    /// The scratch of the Gram matrices' products by kind, sized.
+    fn gram_by_kind_scratch(&mut self) {
+        let (r, n) = (self.r, padded_order(self.r));
+        self.gram_y = std::array::from_fn(|_| std::array::from_fn(|_| vec![0.0; r]));
+        self.gram_t = std::array::from_fn(|_| std::array::from_fn(|_| vec![0.0f32; n]));
+        self.gram_xs = std::array::from_fn(|_| std::array::from_fn(|_| vec![0.0f32; n]));
     }
 
     /// Streams the coupled solve's correction `W - I` (its symmetric form `K`, by its upper
@@ -748,6 +802,7 @@ impl CoupledMirror {
     pub(super) fn large_forms(&self) -> bool {
         self.two_threads
             || self.gram_packed.is_some()
+            || self.gram_24.is_some()
             || self.corr_split > 0
             || self.corr_half.is_some()
     }
@@ -860,8 +915,18 @@ impl CoupledMirror {
                     ticks
                 },
             ),
-            match (self.gram_packed.as_deref(), self.coupling_single) {
-                (Some([p, t]), true) => (
+            match (
+                self.gram_24.as_deref(),
+                self.gram_packed.as_deref(),
+                self.coupling_single,
+            ) {
+                (Some([p, t]), _, true) => (
+                    "Gram matrices G_p, G_t by their upper block triangles in 24-bit fixed \
+                     point, one per servo sample",
+                    p.as_bytes().len() + t.as_bytes().len(),
+                    samples,
+                ),
+                (None, Some([p, t]), true) => (
                     "Gram matrices G_p, G_t by their upper block triangles, one per servo sample",
                     std::mem::size_of_val(p.as_slice()) + std::mem::size_of_val(t.as_slice()),
                     samples,

@@ -100,9 +100,15 @@
 //! ([`crate::linalg::symmetric_half`], [`CoupledMirror::set_correction_half`]): a tick then
 //! streams 1.125 instead, and the mirror's response moves by no more than single precision
 //! itself moves it (tested against double precision for a static load and a pier vibration as
-//! well as wind). The Gram matrices stay in single precision: the response to a pier vibration
-//! is a small difference of large terms, and their rounding to half precision moved it by 1e-4
-//! of its largest value. Below
+//! well as wind). The Gram matrices need more than half precision: the response to a pier
+//! vibration is a small difference of large terms, and their rounding to half precision moved
+//! it by 1e-4 of its largest value. From [`FIXED24_GRAM_MIN_MODES`] modes, where the processor
+//! decodes it with vector instructions, they are stored in 24-bit fixed point, scaled as the
+//! correction is ([`crate::linalg::symmetric_half::SymPacked24`], each entry within about 6e-8
+//! of its row's and column's scale), three quarters of single precision's traffic: the
+//! response moves by at most twice what single precision moves it (tested against double
+//! precision as the correction is), and TMT's step at 1000 modes is 5-8 % shorter on two
+//! threads, 10 % on one (BENCHMARKS.md, twenty-sixth round). Below
 //! [`SINGLE_COUPLING_MIN_MODES`] the double-precision matrix fits a core's L1 cache with room
 //! to spare, and the conversions to single precision cost more than the traffic they save. In single precision (each vector lane sums about `2r / 8`
 //! products, then the lanes are summed, and the row's sum is added in double precision)
@@ -171,8 +177,8 @@ mod tests;
 mod tick;
 
 pub use coupled::{
-    COLUMN_PASS_MAX_MODES, CoupledMirror, HALF_CORRECTION_MIN_MODES, PACKED_GRAM_MIN_MODES,
-    SHARED_CACHE_MIN_MODES, SINGLE_COUPLING_MIN_MODES, THREADS_CHECK_STEPS, THREADS_TRIAL_BLOCK,
-    THREADS_TRIAL_STEPS, THREADS_TRIAL_WARM, TWO_THREADS_MIN_MODES,
+    COLUMN_PASS_MAX_MODES, CoupledMirror, FIXED24_GRAM_MIN_MODES, HALF_CORRECTION_MIN_MODES,
+    PACKED_GRAM_MIN_MODES, SHARED_CACHE_MIN_MODES, SINGLE_COUPLING_MIN_MODES, THREADS_CHECK_STEPS,
+    THREADS_TRIAL_BLOCK, THREADS_TRIAL_STEPS, THREADS_TRIAL_WARM, TWO_THREADS_MIN_MODES,
 };
 pub use maps::foh_mode;

@@ -12,7 +12,7 @@ use crate::linalg::kernels::{
 };
 use crate::linalg::pair::{LazyPair, Pair};
 use crate::linalg::symmetric::{BLOCK, SymPacked32, add_columns, sym_dot_f32, sym_dot_rows_f32};
-use crate::linalg::symmetric_half::SymPackedHalf;
+use crate::linalg::symmetric_half::{SymPacked24, SymPackedHalf};
 use crate::plant::segment::{N_STATE, state};
 use nalgebra::{SMatrix, SVector};
 
@@ -84,31 +84,47 @@ impl CoupledMirror {
             // together, one over the small correction W - I (stored by half) gives u+ (the
             // traffic of 1.25 r x 2r passes instead of 2). `psi32` and `drive32` are the
             // channel passes' (`tick_channels`).
-            if let Some(gs) = self.gram_packed.as_deref().filter(|_| LARGE) {
+            if LARGE && (self.gram_24.is_some() || self.gram_packed.is_some()) {
                 // By kind, each with its own results and column sums (on one thread in the
                 // same order as on two, so the same bits), then summed.
-                let n = gs[0].padded_order();
                 let (ps, dr) = (&self.psi32, &self.drive32);
                 let [[y0, y1], [y2, y3]] = &mut self.gram_y;
                 let [[t0, t1], [t2, t3]] = &mut self.gram_t;
-                let piston = GramKind {
-                    a: &gs[0],
-                    x: [&ps[..n], &dr[..n]],
-                    y: [y0, y1],
-                    t: [t0, t1],
-                };
-                let tilt = GramKind {
-                    a: &gs[1],
-                    x: [&ps[ld..ld + n], &dr[ld..ld + n]],
-                    y: [y2, y3],
-                    t: [t2, t3],
-                };
-                both(
-                    simd,
-                    pair::<LARGE>(&mut self.pair, self.two_threads),
-                    piston,
-                    tilt,
-                );
+                let pair = pair::<LARGE>(&mut self.pair, self.two_threads);
+                if let Some(gs) = self.gram_24.as_deref() {
+                    let n = gs[0].padded_order();
+                    let [[s0, s1], [s2, s3]] = &mut self.gram_xs;
+                    let piston = GramKind24 {
+                        a: &gs[0],
+                        x: [&ps[..n], &dr[..n]],
+                        xs: [s0, s1],
+                        y: [y0, y1],
+                        t: [t0, t1],
+                    };
+                    let tilt = GramKind24 {
+                        a: &gs[1],
+                        x: [&ps[ld..ld + n], &dr[ld..ld + n]],
+                        xs: [s2, s3],
+                        y: [y2, y3],
+                        t: [t2, t3],
+                    };
+                    both(simd, pair, piston, tilt);
+                } else if let Some(gs) = self.gram_packed.as_deref() {
+                    let n = gs[0].padded_order();
+                    let piston = GramKind {
+                        a: &gs[0],
+                        x: [&ps[..n], &dr[..n]],
+                        y: [y0, y1],
+                        t: [t0, t1],
+                    };
+                    let tilt = GramKind {
+                        a: &gs[1],
+                        x: [&ps[ld..ld + n], &dr[ld..ld + n]],
+                        y: [y2, y3],
+                        t: [t2, t3],
+                    };
+                    both(simd, pair, piston, tilt);
+                }
                 let [[y0, y1], [y2, y3]] = &self.gram_y;
                 let (gpsi, gjump) = (&mut self.gpsi[..r], &mut self.gjump[..r]);
                 let (y0, y1, y2, y3) = (&y0[..r], &y1[..r], &y2[..r], &y3[..r]);
@@ -836,6 +852,53 @@ impl pulp::WithSimd for GramKind<'_> {
             yl.fill(0.0);
         }
         sym_dot_f32::<S, 2>(simd, self.a, self.x, y, self.t);
+    }
+}
+
+/// `y = G_k [psi_k, drive_k]` for one kind's Gram matrix in 24-bit fixed point
+/// ([`SymPacked24`]: `G = C G'' C`; the right-hand sides scaled into `xs`, the rows' and the
+/// columns' sums added, then the result scaled), as a SIMD operation (the matrix's kernel runs
+/// on its own instructions).
+struct GramKind24<'a> {
+    a: &'a SymPacked24,
+    x: [&'a [f32]; 2],
+    xs: [&'a mut [f32]; 2],
+    y: [&'a mut [f64]; 2],
+    t: [&'a mut [f32]; 2],
+}
+
+impl pulp::WithSimd for GramKind24<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        let (a, c) = (self.a, self.a.scale());
+        let [xs0, xs1] = self.xs;
+        for (xs, x) in [(&mut *xs0, self.x[0]), (&mut *xs1, self.x[1])] {
+            for ((d, v), s) in xs.iter_mut().zip(x).zip(c) {
+                *d = v * s;
+            }
+        }
+        let mut y = self.y;
+        for yl in y.iter_mut() {
+            yl.fill(0.0);
+        }
+        let [t0, t1] = self.t;
+        {
+            let [y0, y1] = &mut y;
+            a.scaled_rows::<2>(
+                [&*xs0, &*xs1],
+                [&mut **y0, &mut **y1],
+                [&mut *t0, &mut *t1],
+                0..a.padded_order() / BLOCK,
+            );
+        }
+        let m = a.order();
+        for (yl, tl) in y.into_iter().zip([&*t0, &*t1]) {
+            for ((yj, tj), s) in yl[..m].iter_mut().zip(tl).zip(c) {
+                *yj = (*yj + f64::from(*tj)) * f64::from(*s);
+            }
+        }
     }
 }
 
