@@ -92,20 +92,7 @@ impl SymPackedHalf {
     /// `None` if an entry is not finite.
     pub fn from_fn(m: usize, f: impl Fn(usize, usize) -> f64) -> Option<Self> {
         let n = padded_order(m);
-        let mut row_max = vec![0.0f64; m];
-        for (i, mx) in row_max.iter_mut().enumerate() {
-            for j in 0..m {
-                let v = f(i, j);
-                if !v.is_finite() {
-                    return None;
-                }
-                *mx = mx.max(v.abs());
-            }
-        }
-        let s: Vec<f64> = row_max
-            .iter()
-            .map(|&x| if x > 0.0 { x.sqrt() } else { 1.0 })
-            .collect();
+        let s = symmetric_scale(m, &f)?;
         let mut data = vec![0u16; packed_offset(n, n)];
         for i in 0..m {
             let start = BLOCK * (i / BLOCK);
@@ -190,13 +177,7 @@ impl SymPackedHalf {
         t: [&mut [f32]; L],
         blocks: std::ops::Range<usize>,
     ) {
-        assert!(L == 1 || L == 2, "one or two right-hand sides");
-        assert!(blocks.start <= blocks.end && blocks.end <= self.n / BLOCK);
-        let rows = (BLOCK * blocks.end).min(self.m);
-        let rows = rows.saturating_sub(BLOCK * blocks.start);
-        for l in 0..L {
-            assert!(xs[l].len() >= self.n && t[l].len() >= self.n && y[l].len() >= rows);
-        }
+        check_rows(self.m, self.n, &xs, &y, &t, &blocks);
         assert!(self.data.len() == packed_offset(self.n, self.n));
         let mut t = t;
         for tl in t.iter_mut() {
@@ -213,6 +194,46 @@ impl SymPackedHalf {
                 _ => rows_impl::<Scalar, Half, L>(&self.stored(), xs, y, t, blocks),
             }
         }
+    }
+}
+
+/// The symmetric scale of the module's documentation, `s_i = sqrt(max_j |f(i, j)|)` (1 for a
+/// zero row), or `None` if an entry is not finite.
+fn symmetric_scale(m: usize, f: &impl Fn(usize, usize) -> f64) -> Option<Vec<f64>> {
+    let mut row_max = vec![0.0f64; m];
+    for (i, mx) in row_max.iter_mut().enumerate() {
+        for j in 0..m {
+            let v = f(i, j);
+            if !v.is_finite() {
+                return None;
+            }
+            *mx = mx.max(v.abs());
+        }
+    }
+    Some(
+        row_max
+            .iter()
+            .map(|&x| if x > 0.0 { x.sqrt() } else { 1.0 })
+            .collect(),
+    )
+}
+
+/// The checks of `scaled_rows` (order `m`, padded order `n`): panics on a programming error.
+fn check_rows<const L: usize>(
+    m: usize,
+    n: usize,
+    xs: &[&[f32]; L],
+    y: &[&mut [f64]; L],
+    t: &[&mut [f32]; L],
+    blocks: &std::ops::Range<usize>,
+) {
+    assert!(L == 1 || L == 2, "one or two right-hand sides");
+    assert!(blocks.start <= blocks.end && blocks.end <= n / BLOCK);
+    let rows = (BLOCK * blocks.end)
+        .min(m)
+        .saturating_sub(BLOCK * blocks.start);
+    for l in 0..L {
+        assert!(xs[l].len() >= n && t[l].len() >= n && y[l].len() >= rows);
     }
 }
 
@@ -277,20 +298,7 @@ impl SymPacked24 {
     /// `None` if an entry is not finite.
     pub fn from_fn(m: usize, f: impl Fn(usize, usize) -> f64) -> Option<Self> {
         let n = padded_order(m);
-        let mut row_max = vec![0.0f64; m];
-        for (i, mx) in row_max.iter_mut().enumerate() {
-            for j in 0..m {
-                let v = f(i, j);
-                if !v.is_finite() {
-                    return None;
-                }
-                *mx = mx.max(v.abs());
-            }
-        }
-        let s: Vec<f64> = row_max
-            .iter()
-            .map(|&x| if x > 0.0 { x.sqrt() } else { 1.0 })
-            .collect();
+        let s = symmetric_scale(m, &f)?;
         let mut data = vec![0u8; 3 * packed_offset(n, n) + FIXED24_OVER_READ];
         for i in 0..m {
             let start = BLOCK * (i / BLOCK);
@@ -374,13 +382,7 @@ impl SymPacked24 {
         t: [&mut [f32]; L],
         blocks: std::ops::Range<usize>,
     ) {
-        assert!(L == 1 || L == 2, "one or two right-hand sides");
-        assert!(blocks.start <= blocks.end && blocks.end <= self.n / BLOCK);
-        let rows = (BLOCK * blocks.end).min(self.m);
-        let rows = rows.saturating_sub(BLOCK * blocks.start);
-        for l in 0..L {
-            assert!(xs[l].len() >= self.n && t[l].len() >= self.n && y[l].len() >= rows);
-        }
+        check_rows(self.m, self.n, &xs, &y, &t, &blocks);
         assert!(self.data.len() == 3 * packed_offset(self.n, self.n) + FIXED24_OVER_READ);
         let mut t = t;
         for tl in t.iter_mut() {

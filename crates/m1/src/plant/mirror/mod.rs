@@ -107,8 +107,8 @@
 //! correction is ([`crate::linalg::symmetric_half::SymPacked24`], each entry within about 6e-8
 //! of its row's and column's scale), three quarters of single precision's traffic: the
 //! response moves by at most twice what single precision moves it (tested against double
-//! precision as the correction is), and TMT's step at 1000 modes is 5-8 % shorter on two
-//! threads, 10 % on one (BENCHMARKS.md, twenty-sixth round). Below
+//! precision as the correction is), and TMT's step at 1000 modes is 1-8 % shorter on two
+//! threads, 7-12 % on one (BENCHMARKS.md, twenty-sixth round). Below
 //! [`SINGLE_COUPLING_MIN_MODES`] the double-precision matrix fits a core's L1 cache with room
 //! to spare, and the conversions to single precision cost more than the traffic they save. In single precision (each vector lane sums about `2r / 8`
 //! products, then the lanes are summed, and the row's sum is added in double precision)
