@@ -246,7 +246,7 @@ pub struct CoupledMirror {
     /// scaled right-hand sides' scratch (by kind).
     #[serde(default)]
     pub(super) gram_24: Option<Box<[SymPacked24; 2]>>,
-    #[serde(skip)]
+    #[serde(default)]
     pub(super) gram_xs: [[Vec<f32>; 2]; 2],
     /// The correction `K` in half precision, read instead of `corr32` when present
     /// ([`CoupledMirror::set_correction_half`]).
