@@ -213,9 +213,9 @@ pub struct CoupledMirror {
     pub(super) acc32: [Vec<f32>; 2],
     /// The second part's sums of the inputs' projection in two parts (the large models'
     /// form, [`Self::project_inputs`]): its scratch and its tilt sums.
-    #[serde(skip)]
+    #[serde(default)]
     pub(super) acc32_part: [Vec<f32>; 2],
-    #[serde(skip)]
+    #[serde(default)]
     pub(super) tilt_part: [Vec<f64>; 2],
     pub(super) cols32: Vec<f32>,
     /// `[W G_p, W G_t]` with `W = (I - M B1)^-1` and `G_k` the Gram matrices of the shapes'
@@ -1216,16 +1216,8 @@ impl CoupledMirror {
         // two cores' halves of a row shared its cache lines' prefetches: no faster than one
         // core).
         let cut = n + ((n / 2) & !3);
-        let r = self.r;
         let [part_u, part_f] = &mut self.tilt_part;
-        // (Scratch, not serialised: sized here after a deserialisation.)
-        for part in [&mut *part_u, &mut *part_f] {
-            part.resize(r, 0.0);
-        }
         let [b0, b1] = &mut self.acc32_part;
-        for b in [&mut *b0, &mut *b1] {
-            b.resize(a0.len(), 0.0);
-        }
         let lo = project(0..cut, [a0, a1], [pu, pf, &mut *tu, &mut *tf]);
         let hi = project(
             cut..3 * n,
