@@ -11,9 +11,12 @@
 //! `VARIANTS` is a comma-separated list (default `1,2`): `1` or `2` threads
 //! (`CoupledMirror::set_two_threads`) or `a` for the automatic choice, with a `p` suffix for
 //! the Gram matrices stored by half (`CoupledMirror::set_gram_packed`), without it whole; `h`:
-//! stored by half in half precision (`CoupledMirror::set_coupling_half`), `s`: by half in single
-//! precision (`p` and `s` alike, but `p` keeps the mirror's default precision); `x`: as `h` with
-//! the Gram matrices in 24-bit fixed point (`CoupledMirror::set_gram_fixed24`).
+//! so with the correction in half precision (`CoupledMirror::set_correction_storage`), `s`: in single
+//! precision (`p` and `s` alike, but `p` keeps the mirror's default precisions); `x`: as `h` with
+//! the Gram matrices in 24-bit fixed point (`CoupledMirror::set_gram_fixed24`); `e`: as `x` with
+//! the correction in 8-bit fixed point (`CoupledMirror::set_correction_storage`); `d`: the
+//! mirror's defaults for its size; `o`: those defaults with the correction in half precision
+//! (the defaults before the correction's 8-bit storage).
 //! Three rounds of the variants in turn; each prints the median and the fastest of five
 //! blocks (microseconds per step) and the sum of the last step's |z|, which must agree between
 //! thread counts to every digit.
@@ -24,7 +27,7 @@
 //! twelfth round), which changes the two-thread figures at 1000 modes.
 
 use m1::aperture::layout::Layout;
-use m1::plant::mirror::CoupledMirror;
+use m1::plant::mirror::{CorrectionStorage, CoupledMirror};
 use m1::plant::segment::SegmentModel;
 use m1::plant::structure::{CellModel, CellParams};
 use std::time::Instant;
@@ -55,9 +58,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 | "1x"
                 | "2x"
                 | "ax"
+                | "1e"
+                | "2e"
+                | "ae"
+                | "1d"
+                | "2d"
+                | "ad"
+                | "1o"
+                | "2o"
+                | "ao"
         ) {
             return Err(format!(
-                "variant {v:?}: expected 1, 2 or a, each alone or followed by p, h, s or x"
+                "variant {v:?}: expected 1, 2 or a, each alone or followed by p, h, s, x, e, d or o"
             )
             .into());
         }
@@ -88,10 +100,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             if !v.starts_with('a') {
                 m.set_two_threads(v.starts_with('2'));
             }
-            m.set_gram_packed(v.len() > 1);
-            m.set_gram_fixed24(v.ends_with('x'));
-            if v.len() == 1 || v.ends_with('s') || v.ends_with('h') || v.ends_with('x') {
-                m.set_correction_half(v.ends_with('h') || v.ends_with('x'));
+            let suffix = v.chars().nth(1);
+            if !matches!(suffix, Some('d' | 'o')) {
+                m.set_gram_packed(v.len() > 1);
+                m.set_gram_fixed24(v.ends_with('x') || v.ends_with('e'));
+            }
+            let correction = match suffix {
+                None | Some('s') => Some(CorrectionStorage::Single),
+                Some('h' | 'x' | 'o') => Some(CorrectionStorage::Half),
+                Some('e') => Some(CorrectionStorage::Fixed8),
+                _ => None,
+            };
+            if let Some(c) = correction {
+                m.set_correction_storage(c);
             }
             let u = vec![0.0; na];
             let mut f: Vec<f64> = (0..na).map(|i| (i % 7) as f64).collect();

@@ -14,4 +14,4 @@ pub mod npy;
 pub mod pair;
 pub mod skyline;
 pub mod symmetric;
-pub mod symmetric_half;
+pub mod symmetric_scaled;

@@ -89,7 +89,7 @@ impl SymPacked32 {
 
 /// Offset of row `i` in the storage by upper block triangle of a matrix of padded order `n`
 /// (for `i = n`: the whole length): [`SymPacked32`] and
-/// [`SymPackedHalf`](super::symmetric_half::SymPackedHalf) alike.
+/// [`SymScaled`](super::symmetric_scaled::SymScaled) alike (in entries).
 pub(crate) const fn packed_offset(n: usize, i: usize) -> usize {
     let b = i / BLOCK;
     // Whole block rows before `b`: BLOCK rows of n - BLOCK c each.

@@ -13,7 +13,7 @@ use crate::M1Error;
 use crate::linalg::kernels::{SourceMasks, padded_len};
 use crate::linalg::pair::LazyPair;
 use crate::linalg::symmetric::{SymPacked32, balanced_split, padded_order};
-use crate::linalg::symmetric_half::{SymPacked24, SymPackedHalf, fixed24_vectorised};
+use crate::linalg::symmetric_scaled::{Encoding, Fixed24, SymPacked8, SymPacked24, SymPackedHalf};
 use crate::plant::segment::{
     Channel, Gamma, N_IN, N_STATE, Phi, SegmentArray, SegmentModel, modal_basis, propagate, state,
 };
@@ -32,13 +32,66 @@ use crate::plant::structure::{Flexibility, ModalModel, ModalSolver};
 pub const SINGLE_COUPLING_MIN_MODES: usize = 45;
 
 /// Retained modes from which [`CoupledMirror`] streams the coupled solve's correction `W - I`
-/// in half precision ([`CoupledMirror::set_correction_half`]), where the correction no longer
-/// fits the caches beside the Gram matrices. On the project's 2-core Intel VM
-/// (`mirror_loop -- MODES 2s,2h,1s,1h`, alternating, TMT, the Gram matrices by half): 1000
-/// modes 986 against 918 us per step on two threads and 1769 against 1576 on one; 700 modes
-/// 468 against 443 and 946 against 859; 500 modes 295 against 291 and 502 against 467; at 300
-/// modes within the noise (BENCHMARKS.md, twenty-fourth round).
+/// in fewer bits than single precision ([`CoupledMirror::set_correction_storage`]: 8 bits or
+/// half precision, by [`CoupledMirror::correction_default`]), where the correction no longer
+/// fits the caches beside the Gram matrices. On the project's 2-core Intel VM, single against
+/// half precision (`mirror_loop -- MODES 2s,2h,1s,1h`, alternating, TMT, the Gram matrices by
+/// half): 1000 modes 986 against 918 us per step on two threads and 1769 against 1576 on one;
+/// 700 modes 468 against 443 and 946 against 859; 500 modes 295 against 291 and 502 against
+/// 467; at 300 modes within the noise (BENCHMARKS.md, twenty-fourth round). Half precision
+/// against 8 bits, the voice coil (`mirror_loop -- MODES 2o,2d,1o,1d`): 1000 modes 659-709
+/// against 639-677 us on two threads and 1192-1227 against 1120-1207 on one; 700 modes the
+/// same within the noise; 500 modes 247-256 against 242-248 and 560-570 against 538-553
+/// (twenty-seventh round).
 pub const HALF_CORRECTION_MIN_MODES: usize = 500;
+
+/// The largest rounding bound ([`CoupledMirror::correction_rounding_bound`], relative to the
+/// largest entry of the vector it multiplies) at which [`CoupledMirror::correction_default`]
+/// stores the correction `W - I` in 8 bits. The bound adds every entry's worst rounding; TMT's
+/// voice coil has 4.3e-7 at 300 modes, 6.6e-7 at 500 and 1.2e-6 at 1000, the piezo 8.9e-5,
+/// 1.4e-4 and 2.4e-4 (its correction is 200 times larger). Measured at 500 modes (the test
+/// `correction_in_fewer_bits_matches_double`): 8 bits leave the voice coil's response as far
+/// from double precision's as single precision's to three digits in every case, and take the
+/// piezo's response to a pier vibration from 2.0e-7 to 5.1e-7 of its largest value; at this
+/// bound that rate would add about 2e-8, a tenth of single precision's own difference.
+pub const FIXED8_CORRECTION_MAX_BOUND: f64 = 1e-5;
+
+/// How [`CoupledMirror`] stores the coupled solve's correction `W - I`
+/// ([`CoupledMirror::set_correction_storage`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CorrectionStorage {
+    /// Single precision.
+    Single,
+    /// Half precision, scaled ([`SymPackedHalf`]): half single precision's traffic.
+    Half,
+    /// 8-bit fixed point, scaled ([`SymPacked8`]): a quarter of single precision's traffic.
+    Fixed8,
+}
+
+/// The correction `K` in fewer bits than single precision.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub(super) enum LowCorrection {
+    Half(SymPackedHalf),
+    Fixed8(SymPacked8),
+}
+
+impl LowCorrection {
+    /// The diagonal scale the product's vectors are multiplied by, before and after.
+    pub(super) fn scale(&self) -> &[f32] {
+        match self {
+            Self::Half(a) => a.scale(),
+            Self::Fixed8(a) => a.scale(),
+        }
+    }
+
+    /// The bytes a product streams.
+    fn stored_bytes(&self) -> usize {
+        match self {
+            Self::Half(a) => a.stored_bytes(),
+            Self::Fixed8(a) => a.stored_bytes(),
+        }
+    }
+}
 
 /// Retained modes from which [`CoupledMirror`] splits its large streaming products between two
 /// threads by default ([`CoupledMirror::set_two_threads`]).
@@ -100,7 +153,7 @@ pub const PACKED_GRAM_MIN_MODES: usize = 700;
 /// Retained modes from which [`CoupledMirror`] streams the Gram matrices by their upper block
 /// triangles in 24-bit fixed point ([`CoupledMirror::set_gram_fixed24`]), where the processor
 /// decodes them with vector instructions
-/// ([`fixed24_vectorised`](crate::linalg::symmetric_half::fixed24_vectorised)): TMT on two
+/// ([`Encoding::vectorised`]): TMT on two
 /// threads at 1000 modes 825-850 against 835-920 us per step, at 700 modes 465-481 against
 /// 478-505; at 500 modes, where they are whole in single precision, 300-312 against 290-303
 /// (BENCHMARKS.md, twenty-sixth round).
@@ -248,10 +301,10 @@ pub struct CoupledMirror {
     pub(super) gram_24: Option<Box<[SymPacked24; 2]>>,
     #[serde(default)]
     pub(super) gram_xs: [[Vec<f32>; 2]; 2],
-    /// The correction `K` in half precision, read instead of `corr32` when present
-    /// ([`CoupledMirror::set_correction_half`]).
+    /// The correction `K` in half precision or 8-bit fixed point, read instead of `corr32`
+    /// when present ([`CoupledMirror::set_correction_storage`]).
     #[serde(default)]
-    pub(super) corr_half: Option<SymPackedHalf>,
+    pub(super) corr_low: Option<LowCorrection>,
     #[serde(default)]
     pub(super) gram_y: [[Vec<f64>; 2]; 2],
     #[serde(default)]
@@ -633,7 +686,7 @@ impl CoupledMirror {
             gram_packed: None,
             gram_24: None,
             gram_xs: Default::default(),
-            corr_half: None,
+            corr_low: None,
             gram_y: Default::default(),
             gram_t: Default::default(),
             alpha,
@@ -675,8 +728,10 @@ impl CoupledMirror {
             free_z: vec![0.0; na],
         };
         mirror.set_gram_packed(r >= PACKED_GRAM_MIN_MODES);
-        mirror.set_gram_fixed24(r >= FIXED24_GRAM_MIN_MODES && fixed24_vectorised());
-        mirror.set_correction_half(r >= HALF_CORRECTION_MIN_MODES);
+        mirror.set_gram_fixed24(r >= FIXED24_GRAM_MIN_MODES && Fixed24::vectorised());
+        if r >= HALF_CORRECTION_MIN_MODES {
+            mirror.set_correction_storage(mirror.correction_default());
+        }
         Ok(mirror)
     }
 
@@ -765,31 +820,83 @@ impl CoupledMirror {
         self.gram_xs = std::array::from_fn(|_| std::array::from_fn(|_| vec![0.0f32; n]));
     }
 
-    /// Streams the coupled solve's correction `W - I` (its symmetric form `K`, by its upper
-    /// block triangle) in half precision (`true`, the default from
-    /// [`HALF_CORRECTION_MIN_MODES`] modes) or in single precision (`false`). Only the
-    /// single-precision one-pass solve reads it ([`Self::set_coupling_single`]). The correction
-    /// is about 4e-7 of the solve in norm for the voice coil (8e-5 for the piezo), so that half
-    /// precision's rounding (`2^-11` of each entry, [`crate::linalg::symmetric_half`]) stays
-    /// below single precision's effect on the rest of the solve: the test
+    /// Stores the coupled solve's correction `W - I` (its symmetric form `K`, by its upper
+    /// block triangle) as `storage` says. Only the single-precision one-pass solve reads it
+    /// ([`Self::set_coupling_single`]). The correction is a small term of the solve (about 4e-7
+    /// of it in norm for the voice coil, 8e-5 for the piezo), so its entries need less
+    /// precision than the rest: the default from [`HALF_CORRECTION_MIN_MODES`] modes is
+    /// [`Self::correction_default`], the fewest bits whose rounding bound
+    /// ([`Self::correction_rounding_bound`]) stays within single precision's. The test
     /// `correction_in_half_precision_matches_double` bounds the mirror's response to wind, a
-    /// command, a static load and a pier vibration against double precision. At 1000 modes it
-    /// saves 5 of the 42.9 MB a TMT step streams. The Gram matrices stay in single precision:
-    /// rounded to half precision they moved the mirror's response to a pier vibration by
-    /// 5e-4 of its rms (TMT, 300 modes; single against double precision: 1.4e-7). A correction
-    /// with an entry that is not finite stays in single precision.
-    pub fn set_correction_half(&mut self, half: bool) {
-        if half && self.corr_half.is_none() {
-            let corr = &self.corr32;
-            self.corr_half = SymPackedHalf::from_fn(self.r, |i, j| f64::from(corr.get(i, j)));
-        } else if !half {
-            self.corr_half = None;
+    /// command, a static load and a pier vibration against double precision with each storage.
+    /// A correction with an entry that is not finite stays in single precision. The Gram
+    /// matrices are not small terms: rounded to half precision they moved the mirror's response
+    /// to a pier vibration by 5e-4 of its rms (TMT, 300 modes; single against double
+    /// precision: 1.4e-7), hence [`Self::set_gram_fixed24`].
+    pub fn set_correction_storage(&mut self, storage: CorrectionStorage) {
+        if storage == self.correction_storage() {
+            return;
+        }
+        let corr = &self.corr32;
+        let get = |i: usize, j: usize| f64::from(corr.get(i, j));
+        self.corr_low = match storage {
+            CorrectionStorage::Single => None,
+            CorrectionStorage::Half => SymPackedHalf::from_fn(self.r, get).map(LowCorrection::Half),
+            CorrectionStorage::Fixed8 => {
+                SymPacked8::from_fn(self.r, get).map(LowCorrection::Fixed8)
+            }
+        };
+    }
+
+    /// How the correction `W - I` is stored ([`Self::set_correction_storage`]).
+    pub fn correction_storage(&self) -> CorrectionStorage {
+        match self.corr_low {
+            None => CorrectionStorage::Single,
+            Some(LowCorrection::Half(_)) => CorrectionStorage::Half,
+            Some(LowCorrection::Fixed8(_)) => CorrectionStorage::Fixed8,
         }
     }
 
-    /// Whether the correction `W - I` is streamed in half precision.
-    pub fn correction_half(&self) -> bool {
-        self.corr_half.is_some()
+    /// A bound on the rounding of the correction's product `(W - I) x` by `storage`, relative
+    /// to `max_j |x_j|`: `max_i sum_j e_ij d_j / d_i` (`W - I = D^-1 K D`), with `e_ij` the
+    /// storage's bound on its rounding of `K_ij` (single precision `2^-24 |K_ij|`, half
+    /// precision `2^-11 |K_ij| + 2^-25 s_i s_j`, 8 bits `s_i s_j / 254`, with
+    /// `s_i = sqrt(max_j |K_ij|)`; [`crate::linalg::symmetric_scaled`]).
+    pub fn correction_rounding_bound(&self, storage: CorrectionStorage) -> f64 {
+        let (r, k, d) = (self.r, &self.corr32, &self.d_half);
+        let s: Vec<f64> = (0..r)
+            .map(|i| {
+                let mx = (0..r).fold(0.0f64, |mx, j| mx.max(f64::from(k.get(i, j)).abs()));
+                if mx > 0.0 { mx.sqrt() } else { 1.0 }
+            })
+            .collect();
+        let e = |i: usize, j: usize| {
+            let kij = f64::from(k.get(i, j)).abs();
+            match storage {
+                CorrectionStorage::Single => 2f64.powi(-24) * kij,
+                CorrectionStorage::Half => 2f64.powi(-11) * kij + 2f64.powi(-25) * s[i] * s[j],
+                CorrectionStorage::Fixed8 => s[i] * s[j] / 254.0,
+            }
+        };
+        (0..r)
+            .map(|i| (0..r).map(|j| e(i, j) * d[j]).sum::<f64>() / d[i])
+            .fold(0.0, f64::max)
+    }
+
+    /// The storage of the correction the mirror takes from [`HALF_CORRECTION_MIN_MODES`]
+    /// modes: 8 bits where their rounding bound ([`Self::correction_rounding_bound`]) is within
+    /// [`FIXED8_CORRECTION_MAX_BOUND`] (TMT's voice coil) and the processor decodes them with
+    /// vector instructions, else half precision (the piezo, whose correction is 200 times
+    /// larger).
+    pub fn correction_default(&self) -> CorrectionStorage {
+        if crate::linalg::symmetric_scaled::Fixed8::vectorised()
+            && self.correction_rounding_bound(CorrectionStorage::Fixed8)
+                <= FIXED8_CORRECTION_MAX_BOUND
+        {
+            CorrectionStorage::Fixed8
+        } else {
+            CorrectionStorage::Half
+        }
     }
 
     /// Whether the Gram matrices are streamed by their upper block triangles.
@@ -804,7 +911,7 @@ impl CoupledMirror {
             || self.gram_packed.is_some()
             || self.gram_24.is_some()
             || self.corr_split > 0
-            || self.corr_half.is_some()
+            || self.corr_low.is_some()
     }
 
     /// Whether the large products are split between two threads.
@@ -923,7 +1030,7 @@ impl CoupledMirror {
                 (Some([p, t]), _, true) => (
                     "Gram matrices G_p, G_t by their upper block triangles in 24-bit fixed \
                      point, one per servo sample",
-                    p.as_bytes().len() + t.as_bytes().len(),
+                    p.stored_bytes() + t.stored_bytes(),
                     samples,
                 ),
                 (None, Some([p, t]), true) => (
@@ -937,20 +1044,27 @@ impl CoupledMirror {
                     samples,
                 ),
             },
-            match &self.corr_half {
-                Some(h) => (
-                    "the solve's correction W - I in symmetric form by its upper block \
-                     triangle, one per servo sample (half precision)",
-                    std::mem::size_of_val(h.as_bits()),
-                    if self.coupling_single { samples } else { 0 },
+            (
+                match self.correction_storage() {
+                    CorrectionStorage::Single => {
+                        "the solve's correction W - I in symmetric form by its upper block \
+                         triangle, one per servo sample (single precision)"
+                    }
+                    CorrectionStorage::Half => {
+                        "the solve's correction W - I in symmetric form by its upper block \
+                         triangle, one per servo sample (half precision)"
+                    }
+                    CorrectionStorage::Fixed8 => {
+                        "the solve's correction W - I in symmetric form by its upper block \
+                         triangle, one per servo sample (8-bit fixed point)"
+                    }
+                },
+                self.corr_low.as_ref().map_or_else(
+                    || std::mem::size_of_val(self.corr32.as_slice()),
+                    LowCorrection::stored_bytes,
                 ),
-                None => (
-                    "the solve's correction W - I in symmetric form by its upper block \
-                     triangle, one per servo sample (single precision)",
-                    std::mem::size_of_val(self.corr32.as_slice()),
-                    if self.coupling_single { samples } else { 0 },
-                ),
-            },
+                if self.coupling_single { samples } else { 0 },
+            ),
         ];
         Ok(shapes
             .into_iter()

@@ -96,15 +96,18 @@
 //! block triangle ([`crate::linalg::symmetric`]): with $D = B_1^{1/2}$ (every $b_1 > 0$) and
 //! $S = D M D$, $W - I = D^{-1} K D$ with $K = (I - S)^{-1} S$ symmetric, so that a sample's
 //! tick streams 1.25 $r \times 2r$ matrices instead of 2. From [`HALF_CORRECTION_MIN_MODES`]
-//! modes $K$ is stored in half precision, scaled symmetrically
-//! ([`crate::linalg::symmetric_half`], [`CoupledMirror::set_correction_half`]): a tick then
-//! streams 1.125 instead, and the mirror's response moves by no more than single precision
-//! itself moves it (tested against double precision for a static load and a pier vibration as
-//! well as wind). The Gram matrices need more than half precision: the response to a pier
+//! modes $K$ is stored scaled symmetrically in fewer bits ([`crate::linalg::symmetric_scaled`],
+//! [`CoupledMirror::set_correction_storage`]): in 8-bit fixed point where the bound on that
+//! rounding's effect on the product is within [`FIXED8_CORRECTION_MAX_BOUND`] (TMT's voice
+//! coil: a tick then streams 1.0625 instead of 1.25, and its step at 1000 modes is 3-4 %
+//! shorter; BENCHMARKS.md, twenty-seventh round), in half precision otherwise (the piezo,
+//! whose correction is 200 times larger: 1.125). Either way the mirror's response moves by no
+//! more than single precision itself moves it (tested against double precision for a static
+//! load and a pier vibration as well as wind). The Gram matrices need more than half precision: the response to a pier
 //! vibration is a small difference of large terms, and their rounding to half precision moved
 //! it by 1e-4 of its largest value. From [`FIXED24_GRAM_MIN_MODES`] modes, where the processor
 //! decodes it with vector instructions, they are stored in 24-bit fixed point, scaled as the
-//! correction is ([`crate::linalg::symmetric_half::SymPacked24`], each entry within about 6e-8
+//! correction is ([`crate::linalg::symmetric_scaled::SymPacked24`], each entry within about 6e-8
 //! of its row's and column's scale), three quarters of single precision's traffic: the
 //! response moves by at most twice what single precision moves it (tested against double
 //! precision as the correction is), and TMT's step at 1000 modes is 1-8 % shorter on two
@@ -177,8 +180,9 @@ mod tests;
 mod tick;
 
 pub use coupled::{
-    COLUMN_PASS_MAX_MODES, CoupledMirror, FIXED24_GRAM_MIN_MODES, HALF_CORRECTION_MIN_MODES,
-    PACKED_GRAM_MIN_MODES, SHARED_CACHE_MIN_MODES, SINGLE_COUPLING_MIN_MODES, THREADS_CHECK_STEPS,
-    THREADS_TRIAL_BLOCK, THREADS_TRIAL_STEPS, THREADS_TRIAL_WARM, TWO_THREADS_MIN_MODES,
+    COLUMN_PASS_MAX_MODES, CorrectionStorage, CoupledMirror, FIXED8_CORRECTION_MAX_BOUND,
+    FIXED24_GRAM_MIN_MODES, HALF_CORRECTION_MIN_MODES, PACKED_GRAM_MIN_MODES,
+    SHARED_CACHE_MIN_MODES, SINGLE_COUPLING_MIN_MODES, THREADS_CHECK_STEPS, THREADS_TRIAL_BLOCK,
+    THREADS_TRIAL_STEPS, THREADS_TRIAL_WARM, TWO_THREADS_MIN_MODES,
 };
 pub use maps::foh_mode;

@@ -3,7 +3,7 @@
 
 use super::*;
 use crate::aperture::layout::Layout;
-use crate::linalg::symmetric_half::FIXED24_OVER_READ;
+use crate::linalg::symmetric_scaled::{Encoding, Fixed8, Fixed24};
 use crate::plant::segment::{Channel, N_STATE, SegmentModel, state};
 use crate::plant::structure::{CellModel, CellParams};
 
@@ -544,48 +544,91 @@ fn two_threads_give_the_same_values_to_the_bit() {
     }
 }
 
-/// The correction `W - I` streamed in half precision (the default from
-/// HALF_CORRECTION_MIN_MODES modes) moves the mirror's response no more than single precision
-/// itself does: TMT at that many modes, the voice coil and the piezo, under three inputs (wind,
-/// a command and a pier input together; a static load; a 159 Hz pier vibration, where the
-/// response is a small difference of large terms), each against the double-precision solve.
-/// Measured: the same worst difference as single precision's to three digits in every case
+/// The correction `W - I` in half precision or 8-bit fixed point (from
+/// HALF_CORRECTION_MIN_MODES modes the default takes the fewest bits whose rounding bound is
+/// within single precision's: 8 bits for the voice coil, half precision for the piezo, whose
+/// correction is 200 times larger) moves the mirror's response no more than single precision
+/// itself moves it: TMT at that size, both actuators, three cases (wind with a command and a
+/// pier input together; a static load; a 159 Hz pier vibration, where the response is a small
+/// difference of large terms), each against the double-precision solve. Measured: half
+/// precision the same worst difference as single precision's to three digits in every case
 /// (the voice coil's largest 1.6e-7 of its largest `z`, under the static load; the piezo's
-/// 2.0e-7, under the pier vibration); rounding the Gram matrices to half precision instead
-/// moved the voice coil's response to the pier vibration by 1.1e-4 of its largest (the reason
-/// they stay in single precision). The Gram matrices in 24-bit fixed point
-/// ([`CoupledMirror::set_gram_fixed24`]) on top of the half-precision correction move it no
-/// more than twice as much as single precision (plus 1e-7), and never more than 5e-7.
+/// 2.0e-7, under the pier vibration), 8 bits the same for the voice coil; rounding the Gram
+/// matrices to half precision instead moved the voice coil's response to the pier vibration by
+/// 1.1e-4 of its largest (the reason they stay in single precision). The Gram matrices in 24-bit
+/// fixed point ([`CoupledMirror::set_gram_fixed24`]) on top of the default correction move it
+/// no more than twice as much as single precision (plus 1e-7), and never more than 5e-7.
+/// (Run once at 1000 modes: the voice coil's 8-bit correction, bound 1.2e-6, again the same as
+/// single precision to three digits in every case; the piezo's 8 bits, bound 2.4e-4, its pier
+/// vibration 4.5e-7 against 2.0e-7.)
 #[test]
-fn correction_in_half_precision_matches_double() {
+fn correction_in_fewer_bits_matches_double() {
     let tmt = Layout::tmt();
     let cell = CellModel::new(&tmt, &CellParams::default())
         .expect("cell")
         .modes()
         .expect("modes");
     let modes = HALF_CORRECTION_MIN_MODES;
-    for (name, model) in [
-        ("voice coil", SegmentModel::voice_coil()),
-        ("piezo", SegmentModel::piezo()),
+    let eight = if Fixed8::vectorised() {
+        CorrectionStorage::Fixed8
+    } else {
+        CorrectionStorage::Half
+    };
+    for (name, model, default) in [
+        ("voice coil", SegmentModel::voice_coil(), eight),
+        ("piezo", SegmentModel::piezo(), CorrectionStorage::Half),
     ] {
-        let half =
+        let base =
             CoupledMirror::new(tmt.n_segments(), model, cell.clone(), modes, 0.02, 1).expect("m");
-        assert!(half.correction_half() && half.coupling_single());
-        let mut single = half.clone();
-        single.set_correction_half(false);
-        let mut double = half.clone();
+        assert!(base.coupling_single() && !base.gram_fixed24());
+        assert_eq!(base.correction_storage(), default, "{name}");
+        // The bounds that chose it: 8 bits within FIXED8_CORRECTION_MAX_BOUND for the voice
+        // coil (measured 6.6e-7), not for the piezo (1.4e-4), whose half precision has 6.2e-8;
+        // single precision's far below (3.6e-14 and 7.5e-12).
+        let bound = |s| base.correction_rounding_bound(s);
+        let (b32, b16, b8) = (
+            bound(CorrectionStorage::Single),
+            bound(CorrectionStorage::Half),
+            bound(CorrectionStorage::Fixed8),
+        );
+        eprintln!("{name}: rounding bounds single {b32:.2e}, half {b16:.2e}, 8-bit {b8:.2e}");
+        assert!(b32 > 0.0 && b32 < b16 && b16 < b8, "{b32:e} {b16:e} {b8:e}");
+        assert_eq!(
+            b8 <= FIXED8_CORRECTION_MAX_BOUND,
+            name == "voice coil",
+            "{name}: {b8:e}"
+        );
+        let with = |storage| {
+            let mut m = base.clone();
+            m.set_correction_storage(storage);
+            assert_eq!(m.correction_storage(), storage);
+            m
+        };
+        let single = with(CorrectionStorage::Single);
+        let mut double = single.clone();
         double.set_coupling_single(false);
-        let mut fixed = half.clone();
+        let mut fixed = base.clone();
         fixed.set_gram_fixed24(true);
-        assert!(!single.correction_half() && fixed.gram_fixed24() && !half.gram_fixed24());
-        let na = half.n_actuators();
+        assert!(fixed.gram_fixed24());
+        let m = [
+            double,
+            single,
+            with(CorrectionStorage::Half),
+            with(CorrectionStorage::Fixed8),
+            base.clone(),
+            fixed,
+        ];
+        let na = base.n_actuators();
         let fw = wind(na);
         let load: Vec<f64> = (0..na).map(|i| (i % 7) as f64).collect();
         for case in ["wind, command and pier", "static load", "pier vibration"] {
-            let mut m = [double.clone(), single.clone(), half.clone(), fixed.clone()];
-            let mut worst = [0.0f64; 3];
-            let (mut max_z, mut differs, mut differs24) = (0.0f64, false, false);
-            let mut z = [vec![0.0; na], vec![0.0; na], vec![0.0; na], vec![0.0; na]];
+            let mut m = m.clone();
+            let mut worst = [0.0f64; 5];
+            let mut max_z = 0.0f64;
+            // Whether each form's response differs from single precision's (half, 8 bits)
+            // and from the default correction's (the 24-bit Gram matrices): each was read.
+            let mut differs = [false; 3];
+            let mut z = vec![vec![0.0; na]; m.len()];
             for k in 0..300 {
                 let s = (k as f64 * 0.05).sin();
                 let (u, f, p): (Vec<f64>, Vec<f64>, f64) = match case {
@@ -608,32 +651,40 @@ fn correction_in_half_precision_matches_double() {
                         .zip(zi)
                         .fold(*w, |a, (x, y)| a.max((x - y).abs()));
                 }
-                differs |= z[1] != z[2];
-                differs24 |= z[2] != z[3];
+                differs[0] |= z[1] != z[2];
+                differs[1] |= z[1] != z[3];
+                differs[2] |= z[4] != z[5];
             }
-            let [single_err, half_err, fixed_err] = worst.map(|w| w / max_z);
+            assert!(max_z > 0.0);
+            let [single_err, half_err, fixed8_err, _, fixed_err] = worst.map(|w| w / max_z);
             eprintln!(
                 "{name}, {case}: worst z against double precision, of its largest: single \
-                 {single_err:.2e}, correction in half precision {half_err:.2e}, and the Gram \
-                 matrices in 24-bit fixed point {fixed_err:.2e}"
+                 {single_err:.2e}, correction in half precision {half_err:.2e}, in 8 bits \
+                 {fixed8_err:.2e}, and the Gram matrices in 24-bit fixed point (with the \
+                 default correction) {fixed_err:.2e}"
             );
-            // The 24-bit Gram matrices were read, and move the response about as much as
-            // single precision does (measured here: the voice coil's pier vibration 1.95e-7
-            // against 9.8e-8, the piezo's static load 2.1e-7 against 1.4e-7 and pier vibration
-            // 2.6e-7 against 2.0e-7, the rest within 3 %; at 700 and 1000 modes the piezo's
-            // pier vibration 3.0e-7 and 3.6e-7 against 2.0e-7).
-            assert!(differs24, "{case}: the same bits as single precision");
+            assert_eq!(differs, [true; 3], "{name}, {case}: a form not read");
+            // The 24-bit Gram matrices move the response about as much as single precision
+            // does (measured here: the voice coil's pier vibration 1.95e-7 against 9.8e-8, the
+            // piezo's static load 2.1e-7 against 1.4e-7 and pier vibration 2.6e-7 against
+            // 2.0e-7, the rest within 3 %; at 700 and 1000 modes the piezo's pier vibration
+            // 3.0e-7 and 3.6e-7 against 2.0e-7).
             assert!(
                 fixed_err <= 5e-7 && fixed_err <= 2.0 * single_err + 1e-7,
-                "{case}: {fixed_err:e} {single_err:e}"
+                "{name}, {case}: {fixed_err:e} {single_err:e}"
             );
-            // The half-precision correction was read (its rounding shows in the last bits).
-            assert!(differs, "{case}: the same bits as single precision");
-            assert!(max_z > 0.0 && half_err <= 5e-7, "{case}: {half_err:e}");
-            assert!(
-                half_err <= 2.0 * single_err + 1e-8,
-                "{case}: {half_err:e} {single_err:e}"
-            );
+            // The correction in fewer bits, where its bound allows them, no more than single
+            // precision.
+            let mut checked = vec![("half precision", half_err)];
+            if b8 <= FIXED8_CORRECTION_MAX_BOUND {
+                checked.push(("8 bits", fixed8_err));
+            }
+            for (form, err) in checked {
+                assert!(
+                    err <= 5e-7 && err <= 2.0 * single_err + 1e-8,
+                    "{name}, {case}, {form}: {err:e} {single_err:e}"
+                );
+            }
         }
     }
 }
@@ -669,7 +720,7 @@ fn streamed_bytes_follow_the_gram_storage() {
     // the last entry).
     m.set_gram_fixed24(true);
     let fixed = gram(&m);
-    assert_eq!(fixed, 0.75 * half + 2.0 * FIXED24_OVER_READ as f64);
+    assert_eq!(fixed, 0.75 * half + 2.0 * Fixed24::PAD as f64);
     m.set_gram_fixed24(false);
     assert_eq!(gram(&m), half);
     m.set_coupling_single(false);
@@ -685,15 +736,23 @@ fn streamed_bytes_follow_the_gram_storage() {
         assert_eq!(reads, 1.0);
         (name, bytes)
     };
-    assert!(!m.correction_half());
+    assert_eq!(m.correction_storage(), CorrectionStorage::Single);
     let (name, single) = correction(&m);
     assert!(name.ends_with("(single precision)"));
-    m.set_correction_half(true);
+    m.set_correction_storage(CorrectionStorage::Half);
     let (name, half) = correction(&m);
     assert!(
         name.ends_with("(half precision)") && 2 * half == single,
         "{half} {single}"
     );
+    // In 8 bits a quarter.
+    m.set_correction_storage(CorrectionStorage::Fixed8);
+    let (name, fixed8) = correction(&m);
+    assert!(
+        name.ends_with("(8-bit fixed point)") && 4 * fixed8 == single,
+        "{fixed8} {single}"
+    );
+    m.set_correction_storage(CorrectionStorage::Half);
     // The inputs' pass over the shapes counts only in the steps whose inputs change (every
     // tenth here), the displacement's pass back in every step; the ticks' matrices as before.
     let s = m.streamed_per_step(m.tick_period(), 10).expect("one tick");
@@ -773,7 +832,7 @@ fn the_automatic_choice_of_threads_changes_no_value() {
 }
 
 /// A mirror with the large models' forms (two threads, the Gram matrices by half in 24-bit
-/// fixed point, the correction in half precision) goes on after a round trip through its
+/// fixed point, the correction in 8-bit fixed point) goes on after a round trip through its
 /// serialised state (as an FMU's state is saved and restored, by `postcard`) with the outputs of
 /// the original, to the bit, its inputs changing at every step.
 #[test]
@@ -783,7 +842,7 @@ fn a_restored_mirror_goes_on_with_the_large_forms() {
     m.set_two_threads(true);
     m.set_gram_packed(true);
     m.set_gram_fixed24(true);
-    m.set_correction_half(true);
+    m.set_correction_storage(CorrectionStorage::Fixed8);
     let na = m.n_actuators();
     let f = wind(na);
     let u = vec![0.0; na];
@@ -791,6 +850,7 @@ fn a_restored_mirror_goes_on_with_the_large_forms() {
     let bytes = postcard::to_stdvec(&m).expect("serialised");
     let mut restored: CoupledMirror = postcard::from_bytes(&bytes).expect("deserialised");
     assert!(restored.gram_fixed24() && restored.two_threads());
+    assert_eq!(restored.correction_storage(), CorrectionStorage::Fixed8);
     for k in 0..5 {
         let p = 1e-9 * (k as f64).cos();
         // The wind changes at every step: each step projects it onto the modes too.

@@ -3,7 +3,7 @@
 //! modal force, the modes; a step's coupled part as one SIMD dispatch ([`Step`]); and the
 //! outputs back in actuator space.
 
-use super::coupled::{ChannelMaps, CoupledMirror};
+use super::coupled::{ChannelMaps, CoupledMirror, LowCorrection};
 use pulp::WithSimd;
 
 use super::projection::{Reconstruct, ReconstructCols};
@@ -12,7 +12,7 @@ use crate::linalg::kernels::{
 };
 use crate::linalg::pair::{LazyPair, Pair};
 use crate::linalg::symmetric::{BLOCK, SymPacked32, add_columns, sym_dot_f32, sym_dot_rows_f32};
-use crate::linalg::symmetric_half::{SymPacked24, SymPackedHalf};
+use crate::linalg::symmetric_scaled::{SymPacked8, SymPacked24, SymPackedHalf};
 use crate::plant::segment::{N_STATE, state};
 use nalgebra::{SMatrix, SVector};
 
@@ -148,7 +148,7 @@ impl CoupledMirror {
             // W - I = D^-1 K D, K symmetric (stored by its upper block triangle). The per-mode
             // loops run over slices cut to r, so that they vectorise.
             let (gpsi, gjump, d_half) = (&self.gpsi[..r], &self.gjump[..r], &self.d_half[..r]);
-            let half = self.corr_half.as_ref().filter(|_| LARGE);
+            let low = self.corr_low.as_ref().filter(|_| LARGE);
             {
                 let (beta, win, u_new) =
                     (&self.beta[..r], &mut self.win32[..r], &mut self.u_new[..r]);
@@ -157,7 +157,7 @@ impl CoupledMirror {
                     win[j] = (d_half[j] * x) as f32;
                     u_new[j] += gpsi[j];
                 }
-                if let Some(h) = half {
+                if let Some(h) = low {
                     for (w, s) in win.iter_mut().zip(h.scale()) {
                         *w *= s;
                     }
@@ -168,10 +168,10 @@ impl CoupledMirror {
             // so the same bits); below, whole.
             self.corr.fill(0.0);
             let (a, s) = (&self.corr32, self.corr_split);
-            if half.is_none() && (!LARGE || s == 0) {
+            if low.is_none() && (!LARGE || s == 0) {
                 sym_dot_f32::<S, 1>(simd, a, [&self.win32], [&mut self.corr], [&mut self.corr_t]);
             } else {
-                let stored = half.map_or(Stored::Single(a), Stored::Half);
+                let stored = low.map_or(Stored::Single(a), Stored::from);
                 let cut = (BLOCK * s).min(r);
                 let (y0, y1) = self.corr[..r].split_at_mut(cut);
                 let x = [&self.win32[..]];
@@ -197,7 +197,7 @@ impl CoupledMirror {
                 );
                 add_columns(&mut self.corr[..r], &self.corr_t, 0);
                 add_columns(&mut self.corr[..r], &self.corr_t2, cut);
-                if let Some(h) = half {
+                if let Some(h) = low {
                     for (c, s) in self.corr[..r].iter_mut().zip(h.scale()) {
                         *c *= f64::from(*s);
                     }
@@ -903,16 +903,26 @@ impl pulp::WithSimd for GramKind24<'_> {
 }
 
 /// A symmetric matrix stored by its upper block triangle, in single precision or (scaled) in
-/// half precision.
+/// half precision or 8-bit fixed point.
 #[derive(Clone, Copy)]
 enum Stored<'a> {
     Single(&'a SymPacked32),
     Half(&'a SymPackedHalf),
+    Fixed8(&'a SymPacked8),
 }
 
-/// Block rows of a symmetric product ([`sym_dot_rows_f32`], or in half precision
-/// [`SymPackedHalf::scaled_rows`] on its own instructions, whatever the SIMD operation's: `x`
-/// already scaled) as a SIMD operation.
+impl<'a> From<&'a LowCorrection> for Stored<'a> {
+    fn from(c: &'a LowCorrection) -> Self {
+        match c {
+            LowCorrection::Half(a) => Self::Half(a),
+            LowCorrection::Fixed8(a) => Self::Fixed8(a),
+        }
+    }
+}
+
+/// Block rows of a symmetric product ([`sym_dot_rows_f32`], or scaled
+/// [`SymScaled::scaled_rows`](crate::linalg::symmetric_scaled::SymScaled::scaled_rows) on its
+/// own instructions, whatever the SIMD operation's: `x` already scaled) as a SIMD operation.
 struct SymRows<'a, const L: usize> {
     a: Stored<'a>,
     x: [&'a [f32]; L],
@@ -931,6 +941,7 @@ impl<const L: usize> pulp::WithSimd for SymRows<'_, L> {
                 sym_dot_rows_f32::<S, L>(simd, a, self.x, self.y, self.t, self.blocks);
             }
             Stored::Half(a) => a.scaled_rows::<L>(self.x, self.y, self.t, self.blocks),
+            Stored::Fixed8(a) => a.scaled_rows::<L>(self.x, self.y, self.t, self.blocks),
         }
     }
 }

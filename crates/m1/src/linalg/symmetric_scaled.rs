@@ -1,41 +1,52 @@
-//! Symmetric matrices stored in half precision (IEEE 754 binary16) by their upper block
-//! triangle, scaled symmetrically so that every stored entry lies in `[-1, 1]`, and their
-//! product with one or two single-precision vectors, summed in single precision as
-//! [`sym_dot_rows_f32`](super::symmetric::sym_dot_rows_f32) sums.
+//! Symmetric matrices stored by their upper block triangle with their entries scaled
+//! symmetrically into `[-1, 1]` and kept in fewer bits than single precision (half precision,
+//! 24-bit or 8-bit fixed point), and their product with one or two single-precision vectors,
+//! summed in single precision as [`sym_dot_rows_f32`](super::symmetric::sym_dot_rows_f32) sums.
 //!
-//! Why: the coupled mirror's servo tick multiplies by the symmetric form of its correction
-//! `W - I` five times per 1 ms step. The correction is a small term of the solve (about 4e-7
-//! in norm for the voice coil, 8e-5 for the piezo), so its entries need no more than half
-//! precision, and at a thousand retained modes storing it so saves 5 of the 42.9 MB a TMT step
-//! streams ([`CoupledMirror::set_correction_half`](crate::plant::mirror::CoupledMirror::set_correction_half)).
-//! Matrices whose product is not a small correction (the Gram matrices) need more: for them
-//! [`SymPacked24`] stores the same scaled entries in 24-bit fixed point (three bytes an entry,
-//! within `2^-24 s_i s_j` of the exact one), read by the same kernels with a decoding of their
-//! own (a byte permutation with AVX-512 VBMI, a byte shuffle with AVX2).
+//! Why: the coupled mirror's servo tick multiplies by the Gram matrices of its mode shapes and
+//! by the symmetric form of its correction `W - I` five times per 1 ms step, and at a thousand
+//! retained modes those passes are bound by the memory traffic. Each matrix is stored in the
+//! fewest bits its product's accuracy allows:
+//! - [`SymPacked24`] (three bytes an entry, within `2^-24 s_i s_j` of the exact one) for the
+//!   Gram matrices, whose products are not small corrections
+//!   ([`CoupledMirror::set_gram_fixed24`](crate::plant::mirror::CoupledMirror::set_gram_fixed24));
+//! - [`SymPackedHalf`] (IEEE 754 binary16, within `2^-11` of each entry) and [`SymPacked8`]
+//!   (one byte, within `2^-8 s_i s_j`) for the correction, a small term of the solve (about 4e-7
+//!   in norm for the voice coil, 8e-5 for the piezo):
+//!   [`CoupledMirror::set_correction_storage`](crate::plant::mirror::CoupledMirror::set_correction_storage)
+//!   takes the fewest bits whose rounding bound stays below single precision's.
+//!
+//! One storage, [`SymScaled`], serves all three: only the entries' [`Encoding`] differs (how a
+//! value in `[-1, 1]` is stored and read back into single-precision lanes).
 //!
 //! **Scaling.** With `s_i = sqrt(max_j |A_ij|)` (1 for a zero row), `A = S A' S`,
 //! `S = diag(s)`, and `|A'_ij| <= |A_ij| / sqrt(|A_ij| |A_ji|) = 1`: the stored entries use
-//! half precision's range without overflow, each rounded to within `2^-11` of itself (or
-//! `2^-25` absolute below its normal range, `2^-14`), so that `|A_ij - s_i A'_ij s_j| <=
-//! 2^-11 |A_ij| + 2^-25 s_i s_j`. The caller scales the vector by `s` before the product and
-//! the result by `s` after it ([`SymPackedHalf::scale`]), or folds the scale into its own
-//! per-entry factors.
+//! the encoding's range without overflow. An encoding reads an entry back as `A'_ij F` (its
+//! [`Encoding::FACTOR`]: 1 for half precision, `256 (2^23 - 1)` for 24 bits, 127 for 8), so
+//! the storage keeps the scale `c_i = s_i / sqrt(F)` and `A = C A'' C`. The caller scales the
+//! vector by `c` before the product and the result by `c` after it ([`SymScaled::scale`]), or
+//! folds the scale into its own per-entry factors.
 //!
-//! **Kernels.** The entries are converted to single precision in registers (`vcvtph2ps`, AVX-512F
-//! or F16C), sixteen or eight lanes at a time, and multiplied as the single-precision kernel
-//! does (four rows at a time, each stored entry applied to its row's dot product and, past the
-//! diagonal block, to its column's); a portable scalar path serves other processors. The path
-//! is chosen once, at construction, by the processor's features.
+//! **Kernels.** The entries are converted to single precision in registers, sixteen or eight
+//! lanes at a time (half precision: `vcvtph2ps`, AVX-512F or F16C; 24 bits: a masked byte
+//! permutation with AVX-512 VBMI, a byte shuffle of two overlapping loads with AVX2, each entry
+//! into the upper three bytes of its lane; 8 bits: a sign extension), and multiplied as the
+//! single-precision kernel does (four rows at a time, each stored entry applied to its row's
+//! dot product and, past the diagonal block, to its column's); a portable scalar path serves
+//! other processors. The path is chosen once, at construction, by the processor's features.
+
+use std::marker::PhantomData;
 
 use half::f16;
 
 use super::kernels::{LINE_F32, prefetch};
 use super::symmetric::{BLOCK, packed_offset, padded_order};
 
-/// The instructions a [`SymPackedHalf`] product runs on (chosen by [`HalfPath::detect`]).
+/// The instructions a [`SymScaled`] product runs on (the widest one an encoding runs on here:
+/// [`Encoding::detect`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum HalfPath {
-    /// AVX-512F: sixteen lanes, `vcvtph2ps` on 512-bit registers.
+pub enum ScaledPath {
+    /// AVX-512F (for 24 bits also BW and VBMI): sixteen lanes.
     Avx512,
     /// AVX2, FMA and F16C: eight lanes.
     Avx2,
@@ -43,17 +54,9 @@ pub enum HalfPath {
     Scalar,
 }
 
-impl HalfPath {
-    /// The widest path this processor supports.
-    pub fn detect() -> Self {
-        [Self::Avx512, Self::Avx2]
-            .into_iter()
-            .find(|p| p.available())
-            .unwrap_or(Self::Scalar)
-    }
-
-    /// Whether this processor can run the path.
-    pub fn available(self) -> bool {
+impl ScaledPath {
+    /// Whether this processor has the path's base features (AVX-512F; AVX2, FMA and F16C).
+    fn base_available(self) -> bool {
         match self {
             Self::Scalar => true,
             #[cfg(target_arch = "x86_64")]
@@ -70,45 +73,239 @@ impl HalfPath {
     }
 }
 
-/// A symmetric `m x m` matrix `A = S A' S` with `A'` in half precision, stored as
-/// [`SymPacked32`](super::symmetric::SymPacked32) stores (padded with zeros to `n = m` rounded up
-/// to [`BLOCK`], by block rows from each diagonal block on), and the diagonal scale `S` in
-/// single precision (the module's documentation).
-#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
-pub struct SymPackedHalf {
-    m: usize,
-    n: usize,
-    /// `s_i`, zero past the order.
-    scale: Vec<f32>,
-    /// The bits of `A'`'s stored entries.
-    data: Vec<u16>,
-    #[serde(skip, default = "HalfPath::detect")]
-    path: HalfPath,
+mod sealed {
+    /// Implemented by this module's encodings only.
+    pub trait Sealed {}
+
+    /// The vector operations a kernel path needs.
+    pub trait Lanes {
+        type V: Copy;
+        const N: usize;
+        unsafe fn zero() -> Self::V;
+        unsafe fn splat(v: f32) -> Self::V;
+        unsafe fn load(p: *const f32) -> Self::V;
+        unsafe fn store(p: *mut f32, v: Self::V);
+        unsafe fn load_half(p: *const u16) -> Self::V;
+        /// `N` 24-bit entries ([`super::Fixed24`]) from `p`, reading at most
+        /// [`super::Fixed24::PAD`] bytes past them.
+        unsafe fn load_fixed24(p: *const u8) -> Self::V;
+        /// `N` 8-bit entries ([`super::Fixed8`]) from `p`.
+        unsafe fn load_fixed8(p: *const u8) -> Self::V;
+        unsafe fn fma(a: Self::V, b: Self::V, c: Self::V) -> Self::V;
+        unsafe fn sum(v: Self::V) -> f32;
+    }
 }
 
-impl SymPackedHalf {
+use sealed::Lanes;
+
+/// How a [`SymScaled`] matrix stores its scaled entries `A'_ij` (in `[-1, 1]`), and reads them
+/// into single-precision lanes as `A'_ij F` ([`Self::FACTOR`], to the encoding's rounding).
+pub trait Encoding:
+    sealed::Sealed + Clone + Copy + std::fmt::Debug + Send + Sync + 'static
+{
+    /// The storage unit.
+    type Unit: Copy
+        + Default
+        + std::fmt::Debug
+        + Send
+        + Sync
+        + serde::Serialize
+        + serde::de::DeserializeOwned;
+    /// Units per entry.
+    const UNITS: usize;
+    /// Units of padding after the last entry (read, not used, by the vector paths).
+    const PAD: usize;
+    /// The value an entry `A'_ij = 1` reads as.
+    const FACTOR: f64;
+    /// The kernels prefetch a row's next stretch every this many entries (a cache line).
+    #[doc(hidden)]
+    const PREFETCH_EVERY: usize;
+    /// Whether the 512-bit path needs AVX-512 BW and VBMI besides AVX-512F.
+    #[doc(hidden)]
+    const VBMI: bool;
+    /// `v` (in `[-1, 1]`) into `out` (`UNITS` long), rounded to nearest.
+    fn encode(v: f64, out: &mut [Self::Unit]);
+    /// An entry as the kernels read it (`A'_ij F`), from `UNITS` units.
+    fn decode(units: &[Self::Unit]) -> f64;
+    /// `T::N` entries from `p`, in single precision.
+    ///
+    /// # Safety
+    /// `p` points at `T::N` stored entries, followed by at least [`Self::PAD`] units.
+    #[doc(hidden)]
+    unsafe fn load<T: Lanes>(p: *const Self::Unit) -> T::V;
+
+    /// Whether a product of this encoding can run on `path` on this processor.
+    fn available(path: ScaledPath) -> bool {
+        match path {
+            #[cfg(target_arch = "x86_64")]
+            ScaledPath::Avx512 if Self::VBMI => {
+                std::arch::is_x86_feature_detected!("avx512f")
+                    && std::arch::is_x86_feature_detected!("avx512bw")
+                    && std::arch::is_x86_feature_detected!("avx512vbmi")
+            }
+            _ => path.base_available(),
+        }
+    }
+
+    /// The widest path a product of this encoding runs on here.
+    fn detect() -> ScaledPath {
+        [ScaledPath::Avx512, ScaledPath::Avx2]
+            .into_iter()
+            .find(|&p| Self::available(p))
+            .unwrap_or(ScaledPath::Scalar)
+    }
+
+    /// Whether products of this encoding run on vector instructions here.
+    fn vectorised() -> bool {
+        Self::detect() != ScaledPath::Scalar
+    }
+}
+
+/// Half precision: one `u16` (IEEE 754 binary16 bits) per entry, `F = 1`: each entry within
+/// `2^-11` of itself (or `2^-25` absolute below half precision's normal range, `2^-14`), so
+/// that `|A_ij - s_i A'_ij s_j| <= 2^-11 |A_ij| + 2^-25 s_i s_j`.
+#[derive(Debug, Clone, Copy)]
+pub struct Half;
+
+impl sealed::Sealed for Half {}
+
+impl Encoding for Half {
+    type Unit = u16;
+    const UNITS: usize = 1;
+    const PAD: usize = 0;
+    const FACTOR: f64 = 1.0;
+    const PREFETCH_EVERY: usize = 2 * LINE_F32;
+    const VBMI: bool = false;
+    fn encode(v: f64, out: &mut [u16]) {
+        out[0] = f16::from_f64(v).to_bits();
+    }
+    fn decode(units: &[u16]) -> f64 {
+        f16::from_bits(units[0]).to_f64()
+    }
+    #[inline(always)]
+    unsafe fn load<T: Lanes>(p: *const u16) -> T::V {
+        unsafe { T::load_half(p) }
+    }
+}
+
+/// The largest stored 24-bit integer: `A'`'s entries in `[-1, 1]` are stored as
+/// `round(A'_ij Q)`.
+const Q24: f64 = 8_388_607.0;
+
+/// 24-bit fixed point: `q_ij = round(A'_ij Q)` (`Q = 2^23 - 1`) in three bytes, a two's
+/// complement integer with its least significant byte first, read as the single-precision
+/// value `256 q_ij` (exactly; `F = 256 Q`): `|A_ij - c_i A''_ij c_j| <= s_i s_j / (2 Q)`, about
+/// `6e-8 s_i s_j`. Three quarters of single precision's traffic, and for the largest entries of
+/// each row and column single precision's rounding. The vector paths read up to 16 bytes past
+/// an entry ([`Encoding::PAD`]).
+#[derive(Debug, Clone, Copy)]
+pub struct Fixed24;
+
+impl sealed::Sealed for Fixed24 {}
+
+impl Encoding for Fixed24 {
+    type Unit = u8;
+    const UNITS: usize = 3;
+    const PAD: usize = 16;
+    const FACTOR: f64 = 256.0 * Q24;
+    const PREFETCH_EVERY: usize = 16;
+    const VBMI: bool = true;
+    fn encode(v: f64, out: &mut [u8]) {
+        let q = (v * Q24).round().clamp(-Q24, Q24) as i32;
+        out.copy_from_slice(&q.to_le_bytes()[..3]);
+    }
+    fn decode(units: &[u8]) -> f64 {
+        f64::from(i32::from_le_bytes([0, units[0], units[1], units[2]]))
+    }
+    #[inline(always)]
+    unsafe fn load<T: Lanes>(p: *const u8) -> T::V {
+        unsafe { T::load_fixed24(p) }
+    }
+}
+
+/// The largest stored 8-bit integer.
+const Q8: f64 = 127.0;
+
+/// 8-bit fixed point: `q_ij = round(A'_ij 127)` in one byte (two's complement), read as `q_ij`
+/// (`F = 127`): `|A_ij - c_i A''_ij c_j| <= s_i s_j / 254`. A quarter of single precision's
+/// traffic, for a product that is a small correction whose rounding bound is checked by its
+/// user.
+#[derive(Debug, Clone, Copy)]
+pub struct Fixed8;
+
+impl sealed::Sealed for Fixed8 {}
+
+impl Encoding for Fixed8 {
+    type Unit = u8;
+    const UNITS: usize = 1;
+    const PAD: usize = 0;
+    const FACTOR: f64 = Q8;
+    const PREFETCH_EVERY: usize = 4 * LINE_F32;
+    const VBMI: bool = false;
+    fn encode(v: f64, out: &mut [u8]) {
+        out[0] = ((v * Q8).round().clamp(-Q8, Q8) as i8).to_le_bytes()[0];
+    }
+    fn decode(units: &[u8]) -> f64 {
+        f64::from(i8::from_le_bytes([units[0]]))
+    }
+    #[inline(always)]
+    unsafe fn load<T: Lanes>(p: *const u8) -> T::V {
+        unsafe { T::load_fixed8(p) }
+    }
+}
+
+/// A symmetric `m x m` matrix `A = C A'' C` with the scaled entries `A''` in the encoding `E`,
+/// stored as [`SymPacked32`](super::symmetric::SymPacked32) stores (padded with zeros to
+/// `n = m` rounded up to [`BLOCK`], by block rows from each diagonal block on), and the
+/// diagonal scale `C` in single precision (the module's documentation).
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+#[serde(bound = "")]
+pub struct SymScaled<E: Encoding> {
+    m: usize,
+    n: usize,
+    /// `c_i`, zero past the order.
+    scale: Vec<f32>,
+    /// `E::UNITS` units per stored entry, then `E::PAD` units of padding.
+    data: Vec<E::Unit>,
+    #[serde(skip, default = "E::detect")]
+    path: ScaledPath,
+    #[serde(skip)]
+    encoding: PhantomData<E>,
+}
+
+/// Scaled entries in half precision ([`Half`]).
+pub type SymPackedHalf = SymScaled<Half>;
+/// Scaled entries in 24-bit fixed point ([`Fixed24`]).
+pub type SymPacked24 = SymScaled<Fixed24>;
+/// Scaled entries in 8-bit fixed point ([`Fixed8`]).
+pub type SymPacked8 = SymScaled<Fixed8>;
+
+impl<E: Encoding> SymScaled<E> {
     /// The matrix whose entry `(i, j)` is `f(i, j)` (`f` symmetric, which this does not check;
-    /// every entry is read, to find the scale), scaled and rounded to half precision, or
-    /// `None` if an entry is not finite.
+    /// every entry is read, to find the scale), scaled and encoded, or `None` if an entry is not
+    /// finite.
     pub fn from_fn(m: usize, f: impl Fn(usize, usize) -> f64) -> Option<Self> {
         let n = padded_order(m);
         let s = symmetric_scale(m, &f)?;
-        let mut data = vec![0u16; packed_offset(n, n)];
+        let u = E::UNITS;
+        let mut data = vec![E::Unit::default(); u * packed_offset(n, n) + E::PAD];
         for i in 0..m {
             let start = BLOCK * (i / BLOCK);
-            let row = &mut data[packed_offset(n, i)..][..n - start];
-            for (j, d) in (start..m).zip(row.iter_mut()) {
-                *d = f16::from_f64(f(i, j) / (s[i] * s[j])).to_bits();
+            let row = &mut data[u * packed_offset(n, i)..][..u * (n - start)];
+            for (j, d) in (start..m).zip(row.chunks_exact_mut(u)) {
+                E::encode(f(i, j) / (s[i] * s[j]), d);
             }
         }
-        let mut scale: Vec<f32> = s.iter().map(|&x| x as f32).collect();
+        let root = E::FACTOR.sqrt();
+        let mut scale: Vec<f32> = s.iter().map(|&x| (x / root) as f32).collect();
         scale.resize(n, 0.0);
         Some(Self {
             m,
             n,
             scale,
             data,
-            path: HalfPath::detect(),
+            path: E::detect(),
+            encoding: PhantomData,
         })
     }
 
@@ -122,25 +319,25 @@ impl SymPackedHalf {
         self.n
     }
 
-    /// The diagonal scale `s` (the padded order's length, zero past the order): `A = S A' S`.
+    /// The diagonal scale `c` (the padded order's length, zero past the order): `A = C A'' C`.
     pub fn scale(&self) -> &[f32] {
         &self.scale
     }
 
-    /// The stored entries' bits (the memory a product streams is their size).
-    pub fn as_bits(&self) -> &[u16] {
-        &self.data
+    /// The bytes a product streams: the stored entries with their padding.
+    pub fn stored_bytes(&self) -> usize {
+        std::mem::size_of_val(self.data.as_slice())
     }
 
     /// The path the products run on.
-    pub fn path(&self) -> HalfPath {
+    pub fn path(&self) -> ScaledPath {
         self.path
     }
 
     /// Runs the products on `path` instead of the detected one (for tests and comparisons):
     /// `false`, and nothing changed, if this processor cannot run it.
-    pub fn set_path(&mut self, path: HalfPath) -> bool {
-        let ok = path.available();
+    pub fn set_path(&mut self, path: ScaledPath) -> bool {
+        let ok = E::available(path);
         if ok {
             self.path = path;
         }
@@ -154,11 +351,12 @@ impl SymPackedHalf {
         } else {
             (i, j)
         };
-        let v = f16::from_bits(self.data[packed_offset(self.n, i) + j - BLOCK * (i / BLOCK)]);
-        f64::from(self.scale[i]) * v.to_f64() * f64::from(self.scale[j])
+        let at = E::UNITS * (packed_offset(self.n, i) + j - BLOCK * (i / BLOCK));
+        let v = E::decode(&self.data[at..at + E::UNITS]);
+        f64::from(self.scale[i]) * v * f64::from(self.scale[j])
     }
 
-    /// Block rows `blocks` of the product with the *scaled* matrix `A'`, for `L` (1 or 2)
+    /// Block rows `blocks` of the product with the *scaled* matrix `A''`, for `L` (1 or 2)
     /// right-hand sides `xs_l` (already multiplied by [`Self::scale`]): each row's dot product
     /// is added to `y_l` (whose first entry is row `BLOCK * blocks.start`; rows past the order
     /// are not written), the transposed contributions go into `t_l` (all `n` columns, set to
@@ -178,20 +376,31 @@ impl SymPackedHalf {
         blocks: std::ops::Range<usize>,
     ) {
         check_rows(self.m, self.n, &xs, &y, &t, &blocks);
-        assert!(self.data.len() == packed_offset(self.n, self.n));
+        assert!(self.data.len() == E::UNITS * packed_offset(self.n, self.n) + E::PAD);
         let mut t = t;
         for tl in t.iter_mut() {
             tl[..self.n].fill(0.0);
         }
-        // SAFETY: the slices' lengths are checked above; the path was checked to run on this
-        // processor (detected at construction, or `set_path`).
+        let a = Stored::<E> {
+            m: self.m,
+            n: self.n,
+            data: &self.data,
+        };
+        // SAFETY: the slices' lengths are checked above (the data with its padding for the
+        // paths' over-reads); the path was checked to run on this processor with this
+        // encoding (detected at construction, or `set_path`), the 512-bit one with VBMI where
+        // the encoding needs it.
         unsafe {
             match self.path {
                 #[cfg(target_arch = "x86_64")]
-                HalfPath::Avx512 => x86::rows_avx512::<Half, L>(&self.stored(), xs, y, t, blocks),
+                ScaledPath::Avx512 if E::VBMI => {
+                    x86::rows_avx512_vbmi::<E, L>(&a, xs, y, t, blocks);
+                }
                 #[cfg(target_arch = "x86_64")]
-                HalfPath::Avx2 => x86::rows_avx2::<Half, L>(&self.stored(), xs, y, t, blocks),
-                _ => rows_impl::<Scalar, Half, L>(&self.stored(), xs, y, t, blocks),
+                ScaledPath::Avx512 => x86::rows_avx512::<E, L>(&a, xs, y, t, blocks),
+                #[cfg(target_arch = "x86_64")]
+                ScaledPath::Avx2 => x86::rows_avx2::<E, L>(&a, xs, y, t, blocks),
+                _ => rows_impl::<Scalar, E, L>(&a, xs, y, t, blocks),
             }
         }
     }
@@ -237,253 +446,12 @@ fn check_rows<const L: usize>(
     }
 }
 
-/// Bytes the 24-bit paths read past the last entry they use (the storage's padding).
-pub const FIXED24_OVER_READ: usize = 16;
-
-/// The largest stored 24-bit integer: `A'`'s entries in `[-1, 1]` are stored as
-/// `round(A'_ij Q)`.
-const Q24: f64 = 8_388_607.0;
-
-/// Whether a [`SymPacked24`] product can run on `path` on this processor (the 512-bit path
-/// needs AVX-512 VBMI for the entries' byte permutation).
-pub fn fixed24_available(path: HalfPath) -> bool {
-    match path {
-        #[cfg(target_arch = "x86_64")]
-        HalfPath::Avx512 => {
-            std::arch::is_x86_feature_detected!("avx512f")
-                && std::arch::is_x86_feature_detected!("avx512bw")
-                && std::arch::is_x86_feature_detected!("avx512vbmi")
-        }
-        _ => path.available(),
-    }
-}
-
-/// Whether [`SymPacked24`] products run on vector instructions here (AVX-512 VBMI, or AVX2,
-/// FMA and F16C), not on the portable scalar path.
-pub fn fixed24_vectorised() -> bool {
-    fixed24_detect() != HalfPath::Scalar
-}
-
-/// The widest path a [`SymPacked24`] product runs on here.
-fn fixed24_detect() -> HalfPath {
-    [HalfPath::Avx512, HalfPath::Avx2]
-        .into_iter()
-        .find(|&p| fixed24_available(p))
-        .unwrap_or(HalfPath::Scalar)
-}
-
-/// A symmetric `m x m` matrix `A = C A'' C` stored as [`SymPackedHalf`] stores, its scaled
-/// entries in 24-bit fixed point: with `s` as there (every `|A'_ij| = |A_ij| / (s_i s_j) <=
-/// 1`), `q_ij = round(A'_ij Q)` (`Q = 2^23 - 1`) in three bytes, read as the single-precision
-/// value `A''_ij = 256 q_ij` (exactly), and `c_i = s_i / sqrt(256 Q)`: `|A_ij - c_i A''_ij c_j|
-/// <= s_i s_j / (2 Q)`, about `6e-8 s_i s_j`. Three quarters of the single-precision traffic,
-/// and for the largest entries of each row and column single precision's rounding. For the
-/// coupled mirror's Gram matrices, whose products are not small corrections
-/// ([`CoupledMirror::set_gram_fixed24`](crate::plant::mirror::CoupledMirror::set_gram_fixed24)).
-#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
-pub struct SymPacked24 {
-    m: usize,
-    n: usize,
-    /// `c_i`, zero past the order.
-    scale: Vec<f32>,
-    /// Three bytes per stored entry, then [`FIXED24_OVER_READ`] bytes of padding.
-    data: Vec<u8>,
-    #[serde(skip, default = "fixed24_detect")]
-    path: HalfPath,
-}
-
-impl SymPacked24 {
-    /// The matrix whose entry `(i, j)` is `f(i, j)` (`f` symmetric, which this does not check;
-    /// every entry is read, to find the scale), scaled and rounded to 24-bit fixed point, or
-    /// `None` if an entry is not finite.
-    pub fn from_fn(m: usize, f: impl Fn(usize, usize) -> f64) -> Option<Self> {
-        let n = padded_order(m);
-        let s = symmetric_scale(m, &f)?;
-        let mut data = vec![0u8; 3 * packed_offset(n, n) + FIXED24_OVER_READ];
-        for i in 0..m {
-            let start = BLOCK * (i / BLOCK);
-            let row = &mut data[3 * packed_offset(n, i)..][..3 * (n - start)];
-            for (j, d) in (start..m).zip(row.chunks_exact_mut(3)) {
-                let q = (f(i, j) / (s[i] * s[j]) * Q24).round().clamp(-Q24, Q24) as i32;
-                d.copy_from_slice(&q.to_le_bytes()[..3]);
-            }
-        }
-        let c = (256.0 * Q24).sqrt();
-        let mut scale: Vec<f32> = s.iter().map(|&x| (x / c) as f32).collect();
-        scale.resize(n, 0.0);
-        Some(Self {
-            m,
-            n,
-            scale,
-            data,
-            path: fixed24_detect(),
-        })
-    }
-
-    /// Order of the matrix.
-    pub fn order(&self) -> usize {
-        self.m
-    }
-
-    /// The padded order: the length the vectors of a product need.
-    pub fn padded_order(&self) -> usize {
-        self.n
-    }
-
-    /// The diagonal scale `c` (the padded order's length, zero past the order): `A = C A'' C`.
-    pub fn scale(&self) -> &[f32] {
-        &self.scale
-    }
-
-    /// The stored bytes (the memory a product streams is their size).
-    pub fn as_bytes(&self) -> &[u8] {
-        &self.data
-    }
-
-    /// The path the products run on.
-    pub fn path(&self) -> HalfPath {
-        self.path
-    }
-
-    /// Runs the products on `path` instead of the detected one (for tests and comparisons):
-    /// `false`, and nothing changed, if this processor cannot run it.
-    pub fn set_path(&mut self, path: HalfPath) -> bool {
-        let ok = fixed24_available(path);
-        if ok {
-            self.path = path;
-        }
-        ok
-    }
-
-    /// Entry `(i, j)` of `A` as stored (either triangle).
-    pub fn get(&self, i: usize, j: usize) -> f64 {
-        let (i, j) = if j / BLOCK < i / BLOCK {
-            (j, i)
-        } else {
-            (i, j)
-        };
-        let at = 3 * (packed_offset(self.n, i) + j - BLOCK * (i / BLOCK));
-        let b = &self.data[at..at + 3];
-        let v = f64::from(i32::from_le_bytes([0, b[0], b[1], b[2]]));
-        f64::from(self.scale[i]) * v * f64::from(self.scale[j])
-    }
-
-    /// Block rows `blocks` of the product with the scaled matrix `A''`, for `L` (1 or 2)
-    /// right-hand sides `xs_l` already multiplied by [`Self::scale`]: as
-    /// [`SymPackedHalf::scaled_rows`].
-    ///
-    /// # Panics
-    /// If a slice is shorter than that, the blocks run past the padded order, or `L` is not 1
-    /// or 2 (programming errors).
-    pub fn scaled_rows<const L: usize>(
-        &self,
-        xs: [&[f32]; L],
-        y: [&mut [f64]; L],
-        t: [&mut [f32]; L],
-        blocks: std::ops::Range<usize>,
-    ) {
-        check_rows(self.m, self.n, &xs, &y, &t, &blocks);
-        assert!(self.data.len() == 3 * packed_offset(self.n, self.n) + FIXED24_OVER_READ);
-        let mut t = t;
-        for tl in t.iter_mut() {
-            tl[..self.n].fill(0.0);
-        }
-        let a = Stored::<Fixed24> {
-            m: self.m,
-            n: self.n,
-            data: &self.data,
-        };
-        // SAFETY: the slices' lengths are checked above (the data with its padding for the
-        // paths' over-reads); the path was checked to run on this processor (detected at
-        // construction, or `set_path`).
-        unsafe {
-            match self.path {
-                #[cfg(target_arch = "x86_64")]
-                HalfPath::Avx512 => x86::rows_avx512_vbmi::<Fixed24, L>(&a, xs, y, t, blocks),
-                #[cfg(target_arch = "x86_64")]
-                HalfPath::Avx2 => x86::rows_avx2::<Fixed24, L>(&a, xs, y, t, blocks),
-                _ => rows_impl::<Scalar, Fixed24, L>(&a, xs, y, t, blocks),
-            }
-        }
-    }
-}
-
-impl SymPackedHalf {
-    /// The stored entries as the kernels read them.
-    fn stored(&self) -> Stored<'_, Half> {
-        Stored {
-            m: self.m,
-            n: self.n,
-            data: &self.data,
-        }
-    }
-}
-
 /// A scaled symmetric matrix's stored entries as the kernels read them: order `m`, padded
 /// order `n`, the entries by block rows ([`packed_offset`]), `E::UNITS` units each.
 struct Stored<'a, E: Encoding> {
     m: usize,
     n: usize,
     data: &'a [E::Unit],
-}
-
-/// How a scaled matrix's entries are stored, and read into single-precision lanes.
-trait Encoding {
-    /// The storage unit.
-    type Unit: Copy;
-    /// Units per entry.
-    const UNITS: usize;
-    /// The kernels prefetch a row's next stretch every this many entries (about a cache line).
-    const PREFETCH_EVERY: usize;
-    /// `T::N` entries from `p`, in single precision.
-    ///
-    /// # Safety
-    /// `p` points at `T::N` stored entries, followed by at least [`FIXED24_OVER_READ`] bytes
-    /// (read, not used, by the 24-bit paths).
-    unsafe fn load<T: Lanes>(p: *const Self::Unit) -> T::V;
-}
-
-/// Half precision: one `u16` (IEEE 754 binary16 bits) per entry.
-struct Half;
-
-impl Encoding for Half {
-    type Unit = u16;
-    const UNITS: usize = 1;
-    const PREFETCH_EVERY: usize = 2 * LINE_F32;
-    #[inline(always)]
-    unsafe fn load<T: Lanes>(p: *const u16) -> T::V {
-        unsafe { T::load_half(p) }
-    }
-}
-
-/// 24-bit fixed point: three bytes per entry, a two's complement integer `q` with its least
-/// significant byte first, read as the single-precision value `256 q` (exact).
-struct Fixed24;
-
-impl Encoding for Fixed24 {
-    type Unit = u8;
-    const UNITS: usize = 3;
-    const PREFETCH_EVERY: usize = 16;
-    #[inline(always)]
-    unsafe fn load<T: Lanes>(p: *const u8) -> T::V {
-        unsafe { T::load_fixed24(p) }
-    }
-}
-
-/// The vector operations a kernel path needs.
-trait Lanes {
-    type V: Copy;
-    const N: usize;
-    unsafe fn zero() -> Self::V;
-    unsafe fn splat(v: f32) -> Self::V;
-    unsafe fn load(p: *const f32) -> Self::V;
-    unsafe fn store(p: *mut f32, v: Self::V);
-    unsafe fn load_half(p: *const u16) -> Self::V;
-    /// `N` 24-bit entries ([`Fixed24`]) from `p`, reading at most [`FIXED24_OVER_READ`] bytes
-    /// past them.
-    unsafe fn load_fixed24(p: *const u8) -> Self::V;
-    unsafe fn fma(a: Self::V, b: Self::V, c: Self::V) -> Self::V;
-    unsafe fn sum(v: Self::V) -> f32;
 }
 
 struct Scalar;
@@ -518,6 +486,11 @@ impl Lanes for Scalar {
         i32::from_le_bytes([0, b[0], b[1], b[2]]) as f32
     }
     #[inline(always)]
+    unsafe fn load_fixed8(p: *const u8) -> f32 {
+        // SAFETY: the caller's: one byte at `p`.
+        f32::from(i8::from_le_bytes([unsafe { *p }]))
+    }
+    #[inline(always)]
     unsafe fn fma(a: f32, b: f32, c: f32) -> f32 {
         a * b + c
     }
@@ -527,11 +500,11 @@ impl Lanes for Scalar {
     }
 }
 
-/// The kernel: [`SymPackedHalf::scaled_rows`] on the path `T`.
+/// The kernel: [`SymScaled::scaled_rows`] on the path `T`.
 ///
 /// # Safety
 /// The processor runs `T`'s instructions; the slices have the lengths
-/// [`SymPackedHalf::scaled_rows`] checks, `t_l` is zero.
+/// [`SymScaled::scaled_rows`] checks, `t_l` is zero.
 #[inline(always)]
 unsafe fn rows_impl<T: Lanes, E: Encoding, const L: usize>(
     a: &Stored<'_, E>,
@@ -684,6 +657,10 @@ mod x86 {
             }
         }
         #[inline(always)]
+        unsafe fn load_fixed8(p: *const u8) -> __m512 {
+            unsafe { _mm512_cvtepi32_ps(_mm512_cvtepi8_epi32(_mm_loadu_si128(p.cast()))) }
+        }
+        #[inline(always)]
         unsafe fn fma(a: __m512, b: __m512, c: __m512) -> __m512 {
             unsafe { _mm512_fmadd_ps(a, b, c) }
         }
@@ -728,6 +705,10 @@ mod x86 {
                 let ctrl = _mm256_loadu_si256(SPREAD24_HALF.as_ptr().cast());
                 _mm256_cvtepi32_ps(_mm256_shuffle_epi8(v, ctrl))
             }
+        }
+        #[inline(always)]
+        unsafe fn load_fixed8(p: *const u8) -> __m256 {
+            unsafe { _mm256_cvtepi32_ps(_mm256_cvtepi8_epi32(_mm_loadl_epi64(p.cast()))) }
         }
         #[inline(always)]
         unsafe fn fma(a: __m256, b: __m256, c: __m256) -> __m256 {
@@ -799,75 +780,32 @@ mod tests {
 
     /// Every path's product with one and two right-hand sides, whole and in two parts of
     /// block rows, against the double-precision product with the matrix as stored (within
-    /// single-precision summation), and the stored matrix against the exact one (within half
-    /// precision's bound of the module's documentation).
+    /// single-precision summation), and the stored matrix against the exact one (within each
+    /// encoding's bound of its documentation).
     #[test]
     fn products_match_the_stored_matrix_on_every_path() {
-        // Half precision: each entry within 2^-11 of itself, or 2^-24 of s_i s_j.
+        // Half precision: each entry within 2^-11 of itself, or 2^-24 of s_i s_j (c = s).
         let half = SymPackedHalf::from_fn(83, entry).expect("finite");
-        products_match_on_every_path(&half, |exact, s| {
-            2f64.powi(-11) * exact.abs() + 2f64.powi(-24) * s
+        products_match_on_every_path(&half, |exact, cc| {
+            2f64.powi(-11) * exact.abs() + 2f64.powi(-24) * cc
         });
         // 24-bit fixed point: each entry within 2^-24 of s_i s_j (the scale's single-precision
         // rounding adds 2^-23 of the entry); s_i s_j is 256 (2^23 - 1) c_i c_j.
         let fixed = SymPacked24::from_fn(83, entry).expect("finite");
-        products_match_on_every_path(&fixed, |exact, c| {
-            2f64.powi(-22) * exact.abs() + 0.5 * 256.0 * c
+        products_match_on_every_path(&fixed, |exact, cc| {
+            2f64.powi(-22) * exact.abs() + 0.5 * 256.0 * cc
         });
+        // 8-bit fixed point: each entry within s_i s_j / 254 = c_i c_j / 2.
+        let fixed8 = SymPacked8::from_fn(83, entry).expect("finite");
+        products_match_on_every_path(&fixed8, |exact, cc| 2f64.powi(-22) * exact.abs() + 0.5 * cc);
     }
 
-    /// A scaled symmetric storage, for the tests common to both.
-    trait Scaled: Clone {
-        fn order(&self) -> usize;
-        fn padded_order(&self) -> usize;
-        fn get(&self, i: usize, j: usize) -> f64;
-        fn scale(&self) -> &[f32];
-        fn set_path(&mut self, path: HalfPath) -> bool;
-        fn rows<const L: usize>(
-            &self,
-            xs: [&[f32]; L],
-            y: [&mut [f64]; L],
-            t: [&mut [f32]; L],
-            blocks: std::ops::Range<usize>,
-        );
-    }
-
-    macro_rules! scaled {
-        ($t:ty) => {
-            impl Scaled for $t {
-                fn order(&self) -> usize {
-                    <$t>::order(self)
-                }
-                fn padded_order(&self) -> usize {
-                    <$t>::padded_order(self)
-                }
-                fn get(&self, i: usize, j: usize) -> f64 {
-                    <$t>::get(self, i, j)
-                }
-                fn scale(&self) -> &[f32] {
-                    <$t>::scale(self)
-                }
-                fn set_path(&mut self, path: HalfPath) -> bool {
-                    <$t>::set_path(self, path)
-                }
-                fn rows<const L: usize>(
-                    &self,
-                    xs: [&[f32]; L],
-                    y: [&mut [f64]; L],
-                    t: [&mut [f32]; L],
-                    blocks: std::ops::Range<usize>,
-                ) {
-                    self.scaled_rows::<L>(xs, y, t, blocks)
-                }
-            }
-        };
-    }
-    scaled!(SymPackedHalf);
-    scaled!(SymPacked24);
-
-    /// The stored matrix against the exact one (within `bound(exact, scale_i scale_j)`), and
-    /// every path's products as the first test's documentation says.
-    fn products_match_on_every_path<A: Scaled>(a: &A, bound: impl Fn(f64, f64) -> f64) {
+    /// The stored matrix against the exact one (within `bound(exact, c_i c_j)`), and every
+    /// path's products as the first test's documentation says.
+    fn products_match_on_every_path<E: Encoding>(
+        a: &SymScaled<E>,
+        bound: impl Fn(f64, f64) -> f64,
+    ) {
         let m = a.order();
         let n = a.padded_order();
         assert_eq!(n, 96);
@@ -905,7 +843,7 @@ mod tests {
                 .max(1e-300)
         };
         let mut paths = 0;
-        for path in [HalfPath::Avx512, HalfPath::Avx2, HalfPath::Scalar] {
+        for path in [ScaledPath::Avx512, ScaledPath::Avx2, ScaledPath::Scalar] {
             let mut a = a.clone();
             if !a.set_path(path) {
                 continue;
@@ -920,7 +858,7 @@ mod tests {
             {
                 let [y0, y1] = &mut y;
                 let [t0, t1] = &mut t;
-                a.rows::<2>([&xs[0], &xs[1]], [y0, y1], [t0, t1], 0..n / BLOCK);
+                a.scaled_rows::<2>([&xs[0], &xs[1]], [y0, y1], [t0, t1], 0..n / BLOCK);
             }
             for (yl, tl) in y.iter_mut().zip(&t) {
                 for ((yj, tj), s) in yl.iter_mut().zip(tl).zip(a.scale()) {
@@ -944,8 +882,8 @@ mod tests {
             let mut lo = vec![0.0f64; m];
             let (y0, y1) = lo.split_at_mut(BLOCK * cut);
             let (mut t0, mut t1) = (vec![0.0f32; n], vec![0.0f32; n]);
-            a.rows::<1>([xs0], [y0], [&mut t0], 0..cut);
-            a.rows::<1>([xs0], [y1], [&mut t1], cut..n / BLOCK);
+            a.scaled_rows::<1>([xs0], [y0], [&mut t0], 0..cut);
+            a.scaled_rows::<1>([xs0], [y1], [&mut t1], cut..n / BLOCK);
             for j in 0..m {
                 let v = (lo[j] + f64::from(t0[j]) + f64::from(t1[j])) * f64::from(a.scale()[j]);
                 assert!(
@@ -955,15 +893,64 @@ mod tests {
                 );
             }
         }
-        assert!(paths >= 1 && HalfPath::Scalar.available());
-        assert!(HalfPath::detect().available());
+        assert!(paths >= 1 && E::available(ScaledPath::Scalar));
+        assert!(E::available(E::detect()));
+    }
+
+    /// Each encoding's round trip at the ends of its range and at zero, and its rounding to
+    /// nearest (so that the bounds of the documentation hold with equality at worst).
+    #[test]
+    fn encodings_round_trip_their_range() {
+        fn trip<E: Encoding>(v: f64) -> f64 {
+            let mut u = vec![E::Unit::default(); E::UNITS];
+            E::encode(v, &mut u);
+            E::decode(&u) / E::FACTOR
+        }
+        for v in [-1.0, -0.5, 0.0, 0.25, 1.0] {
+            assert_eq!(trip::<Half>(v), v);
+            assert!((trip::<Fixed24>(v) - v).abs() <= 0.5 / Q24);
+            assert!((trip::<Fixed8>(v) - v).abs() <= 0.5 / Q8);
+        }
+        assert_eq!(trip::<Fixed8>(1.0), 1.0);
+        assert_eq!(trip::<Fixed8>(-1.0), -1.0);
+        // 0.3 * 127 = 38.1 rounds to 38; -0.3 to -38.
+        assert_eq!(trip::<Fixed8>(0.3) * Q8, 38.0);
+        assert_eq!(trip::<Fixed8>(-0.3) * Q8, -38.0);
+        assert_eq!(trip::<Fixed24>(-1.0), -1.0);
     }
 
     #[test]
     fn entries_that_are_not_finite_are_refused() {
         assert!(SymPackedHalf::from_fn(20, |i, j| if i == j { f64::NAN } else { 1.0 }).is_none());
+        assert!(SymPacked8::from_fn(20, |i, j| if i == j { f64::INFINITY } else { 1.0 }).is_none());
         // A zero matrix keeps a unit scale and zero entries.
         let z = SymPackedHalf::from_fn(20, |_, _| 0.0).expect("finite");
         assert!(z.scale()[..20].iter().all(|&s| s == 1.0) && z.get(3, 7) == 0.0);
+    }
+
+    /// The bytes a product streams: the entries by block rows, each encoding's units, and its
+    /// padding.
+    #[test]
+    fn stored_bytes_are_the_encodings_size() {
+        let (m, n) = (83, 96);
+        let entries = packed_offset(n, n);
+        assert_eq!(
+            SymPackedHalf::from_fn(m, entry)
+                .expect("finite")
+                .stored_bytes(),
+            2 * entries
+        );
+        assert_eq!(
+            SymPacked24::from_fn(m, entry)
+                .expect("finite")
+                .stored_bytes(),
+            3 * entries + Fixed24::PAD
+        );
+        assert_eq!(
+            SymPacked8::from_fn(m, entry)
+                .expect("finite")
+                .stored_bytes(),
+            entries
+        );
     }
 }
