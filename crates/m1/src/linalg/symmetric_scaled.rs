@@ -408,7 +408,7 @@ impl<E: Encoding> SymScaled<E> {
 
 /// The symmetric scale of the module's documentation, `s_i = sqrt(max_j |f(i, j)|)` (1 for a
 /// zero row), or `None` if an entry is not finite.
-fn symmetric_scale(m: usize, f: &impl Fn(usize, usize) -> f64) -> Option<Vec<f64>> {
+pub(crate) fn symmetric_scale(m: usize, f: &impl Fn(usize, usize) -> f64) -> Option<Vec<f64>> {
     let mut row_max = vec![0.0f64; m];
     for (i, mx) in row_max.iter_mut().enumerate() {
         for j in 0..m {

@@ -13,7 +13,9 @@ use crate::M1Error;
 use crate::linalg::kernels::{SourceMasks, padded_len};
 use crate::linalg::pair::LazyPair;
 use crate::linalg::symmetric::{SymPacked32, balanced_split, padded_order};
-use crate::linalg::symmetric_scaled::{Encoding, Fixed24, SymPacked8, SymPacked24, SymPackedHalf};
+use crate::linalg::symmetric_scaled::{
+    Encoding, Fixed8, Fixed24, SymPacked8, SymPacked24, SymPackedHalf, symmetric_scale,
+};
 use crate::plant::segment::{
     Channel, Gamma, N_IN, N_STATE, Phi, SegmentArray, SegmentModel, modal_basis, propagate, state,
 };
@@ -152,9 +154,8 @@ pub const PACKED_GRAM_MIN_MODES: usize = 700;
 
 /// Retained modes from which [`CoupledMirror`] streams the Gram matrices by their upper block
 /// triangles in 24-bit fixed point ([`CoupledMirror::set_gram_fixed24`]), where the processor
-/// decodes them with vector instructions
-/// ([`Encoding::vectorised`]): TMT on two
-/// threads at 1000 modes 825-850 against 835-920 us per step, at 700 modes 465-481 against
+/// decodes them with vector instructions ([`Encoding::vectorised`]): TMT on two threads at 1000
+/// modes 825-850 against 835-920 us per step, at 700 modes 465-481 against
 /// 478-505; at 500 modes, where they are whole in single precision, 300-312 against 290-303
 /// (BENCHMARKS.md, twenty-sixth round).
 pub const FIXED24_GRAM_MIN_MODES: usize = 700;
@@ -773,9 +774,7 @@ impl CoupledMirror {
     pub fn set_gram_packed(&mut self, packed: bool) {
         let r = self.r;
         if packed && self.gram_packed.is_none() {
-            let (gg, ld) = (&self.gg32, self.ld32);
-            let kind =
-                |k: usize| SymPacked32::from_fn(r, |i, j| f64::from(gg[i * 2 * ld + k * ld + j]));
+            let kind = |k: usize| SymPacked32::from_fn(r, self.gram_entries(k));
             self.gram_packed = Some(Box::new([kind(0), kind(1)]));
             self.gram_by_kind_scratch();
         } else if !packed {
@@ -793,9 +792,7 @@ impl CoupledMirror {
     pub fn set_gram_fixed24(&mut self, on: bool) {
         let r = self.r;
         if on && self.gram_24.is_none() {
-            let (gg, ld) = (&self.gg32, self.ld32);
-            let kind =
-                |k: usize| SymPacked24::from_fn(r, |i, j| f64::from(gg[i * 2 * ld + k * ld + j]));
+            let kind = |k: usize| SymPacked24::from_fn(r, self.gram_entries(k));
             // The single-precision Gram matrices are finite (checked when formed).
             if let (Some(p), Some(t)) = (kind(0), kind(1)) {
                 self.gram_24 = Some(Box::new([p, t]));
@@ -812,6 +809,12 @@ impl CoupledMirror {
         self.gram_24.is_some()
     }
 
+    /// Entry `(i, j)` of the Gram matrix of kind `k` (0 piston, 1 tilt), from `gg32`.
+    fn gram_entries(&self, k: usize) -> impl Fn(usize, usize) -> f64 + '_ {
+        let (gg, ld) = (&self.gg32, self.ld32);
+        move |i, j| f64::from(gg[i * 2 * ld + k * ld + j])
+    }
+
     /// The scratch of the Gram matrices' products by kind, sized.
     fn gram_by_kind_scratch(&mut self) {
         let (r, n) = (self.r, padded_order(self.r));
@@ -825,9 +828,9 @@ impl CoupledMirror {
     /// ([`Self::set_coupling_single`]). The correction is a small term of the solve (about 4e-7
     /// of it in norm for the voice coil, 8e-5 for the piezo), so its entries need less
     /// precision than the rest: the default from [`HALF_CORRECTION_MIN_MODES`] modes is
-    /// [`Self::correction_default`], the fewest bits whose rounding bound
-    /// ([`Self::correction_rounding_bound`]) stays within single precision's. The test
-    /// `correction_in_half_precision_matches_double` bounds the mirror's response to wind, a
+    /// [`Self::correction_default`], 8 bits where their rounding bound
+    /// ([`Self::correction_rounding_bound`]) is within [`FIXED8_CORRECTION_MAX_BOUND`], half
+    /// precision otherwise. The test `correction_in_fewer_bits_matches_double` bounds the mirror's response to wind, a
     /// command, a static load and a pier vibration against double precision with each storage.
     /// A correction with an entry that is not finite stays in single precision. The Gram
     /// matrices are not small terms: rounded to half precision they moved the mirror's response
@@ -864,12 +867,10 @@ impl CoupledMirror {
     /// `s_i = sqrt(max_j |K_ij|)`; [`crate::linalg::symmetric_scaled`]).
     pub fn correction_rounding_bound(&self, storage: CorrectionStorage) -> f64 {
         let (r, k, d) = (self.r, &self.corr32, &self.d_half);
-        let s: Vec<f64> = (0..r)
-            .map(|i| {
-                let mx = (0..r).fold(0.0f64, |mx, j| mx.max(f64::from(k.get(i, j)).abs()));
-                if mx > 0.0 { mx.sqrt() } else { 1.0 }
-            })
-            .collect();
+        // The scale the scaled storages take (`None`: an entry not finite, no bound).
+        let Some(s) = symmetric_scale(r, &|i, j| f64::from(k.get(i, j))) else {
+            return f64::INFINITY;
+        };
         let e = |i: usize, j: usize| {
             let kij = f64::from(k.get(i, j)).abs();
             match storage {
@@ -889,7 +890,7 @@ impl CoupledMirror {
     /// vector instructions, else half precision (the piezo, whose correction is 200 times
     /// larger).
     pub fn correction_default(&self) -> CorrectionStorage {
-        if crate::linalg::symmetric_scaled::Fixed8::vectorised()
+        if Fixed8::vectorised()
             && self.correction_rounding_bound(CorrectionStorage::Fixed8)
                 <= FIXED8_CORRECTION_MAX_BOUND
         {
