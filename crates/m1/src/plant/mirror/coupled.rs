@@ -381,8 +381,6 @@ pub struct CoupledMirror {
     pub(super) free_out: [Vec<f64>; 2],
     // Scratch.
     pub(super) scratch: [Vec<f64>; 2],
-    /// Right-hand side of the coupled solve: `h` (r), then `[psi_p; psi_t]` (2r).
-    pub(super) rhs: Vec<f64>,
     pub(super) psi: Vec<f64>,
     /// The cell-driven part's drive change at the sample, by kind (2r), and the modal force's
     /// jump at the sample (r: the free part's, and outside the one-pass form the cell-driven
@@ -718,7 +716,6 @@ impl CoupledMirror {
                 vec![0.0; r * free_rows(FREE_CHUNK_TICKS)],
             ],
             scratch: [vec![0.0; r * N_STATE], vec![0.0; r * N_STATE]],
-            rhs: vec![0.0; r],
             psi: vec![0.0; 2 * r],
             drive_step: vec![0.0; 2 * r],
             jump: vec![0.0; r],

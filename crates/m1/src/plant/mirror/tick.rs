@@ -11,15 +11,21 @@ use crate::linalg::kernels::{
     SourceMasks, axpy, rows_dot, rows_dot_f32, rows_dot2_f32, rows_map, state_map,
 };
 use crate::linalg::pair::{LazyPair, Pair};
-use crate::linalg::symmetric::{BLOCK, SymPacked32, add_columns, sym_dot_f32, sym_dot_rows_f32};
+use crate::linalg::symmetric::{BLOCK, SymPacked32, sym_dot_f32, sym_dot_rows_f32};
 use crate::linalg::symmetric_scaled::{SymPacked8, SymPacked24, SymPackedHalf};
 use crate::plant::segment::{N_STATE, state};
 use nalgebra::{SMatrix, SVector};
+use std::ops::Range;
 
 impl CoupledMirror {
     /// One coupled tick, entirely on the modes: the segments' response to the cell motion is
     /// carried per mode (identical segments: the channel dynamics commute with the mode shapes).
-    /// Modal arrays are state-major (`[s * r + j]`), so every update is a run of axpys.
+    /// Modal arrays are state-major (`[s * r + j]`), so every update is a run of axpys. The
+    /// per-mode work between the passes over the large matrices is done in as few passes over
+    /// the modes as its order allows ([`TickStart`], [`CorrectionInput`], [`TickEnd`]): at 1000
+    /// modes the Gram pass just before each of them has pushed their arrays out of the core's
+    /// L2, so each array read costs a read from the L3 (BENCHMARKS.md, twenty-sixth and
+    /// twenty-eighth rounds).
     #[inline(always)]
     fn tick<S: pulp::Simd, const LARGE: bool>(
         &mut self,
@@ -29,37 +35,30 @@ impl CoupledMirror {
         at: (usize, usize),
     ) {
         let r = self.r;
-        // The free part's modal force and drive change over this tick, from the chunk's
-        // composed map ([`Self::free_ticks`]): tick `i` of `len`.
-        let (i, len) = at;
-        let [o0, o1] = &self.free_out;
-        let row = |k: usize| k * r..(k + 1) * r;
-        let (fr, jr) = (row(N_STATE + i), row(N_STATE + len + i));
-        for (((h, j), (f0, f1)), (d0, d1)) in self
-            .rhs
-            .iter_mut()
-            .zip(self.jump.iter_mut())
-            .zip(o0[fr.clone()].iter().zip(&o1[fr]))
-            .zip(o0[jr.clone()].iter().zip(&o1[jr]))
-        {
-            *h = f0 + f1;
-            *j = if sample { d0 + d1 } else { 0.0 };
-        }
         // The drive jumps at the sample and is held over the tick: the modal force starts the
         // tick at the end value of the last one plus that jump, then ramps (the continuous
-        // part of the cell force is what varies within the tick). The free part's jump is on
-        // the modes already (`jump`); the cell-driven part's is `g = [G_p, G_t] drive_step`.
-        // In single precision a sample's tick takes g from the solve's own pass over the Gram
-        // matrices (`split`, below) and adds it after the solve; otherwise it comes first.
+        // part of the cell force is what varies within the tick). The free part's jump is
+        // the free chunk's drive rows (on the modes already); the cell-driven part's is
+        // `g = [G_p, G_t] drive_step`. In single precision a sample's tick takes g from the
+        // solve's own pass over the Gram matrices (`split`, below) and adds it after the
+        // solve; otherwise it comes first, into `jump`.
         let (split, ld) = (sample && self.coupling_single, self.ld32);
         if split {
             // The modal terms first (they do not wait for g here), so that each kind's pass
             // finishes its own right-hand side, in single precision too, on the thread that
             // then reads it in the pass over its Gram matrix.
-            self.hold_inputs(pier_z);
-            self.modal_terms(false);
+            let (start, [d0, d1], _) = self.tick_start(pier_z, at);
+            let (d0, d1) = (&d0[..r], &d1[..r]);
+            start.run(|j| d0[j] + d1[j]);
             self.tick_channels::<S, LARGE>(simd, sample, true);
         } else {
+            if sample {
+                let [o0, o1] = &self.free_out;
+                let (_, jr) = free_rows(r, at);
+                for ((j, d0), d1) in self.jump.iter_mut().zip(&o0[jr.clone()]).zip(&o1[jr]) {
+                    *j = d0 + d1;
+                }
+            }
             self.tick_channels::<S, LARGE>(simd, sample, false);
             if sample {
                 kinds_to_f32(&mut self.drive32, &self.drive_step, r, ld);
@@ -73,10 +72,15 @@ impl CoupledMirror {
                     &mut self.jump,
                 );
             }
-            self.hold_inputs(pier_z);
-            self.modal_terms(true);
+            let (start, _, jump) = self.tick_start(pier_z, at);
+            if sample {
+                let jump = &jump[..r];
+                start.run(|j| jump[j]);
+            } else {
+                start.run(|_| 0.0);
+            }
+            self.add_modal_terms();
         }
-        self.u_new.copy_from_slice(&self.rhs);
         if split {
             // With psi_0 the right-hand side before the jump g (a = a_0 + alpha g),
             // y = G psi_0 and W M alpha = (W - I) beta, beta = alpha / b1:
@@ -84,9 +88,10 @@ impl CoupledMirror {
             // together, one over the small correction W - I (stored by half) gives u+ (the
             // traffic of 1.25 r x 2r passes instead of 2). `psi32` and `drive32` are the
             // channel passes' (`tick_channels`).
-            if LARGE && (self.gram_24.is_some() || self.gram_packed.is_some()) {
+            let by_kind = LARGE && (self.gram_24.is_some() || self.gram_packed.is_some());
+            if by_kind {
                 // By kind, each with its own results and column sums (on one thread in the
-                // same order as on two, so the same bits), then summed.
+                // same order as on two, so the same bits), summed where they are read.
                 let (ps, dr) = (&self.psi32, &self.drive32);
                 let [[y0, y1], [y2, y3]] = &mut self.gram_y;
                 let [[t0, t1], [t2, t3]] = &mut self.gram_t;
@@ -125,13 +130,6 @@ impl CoupledMirror {
                     };
                     both(simd, pair, piston, tilt);
                 }
-                let [[y0, y1], [y2, y3]] = &self.gram_y;
-                let (gpsi, gjump) = (&mut self.gpsi[..r], &mut self.gjump[..r]);
-                let (y0, y1, y2, y3) = (&y0[..r], &y1[..r], &y2[..r], &y3[..r]);
-                for j in 0..r {
-                    gpsi[j] = y0[j] + y2[j];
-                    gjump[j] = y1[j] + y3[j];
-                }
             } else {
                 self.gpsi.fill(0.0);
                 self.gjump.fill(0.0);
@@ -145,23 +143,23 @@ impl CoupledMirror {
                 }
                 .split(simd, pair::<LARGE>(&mut self.pair, self.two_threads));
             }
-            // W - I = D^-1 K D, K symmetric (stored by its upper block triangle). The per-mode
-            // loops run over slices cut to r, so that they vectorise.
-            let (gpsi, gjump, d_half) = (&self.gpsi[..r], &self.gjump[..r], &self.d_half[..r]);
+            // W - I = D^-1 K D, K symmetric (stored by its upper block triangle): its input
+            // D (y + beta g), scaled by the stored matrix's own scale where it has one.
             let low = self.corr_low.as_ref().filter(|_| LARGE);
-            {
-                let (beta, win, u_new) =
-                    (&self.beta[..r], &mut self.win32[..r], &mut self.u_new[..r]);
-                for j in 0..r {
-                    let x = gpsi[j] + beta[j] * gjump[j];
-                    win[j] = (d_half[j] * x) as f32;
-                    u_new[j] += gpsi[j];
-                }
-                if let Some(h) = low {
-                    for (w, s) in win.iter_mut().zip(h.scale()) {
-                        *w *= s;
-                    }
-                }
+            let input = CorrectionInput {
+                beta: &self.beta,
+                d_half: &self.d_half,
+                scale: low.map(LowCorrection::scale),
+                win: &mut self.win32[..r],
+                u_new: &mut self.u_new[..r],
+            };
+            if by_kind {
+                let [[y0, y1], [y2, y3]] = &self.gram_y;
+                let (y0, y1, y2, y3) = (&y0[..r], &y1[..r], &y2[..r], &y3[..r]);
+                input.run(|j| (y0[j] + y2[j], y1[j] + y3[j]));
+            } else {
+                let (gpsi, gjump) = (&self.gpsi[..r], &self.gjump[..r]);
+                input.run(|j| (gpsi[j], gjump[j]));
             }
             // From [`TWO_THREADS_MIN_MODES`] in two parts of block rows with about the same
             // stored entries, each with its own column sums (on one thread the same two parts,
@@ -195,58 +193,70 @@ impl CoupledMirror {
                     lo,
                     hi,
                 );
-                add_columns(&mut self.corr[..r], &self.corr_t, 0);
-                add_columns(&mut self.corr[..r], &self.corr_t2, cut);
-                if let Some(h) = low {
-                    for (c, s) in self.corr[..r].iter_mut().zip(h.scale()) {
-                        *c *= f64::from(*s);
-                    }
-                }
+                let t = [&self.corr_t[..r], &self.corr_t2[..r]];
+                finish_parts(&mut self.corr[..r], t, cut, low.map(LowCorrection::scale));
             }
-            let (corr, u_new) = (&self.corr[..r], &mut self.u_new[..r]);
-            for j in 0..r {
-                u_new[j] += corr[j] / d_half[j];
+            // The rest of u+, the cell-driven jump into the tick's start force and the free
+            // response, and the modes at the end of the tick.
+            let end = TickEnd {
+                corr: &self.corr,
+                d_half: &self.d_half,
+                u_new: &self.u_new,
+                alpha: &self.alpha,
+                drive_d: self.drive_d,
+                cols: &self.cols,
+                modes: ModeUpdate::new(
+                    &self.a_mode,
+                    &self.b0,
+                    &self.b1,
+                    &mut self.q[..r],
+                    &mut self.v[..r],
+                    &mut self.u[..r],
+                ),
+            };
+            if by_kind {
+                let [[_, y1], [_, y3]] = &self.gram_y;
+                let (y1, y3) = (&y1[..r], &y3[..r]);
+                end.run(|j| y1[j] + y3[j]);
+            } else {
+                let gjump = &self.gjump[..r];
+                end.run(|j| gjump[j]);
             }
-            // The cell-driven jump into the tick's start force and the free response.
-            let (alpha, dd) = (&self.alpha[..r], self.drive_d);
-            let (u, cols) = (&mut self.u[..r], &mut self.cols[..r]);
-            for j in 0..r {
-                u[j] += dd * gjump[j];
-                cols[j] += alpha[j] * gjump[j];
-            }
-        } else if self.coupling_single {
-            kinds_to_f32(&mut self.psi32, &self.psi, r, ld);
-            RowsDot {
-                a: &self.wg32,
-                lda: 2 * ld,
-                m: r,
-                k: 2 * ld,
-                x: [&self.psi32],
-                y: [&mut self.u_new],
-            }
-            .split(simd, pair::<LARGE>(&mut self.pair, self.two_threads));
         } else {
-            rows_dot::<S, 1>(
-                simd,
-                &self.wg,
-                2 * r,
-                r,
-                2 * r,
-                [&self.psi],
-                [&mut self.u_new],
+            if self.coupling_single {
+                kinds_to_f32(&mut self.psi32, &self.psi, r, ld);
+                RowsDot {
+                    a: &self.wg32,
+                    lda: 2 * ld,
+                    m: r,
+                    k: 2 * ld,
+                    x: [&self.psi32],
+                    y: [&mut self.u_new],
+                }
+                .split(simd, pair::<LARGE>(&mut self.pair, self.two_threads));
+            } else {
+                rows_dot::<S, 1>(
+                    simd,
+                    &self.wg,
+                    2 * r,
+                    r,
+                    2 * r,
+                    [&self.psi],
+                    [&mut self.u_new],
+                );
+            }
+            // Modes at the end of the tick.
+            let (u_new, cols) = (&self.u_new[..r], &self.cols[..r]);
+            let mut modes = ModeUpdate::new(
+                &self.a_mode,
+                &self.b0,
+                &self.b1,
+                &mut self.q[..r],
+                &mut self.v[..r],
+                &mut self.u[..r],
             );
-        }
-        // Modes at the end of the tick.
-        {
-            let ([.., a2, a3], [_, b0], [b1q, b1v]) = (&self.a_mode, &self.b0, &self.b1);
-            let (a2, a3, b0, b1q, b1v) = (&a2[..r], &a3[..r], &b0[..r], &b1q[..r], &b1v[..r]);
-            let (q, v, u) = (&mut self.q[..r], &mut self.v[..r], &mut self.u[..r]);
-            let (cols, u_new) = (&self.cols[..r], &self.u_new[..r]);
             for j in 0..r {
-                let (qj, vj, u0, u1) = (q[j], v[j], u[j], u_new[j]);
-                q[j] = cols[j] + b1q[j] * u1;
-                v[j] = a2[j] * qj + a3[j] * vj + b0[j] * u0 + b1v[j] * (u1 - u0);
-                u[j] = u1;
+                modes.advance(j, cols[j], modes.u[j], u_new[j]);
             }
         }
         // Cell-driven states: xi+ = Y + ramp q+. The ramp's part is left pending, for the
@@ -258,6 +268,54 @@ impl CoupledMirror {
             std::mem::swap(&mut self.xi[k], &mut self.scratch[k]);
         }
         self.ramp_pending = true;
+    }
+
+    /// The start of tick `i` of a chunk of `len` ([`TickStart`], the pier's new value
+    /// `pier_z` held from here), with the free part's drive change over the tick by kind (the
+    /// chunk's rows, [`Self::free_ticks`]) and the modal force's jump `jump`.
+    #[inline(always)]
+    fn tick_start(
+        &mut self,
+        pier_z: f64,
+        at: (usize, usize),
+    ) -> (TickStart<'_>, [&[f64]; 2], &[f64]) {
+        let r = self.r;
+        // The pier input is held too: a new value loads the modes from the tick's start.
+        let dp = pier_z - self.pier;
+        self.pier = pier_z;
+        let [o0, o1] = &self.free_out;
+        let (fr, jr) = free_rows(r, at);
+        let ([a0, a1, ..], [b0, _], [b1, _]) = (&self.a_mode, &self.b0, &self.b1);
+        let start = TickStart {
+            h: [&o0[fr.clone()], &o1[fr]],
+            pier_gains: self.structure.pier_gains(),
+            a: [a0, a1],
+            b0,
+            b1,
+            q: &self.q,
+            v: &self.v,
+            u: &mut self.u[..r],
+            xs: &mut self.gpsi,
+            cols: &mut self.cols,
+            u_new: &mut self.u_new,
+            drive_d: self.drive_d,
+            dp,
+            pier: pier_z,
+        };
+        (start, [&o0[jr.clone()], &o1[jr]], &self.jump)
+    }
+
+    /// The modes' terms of the solve added to the right-hand side, `psi_k += e_k x` (`x` in
+    /// `gpsi`, [`TickStart`]), where the channel passes do not add them.
+    #[inline(always)]
+    fn add_modal_terms(&mut self) {
+        let r = self.r;
+        let (psi_p, psi_t) = self.psi.split_at_mut(r);
+        let (psi_t, [ep, et]) = (&mut psi_t[..r], self.e);
+        for ((p, t), x) in psi_p.iter_mut().zip(psi_t.iter_mut()).zip(&self.gpsi[..r]) {
+            *p += ep * x;
+            *t += et * x;
+        }
     }
 
     /// Adds the last tick's pending ramp part to the cell-driven states of both kinds, each on
@@ -309,49 +367,6 @@ impl CoupledMirror {
             piston,
             tilt,
         );
-    }
-
-    /// The held inputs into the tick's start: the drive's jump (`jump`) and the pier's change
-    /// into the modal force `u`, the pier into the right-hand side's `h`.
-    #[inline(always)]
-    fn hold_inputs(&mut self, pier_z: f64) {
-        // The pier input is held too: a new value loads the modes from the tick's start.
-        let dp = pier_z - self.pier;
-        self.pier = pier_z;
-        let bp = self.structure.pier_gains();
-        for ((u, jump), b) in self.u.iter_mut().zip(&self.jump).zip(bp) {
-            *u += self.drive_d * jump + dp * b;
-        }
-        // a = free q+ (held and ramp parts of the old modal force): q+ = a + b1_q u+.
-        axpy(&mut self.rhs, pier_z, self.structure.pier_gains());
-    }
-
-    /// The modes' terms of the coupled solve: per mode the free response `abar` (into `cols`)
-    /// and `x = abar + b1 h'` (into `gpsi`, free until the solve's products), added to the
-    /// right-hand side as `psi_k += e_k x` here (`add`) or else by the channel passes.
-    #[inline(always)]
-    fn modal_terms(&mut self, add: bool) {
-        let r = self.r;
-        // u+ = W (h + b_p p) + W G_p (psi_p + e_p a) + W G_t (psi_t + e_t a), with
-        // W = (I - M B1)^-1 = I + W M B1 and W M = e_p W G_p + e_t W G_t, so that
-        // u+ = h' + W G_p (psi_p + e_p a + e_p B1 h') + W G_t (psi_t + e_t a + e_t B1 h'):
-        // one r x 2r product.
-        let ([a0, a1, ..], b0, b1) = (&self.a_mode, &self.b0[0][..r], &self.b1[0][..r]);
-        let (a0, a1, q, v, u) = (&a0[..r], &a1[..r], &self.q[..r], &self.v[..r], &self.u[..r]);
-        let (rhs, cols, xs) = (&self.rhs[..r], &mut self.cols[..r], &mut self.gpsi[..r]);
-        for j in 0..r {
-            let abar = a0[j] * q[j] + a1[j] * v[j] + (b0[j] - b1[j]) * u[j];
-            xs[j] = abar + b1[j] * rhs[j];
-            cols[j] = abar;
-        }
-        if add {
-            let (psi_p, psi_t) = self.psi.split_at_mut(r);
-            let (psi_t, [ep, et]) = (&mut psi_t[..r], self.e);
-            for ((p, t), x) in psi_p.iter_mut().zip(psi_t.iter_mut()).zip(&*xs) {
-                *p += ep * x;
-                *t += et * x;
-            }
-        }
     }
 
     /// The cell-driven channels of both kinds (0 piston, 1 tilt) over one tick of
@@ -650,7 +665,7 @@ struct ChannelKind<'a> {
     scratch: &'a mut [f64],
     psi: &'a mut [f64],
     drive_step: Option<&'a mut [f64]>,
-    /// With the modes' terms of the solve already known ([`CoupledMirror::modal_terms`]):
+    /// With the modes' terms of the solve already known ([`TickStart`]):
     /// the kind's right-hand side finished here, and in single precision.
     terms: Option<SolveTerms<'a>>,
 }
@@ -735,6 +750,203 @@ impl pulp::WithSimd for RampKind<'_> {
                 axpy(&mut self.xi[s * r..(s + 1) * r], c, self.q);
             }
         }
+    }
+}
+
+/// The rows of a chunk's free output for tick `i` of `len` ([`CoupledMirror::free_ticks`]):
+/// the modal force over the tick and the drive's change at its sample.
+fn free_rows(r: usize, (i, len): (usize, usize)) -> (Range<usize>, Range<usize>) {
+    let row = |k: usize| k * r..(k + 1) * r;
+    (row(N_STATE + i), row(N_STATE + len + i))
+}
+
+/// The per-mode start of a tick ([`CoupledMirror::tick_start`]) in one pass: the held inputs
+/// into the start force `u` (the drive's jump, and the pier's change through its gains
+/// `b_p`), `h' = h + b_p p` (`h` the free part's modal force over the tick, the sum of the
+/// kinds' rows), the modes' free response `abar` (into `cols`), `x = abar + b1 h'` (into
+/// `xs`: the modes' terms of the solve) and `h'` into `u_new` (which the solve adds to).
+struct TickStart<'a> {
+    h: [&'a [f64]; 2],
+    pier_gains: &'a [f64],
+    a: [&'a [f64]; 2],
+    b0: &'a [f64],
+    b1: &'a [f64],
+    q: &'a [f64],
+    v: &'a [f64],
+    u: &'a mut [f64],
+    xs: &'a mut [f64],
+    cols: &'a mut [f64],
+    u_new: &'a mut [f64],
+    /// The drive's feedthrough into the cell force.
+    drive_d: f64,
+    /// The pier's change from the last tick, and its value held over this one.
+    dp: f64,
+    pier: f64,
+}
+
+impl TickStart<'_> {
+    /// With the modal force's jump at the tick's start by mode (`jump`).
+    #[inline(always)]
+    fn run(self, jump: impl Fn(usize) -> f64) {
+        let r = self.u.len();
+        let ([h0, h1], [a0, a1]) = (self.h.map(|h| &h[..r]), self.a.map(|a| &a[..r]));
+        let (bp, b0, b1) = (&self.pier_gains[..r], &self.b0[..r], &self.b1[..r]);
+        let (q, v, u) = (&self.q[..r], &self.v[..r], self.u);
+        let (xs, cols, u_new) = (&mut self.xs[..r], &mut self.cols[..r], &mut self.u_new[..r]);
+        let (dd, dp, pier) = (self.drive_d, self.dp, self.pier);
+        for j in 0..r {
+            let u0 = u[j] + (dd * jump(j) + dp * bp[j]);
+            let h = (h0[j] + h1[j]) + pier * bp[j];
+            // u+ = W (h + b_p p) + W G_p (psi_p + e_p a) + W G_t (psi_t + e_t a), with
+            // W = (I - M B1)^-1 = I + W M B1 and W M = e_p W G_p + e_t W G_t, so that
+            // u+ = h' + W G_p (psi_p + e_p x) + W G_t (psi_t + e_t x): one r x 2r product.
+            let abar = a0[j] * q[j] + a1[j] * v[j] + (b0[j] - b1[j]) * u0;
+            u[j] = u0;
+            xs[j] = abar + b1[j] * h;
+            cols[j] = abar;
+            u_new[j] = h;
+        }
+    }
+}
+
+/// A sample's solve between the pass over the Gram matrices and the correction's, per mode:
+/// from the pass's `y = G psi_0` and `g = G drive_step`, the correction's input
+/// `D (y + beta g)` (in single precision, times the stored correction's own scale where it
+/// has one) into `win`, and `y` added to `u_new`.
+struct CorrectionInput<'a> {
+    beta: &'a [f64],
+    d_half: &'a [f64],
+    scale: Option<&'a [f32]>,
+    win: &'a mut [f32],
+    u_new: &'a mut [f64],
+}
+
+impl CorrectionInput<'_> {
+    /// With `(y_j, g_j)` from `g`.
+    #[inline(always)]
+    fn run(self, g: impl Fn(usize) -> (f64, f64)) {
+        match self.scale {
+            Some(s) => {
+                let s = &s[..self.win.len()];
+                self.each(g, |j, w| w * s[j]);
+            }
+            None => self.each(g, |_, w| w),
+        }
+    }
+
+    #[inline(always)]
+    fn each(self, g: impl Fn(usize) -> (f64, f64), scale: impl Fn(usize, f32) -> f32) {
+        let r = self.win.len();
+        let (beta, d_half) = (&self.beta[..r], &self.d_half[..r]);
+        let (win, u_new) = (self.win, &mut self.u_new[..r]);
+        for j in 0..r {
+            let (y, g) = g(j);
+            win[j] = scale(j, (d_half[j] * (y + beta[j] * g)) as f32);
+            u_new[j] += y;
+        }
+    }
+}
+
+/// The correction's product in two parts of block rows finished in one pass: each part's
+/// column sums `t` (the first part's over every column, the second's from `cut`) added, then
+/// the stored matrix's own scale applied where it has one.
+fn finish_parts(y: &mut [f64], t: [&[f32]; 2], cut: usize, scale: Option<&[f32]>) {
+    #[inline(always)]
+    fn each(y: &mut [f64], [t0, t1]: [&[f32]; 2], cut: usize, f: impl Fn(usize, f64) -> f64) {
+        let r = y.len();
+        let (t0, t1, cut) = (&t0[..r], &t1[..r], cut.min(r));
+        for j in 0..cut {
+            y[j] = f(j, y[j] + f64::from(t0[j]));
+        }
+        for j in cut..r {
+            y[j] = f(j, (y[j] + f64::from(t0[j])) + f64::from(t1[j]));
+        }
+    }
+    match scale {
+        Some(s) => {
+            let s = &s[..y.len()];
+            each(y, t, cut, |j, c| c * f64::from(s[j]));
+        }
+        None => each(y, t, cut, |_, c| c),
+    }
+}
+
+/// The end of a sample's tick in single precision, per mode: the rest of the new modal force
+/// `u+ = u_new + D^-1 corr`, the cell-driven jump `g` into the tick's start force
+/// (`drive_d g`) and into the free response (`alpha g`, `cols`), and the modes.
+struct TickEnd<'a> {
+    corr: &'a [f64],
+    d_half: &'a [f64],
+    u_new: &'a [f64],
+    alpha: &'a [f64],
+    drive_d: f64,
+    cols: &'a [f64],
+    modes: ModeUpdate<'a>,
+}
+
+impl TickEnd<'_> {
+    /// With `g_j` from `g`.
+    #[inline(always)]
+    fn run(self, g: impl Fn(usize) -> f64) {
+        let mut modes = self.modes;
+        let r = modes.q.len();
+        let (corr, d_half, u_new) = (&self.corr[..r], &self.d_half[..r], &self.u_new[..r]);
+        let (alpha, cols, dd) = (&self.alpha[..r], &self.cols[..r], self.drive_d);
+        for j in 0..r {
+            let g = g(j);
+            let u1 = u_new[j] + corr[j] / d_half[j];
+            let u0 = modes.u[j] + dd * g;
+            modes.advance(j, cols[j] + alpha[j] * g, u0, u1);
+        }
+    }
+}
+
+/// The modes over a tick (`q`, `v`, and the modal force at the tick's start `u`), from
+/// their maps' components (`a2`, `a3`, `b0`, `b1q`, `b1v`, `r` long each).
+struct ModeUpdate<'a> {
+    a2: &'a [f64],
+    a3: &'a [f64],
+    b0: &'a [f64],
+    b1q: &'a [f64],
+    b1v: &'a [f64],
+    q: &'a mut [f64],
+    v: &'a mut [f64],
+    u: &'a mut [f64],
+}
+
+impl<'a> ModeUpdate<'a> {
+    /// From the modes' maps (`a_mode`, `b0`, `b1` of [`CoupledMirror`]) and their state, `r`
+    /// long each.
+    #[inline(always)]
+    fn new(
+        a: &'a [Vec<f64>; 4],
+        b0: &'a [Vec<f64>; 2],
+        b1: &'a [Vec<f64>; 2],
+        q: &'a mut [f64],
+        v: &'a mut [f64],
+        u: &'a mut [f64],
+    ) -> Self {
+        let r = q.len();
+        Self {
+            a2: &a[2][..r],
+            a3: &a[3][..r],
+            b0: &b0[1][..r],
+            b1q: &b1[0][..r],
+            b1v: &b1[1][..r],
+            q,
+            v,
+            u,
+        }
+    }
+
+    /// Mode `j` from the tick's free response `cols`, the modal force at the tick's start
+    /// `u0` and at its end `u1`: `q+ = cols + b1q u1`, `v+` from the maps, `u = u1`.
+    #[inline(always)]
+    fn advance(&mut self, j: usize, cols: f64, u0: f64, u1: f64) {
+        let (q, v) = (self.q[j], self.v[j]);
+        self.q[j] = cols + self.b1q[j] * u1;
+        self.v[j] = self.a2[j] * q + self.a3[j] * v + self.b0[j] * u0 + self.b1v[j] * (u1 - u0);
+        self.u[j] = u1;
     }
 }
 
