@@ -16,7 +16,9 @@
 //! the Gram matrices in 24-bit fixed point (`CoupledMirror::set_gram_fixed24`); `e`: as `x` with
 //! the correction in 8-bit fixed point (`CoupledMirror::set_correction_storage`); `d`: the
 //! mirror's defaults for its size; `o`: those defaults with the correction in half precision
-//! (the defaults before the correction's 8-bit storage).
+//! (the defaults before the correction's 8-bit storage); `f`: the defaults with the mode shapes
+//! in single precision (`CoupledMirror::set_shapes_fixed24`; before the twenty-eighth round).
+//! The variants other than `d`, `o` and `f` keep the default storage of the mode shapes.
 //! Three rounds of the variants in turn; each prints the median and the fastest of five
 //! blocks (microseconds per step) and the sum of the last step's |z|, which must agree between
 //! thread counts to every digit.
@@ -67,9 +69,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 | "1o"
                 | "2o"
                 | "ao"
+                | "1f"
+                | "2f"
+                | "af"
         ) {
             return Err(format!(
-                "variant {v:?}: expected 1, 2 or a, each alone or followed by p, h, s, x, e, d or o"
+                "variant {v:?}: expected 1, 2 or a, each alone or followed by p, h, s, x, e, d, o or f"
             )
             .into());
         }
@@ -101,7 +106,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 m.set_two_threads(v.starts_with('2'));
             }
             let suffix = v.chars().nth(1);
-            if !matches!(suffix, Some('d' | 'o')) {
+            if suffix == Some('f') {
+                m.set_shapes_fixed24(false);
+            }
+            if !matches!(suffix, Some('d' | 'o' | 'f')) {
                 m.set_gram_packed(v.len() > 1);
                 m.set_gram_fixed24(v.ends_with('x') || v.ends_with('e'));
             }

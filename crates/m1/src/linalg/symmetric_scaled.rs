@@ -17,7 +17,10 @@
 //!   takes the fewest bits whose rounding bound stays below single precision's.
 //!
 //! One storage, [`SymScaled`], serves all three: only the entries' [`Encoding`] differs (how a
-//! value in `[-1, 1]` is stored and read back into single-precision lanes).
+//! value in `[-1, 1]` is stored and read back into single-precision lanes). The same encodings
+//! store general matrices by rows with each column scaled ([`ColumnScaled`]): the mirror's mode
+//! shapes in 24-bit fixed point, for its passes between the channels and the modes
+//! ([`CoupledMirror::set_shapes_fixed24`](crate::plant::mirror::CoupledMirror::set_shapes_fixed24)).
 //!
 //! **Scaling.** With `s_i = sqrt(max_j |A_ij|)` (1 for a zero row), `A = S A' S`,
 //! `S = diag(s)`, and `|A'_ij| <= |A_ij| / sqrt(|A_ij| |A_ji|) = 1`: the stored entries use
@@ -41,6 +44,9 @@ use half::f16;
 
 use super::kernels::{LINE_F32, prefetch};
 use super::symmetric::{BLOCK, packed_offset, padded_order};
+
+mod column_scaled;
+pub use column_scaled::ColumnScaled;
 
 /// The instructions a [`SymScaled`] product runs on (the widest one an encoding runs on here:
 /// [`Encoding::detect`]).

@@ -7,14 +7,15 @@ use pulp::WithSimd;
 use serde::{Deserialize, Serialize};
 
 use super::maps::{foh_mode, substep_maps};
-use super::projection::{Project, input_columns, padded_rows_f32, row_major};
+use super::projection::{Project, Shapes, input_columns, padded_rows_f32, row_major};
 use super::tick::{CellOutputs, Step};
 use crate::M1Error;
 use crate::linalg::kernels::{SourceMasks, padded_len};
 use crate::linalg::pair::LazyPair;
 use crate::linalg::symmetric::{SymPacked32, balanced_split, padded_order};
 use crate::linalg::symmetric_scaled::{
-    Encoding, Fixed8, Fixed24, SymPacked8, SymPacked24, SymPackedHalf, symmetric_scale,
+    ColumnScaled, Encoding, Fixed8, Fixed24, SymPacked8, SymPacked24, SymPackedHalf,
+    symmetric_scale,
 };
 use crate::plant::segment::{
     Channel, Gamma, N_IN, N_STATE, Phi, SegmentArray, SegmentModel, modal_basis, propagate, state,
@@ -160,6 +161,14 @@ pub const PACKED_GRAM_MIN_MODES: usize = 700;
 /// (BENCHMARKS.md, twenty-sixth round).
 pub const FIXED24_GRAM_MIN_MODES: usize = 700;
 
+/// Retained modes from which [`CoupledMirror`] streams the mode shapes in 24-bit fixed point
+/// ([`CoupledMirror::set_shapes_fixed24`]), where the processor decodes them with vector
+/// instructions ([`Encoding::vectorised`]): TMT on two threads at 1000 modes 648-689 against
+/// 685-711 us per step, at 700 modes 371-395 against 388-415, at 500 modes 252-257 against
+/// 263-271; at 300 modes, where the shapes are half a core's L2 per core, 123-126 against
+/// 119-129 (BENCHMARKS.md, twenty-eighth round).
+pub const FIXED24_SHAPES_MIN_MODES: usize = 500;
+
 /// Most coupled ticks whose free part [`CoupledMirror`] composes into one map (a chunk): the
 /// default 1 ms TMT step (five ticks) is one chunk; the composed map's rows grow with the
 /// chunk (`12 + 2 len`), so a longer step takes several.
@@ -250,6 +259,11 @@ pub struct CoupledMirror {
     /// the modes, outputs back): half the memory traffic, relative error about 1e-7. Rows are
     /// `ld32` long, zero-padded to whole vectors so that the passes have no scalar tail.
     pub(super) phic32: Vec<f32>,
+    /// The same by rows in 24-bit fixed point (each row scaled by its largest entry), read
+    /// instead of `phic32` by the passes between the channels and the modes when present
+    /// ([`Self::set_shapes_fixed24`]).
+    #[serde(default)]
+    pub(super) shapes_24: Option<Box<ColumnScaled<Fixed24>>>,
     /// Row stride of `phic32`, and length of each column of `cols32` and of `acc32`:
     /// [`padded_len`]`(r)`.
     pub(super) ld32: usize,
@@ -658,6 +672,7 @@ impl CoupledMirror {
             b1: std::array::from_fn(|c| b1.iter().map(|b| b[c]).collect()),
             phic: row_major(&phic),
             phic32: padded_rows_f32(&phic, padded_len(r)),
+            shapes_24: None,
             ld32: padded_len(r),
             phit32: if r <= COLUMN_PASS_MAX_MODES {
                 padded_rows_f32(&phic.transpose(), padded_len(na))
@@ -727,6 +742,7 @@ impl CoupledMirror {
         };
         mirror.set_gram_packed(r >= PACKED_GRAM_MIN_MODES);
         mirror.set_gram_fixed24(r >= FIXED24_GRAM_MIN_MODES && Fixed24::vectorised());
+        mirror.set_shapes_fixed24(r >= FIXED24_SHAPES_MIN_MODES && Fixed24::vectorised());
         if r >= HALF_CORRECTION_MIN_MODES {
             mirror.set_correction_storage(mirror.correction_default());
         }
@@ -804,6 +820,30 @@ impl CoupledMirror {
     /// ([`Self::set_gram_fixed24`]).
     pub fn gram_fixed24(&self) -> bool {
         self.gram_24.is_some()
+    }
+
+    /// Streams the mode shapes of the passes between the channels and the modes (the inputs
+    /// onto the modes, the mirror's displacement and the cell's outputs back) by rows in 24-bit
+    /// fixed point ([`ColumnScaled`]: three quarters of single precision's traffic, each entry
+    /// within `6e-8` of its row's largest) (`true`, the default from
+    /// [`FIXED24_SHAPES_MIN_MODES`] modes where the processor decodes them with vector
+    /// instructions) or in single precision (`false`). Up to [`COLUMN_PASS_MAX_MODES`] modes
+    /// the displacement's pass back reads the shapes' single-precision columns either way.
+    pub fn set_shapes_fixed24(&mut self, on: bool) {
+        if on && self.shapes_24.is_none() {
+            let (r, phic) = (self.r, &self.phic);
+            // The shapes are finite (checked when the structure's modes are solved).
+            self.shapes_24 =
+                ColumnScaled::from_fn(self.na, r, |i, j| phic[i * r + j]).map(Box::new);
+        } else if !on {
+            self.shapes_24 = None;
+        }
+    }
+
+    /// Whether the mode shapes are streamed in 24-bit fixed point
+    /// ([`Self::set_shapes_fixed24`]).
+    pub fn shapes_fixed24(&self) -> bool {
+        self.shapes_24.is_some()
     }
 
     /// Entry `(i, j)` of the Gram matrix of kind `k` (0 piston, 1 tilt), from `gg32`.
@@ -983,23 +1023,23 @@ impl CoupledMirror {
         let samples = self.ticks_in(h)?;
         let ticks = samples * u64::from(self.substeps);
         let inputs = 1.0 / inputs_every.max(1) as f64;
-        let shapes = if self.phit32.is_empty() {
-            vec![(
-                "mode shapes (single precision): inputs onto the modes (when they change), the \
-                 mirror's displacement back",
+        let (rows, rows_bytes) = match self.shapes_24.as_deref() {
+            Some(a) => (
+                "mode shapes by rows in 24-bit fixed point",
+                a.stored_bytes(),
+            ),
+            None => (
+                "mode shapes by rows (single precision)",
                 std::mem::size_of_val(self.phic32.as_slice()),
-                1.0 + inputs,
-            )]
+            ),
+        };
+        let shapes = if self.phit32.is_empty() {
+            vec![(rows, rows_bytes, 1.0 + inputs)]
         } else {
             vec![
+                (rows, rows_bytes, inputs),
                 (
-                    "mode shapes by rows (single precision): inputs onto the modes, when they \
-                     change",
-                    std::mem::size_of_val(self.phic32.as_slice()),
-                    inputs,
-                ),
-                (
-                    "mode shapes by columns (single precision): the mirror's displacement back",
+                    "mode shapes by columns (single precision)",
                     std::mem::size_of_val(self.phit32.as_slice()),
                     1.0,
                 ),
@@ -1309,7 +1349,7 @@ impl CoupledMirror {
             return;
         }
         let (ld, n) = (self.ld32, self.n_segments);
-        let phic = &self.phic32[..];
+        let phic = Shapes::new(self.shapes_24.as_deref(), &self.phic32);
         let w = [&self.w32[0][..], &self.w32[1][..]];
         let project = |rows, acc, out| Project {
             phic,

@@ -79,6 +79,13 @@
 //! copy, [`crate::linalg::kernels::cols_dot_f32`]): a channel's row of 60 modes is four vectors,
 //! whose reduction across the lanes cost as much as its products (TMT at 60 modes, the mirror
 //! step alone 7 % shorter; BENCHMARKS.md, twenty-second round).
+//! From [`FIXED24_SHAPES_MIN_MODES`] modes, where the processor decodes them with vector
+//! instructions, the shapes are streamed in 24-bit fixed point instead, each mode's column
+//! scaled by its largest entry ([`crate::linalg::symmetric_scaled::ColumnScaled`],
+//! [`CoupledMirror::set_shapes_fixed24`]): three quarters of single precision's traffic, the
+//! response within twice what single precision moves it (tested against double precision with
+//! the other storages), and TMT's step 3-5 % shorter at 500 to 1000 modes (BENCHMARKS.md,
+//! twenty-eighth round).
 //!
 //! **The coupled solve per tick.** With $W = (I - M B_1)^{-1}$ the solve reads
 //! $u_{n+1} = h' + W G \psi$, where $G = [G_p, G_t]$ are the Gram matrices of the shapes'
@@ -181,8 +188,8 @@ mod tick;
 
 pub use coupled::{
     COLUMN_PASS_MAX_MODES, CorrectionStorage, CoupledMirror, FIXED8_CORRECTION_MAX_BOUND,
-    FIXED24_GRAM_MIN_MODES, HALF_CORRECTION_MIN_MODES, PACKED_GRAM_MIN_MODES,
-    SHARED_CACHE_MIN_MODES, SINGLE_COUPLING_MIN_MODES, THREADS_CHECK_STEPS, THREADS_TRIAL_BLOCK,
-    THREADS_TRIAL_STEPS, THREADS_TRIAL_WARM, TWO_THREADS_MIN_MODES,
+    FIXED24_GRAM_MIN_MODES, FIXED24_SHAPES_MIN_MODES, HALF_CORRECTION_MIN_MODES,
+    PACKED_GRAM_MIN_MODES, SHARED_CACHE_MIN_MODES, SINGLE_COUPLING_MIN_MODES, THREADS_CHECK_STEPS,
+    THREADS_TRIAL_BLOCK, THREADS_TRIAL_STEPS, THREADS_TRIAL_WARM, TWO_THREADS_MIN_MODES,
 };
 pub use maps::foh_mode;

@@ -5,6 +5,23 @@
 use nalgebra::DMatrix;
 
 use crate::linalg::kernels::{cols_dot_f32, rows_axpy2_f32, rows_dot_f32, rows_dot2_f32};
+use crate::linalg::symmetric_scaled::{ColumnScaled, Fixed24};
+
+/// The mode shapes by channel rows as the passes read them: in single precision (rows `ld`
+/// long, zero-padded), or scaled by rows in 24-bit fixed point
+/// ([`super::CoupledMirror::set_shapes_fixed24`]).
+#[derive(Clone, Copy)]
+pub(super) enum Shapes<'a> {
+    Single(&'a [f32]),
+    Fixed24(&'a ColumnScaled<Fixed24>),
+}
+
+impl<'a> Shapes<'a> {
+    /// The 24-bit storage where there is one, else the single-precision one.
+    pub(super) fn new(fixed: Option<&'a ColumnScaled<Fixed24>>, single: &'a [f32]) -> Self {
+        fixed.map_or(Self::Single(single), Self::Fixed24)
+    }
+}
 
 /// The two input columns the ticks use (command, wind) of an `r x N_IN` column-major block.
 pub(super) fn input_columns(w: &mut [f64], r: usize) -> (&mut [f64], &mut [f64]) {
@@ -19,7 +36,7 @@ pub(super) fn input_columns(w: &mut [f64], r: usize) -> (&mut [f64], &mut [f64])
 /// inputs are unchanged: `kinds`); `w[kind]` is the kind's command column then its wind column.
 /// Two ranges of rows give two parts of a kind's sums, which two threads may compute at once.
 pub(super) struct Project<'a> {
-    pub(super) phic: &'a [f32],
+    pub(super) phic: Shapes<'a>,
     /// Row stride of `phic` (its rows zero-padded to whole vectors).
     pub(super) ld: usize,
     pub(super) n: usize,
@@ -50,16 +67,20 @@ impl pulp::WithSimd for Project<'_> {
             }
             let x = self.w[kind];
             let (i0, i1, count) = (lo - kinds.start, hi - kinds.start, kinds.len());
-            rows_axpy2_f32::<S>(
-                simd,
-                &self.phic[lo * ld..],
-                ld,
-                hi - lo,
-                ld,
-                [&x[i0..i1], &x[count + i0..count + i1]],
-                [yu, yf],
-                [&mut *a0, &mut *a1],
-            );
+            let x = [&x[i0..i1], &x[count + i0..count + i1]];
+            match self.phic {
+                Shapes::Single(a) => rows_axpy2_f32::<S>(
+                    simd,
+                    &a[lo * ld..],
+                    ld,
+                    hi - lo,
+                    ld,
+                    x,
+                    [yu, yf],
+                    [&mut *a0, &mut *a1],
+                ),
+                Shapes::Fixed24(a) => a.tdot2(lo..hi, x, [yu, yf], [&mut *a0, &mut *a1]),
+            }
         }
     }
 }
@@ -68,7 +89,7 @@ impl pulp::WithSimd for Project<'_> {
 /// `0..n`, tilt `n..3n`; `cols` holds the `C` columns of each kind in turn, each `ld` long and
 /// zero past `r`): `out` is the `C` output columns over `rows`.
 pub(super) struct Reconstruct<'a, const C: usize> {
-    pub(super) phic: &'a [f32],
+    pub(super) phic: Shapes<'a>,
     /// Row stride of `phic` (its rows zero-padded to whole vectors), and length of each
     /// column of `cols`.
     pub(super) ld: usize,
@@ -96,7 +117,15 @@ impl<const C: usize> pulp::WithSimd for Reconstruct<'_, C> {
             for o in out.iter_mut() {
                 o[at.clone()].fill(0.0);
             }
-            let a = &self.phic[lo * ld..];
+            let a = match self.phic {
+                Shapes::Single(a) => &a[lo * ld..],
+                Shapes::Fixed24(a) => {
+                    let x: [&[f32]; C] = std::array::from_fn(|c| &cols[c * ld..(c + 1) * ld]);
+                    let mut o = out.each_mut().map(|o| &mut o[at.clone()]);
+                    a.dot::<C>(lo..hi, x, o.each_mut().map(|o| &mut **o));
+                    continue;
+                }
+            };
             match &mut out[..] {
                 [o0] => rows_dot_f32::<S>(simd, a, ld, hi - lo, ld, cols, &mut o0[at]),
                 [o0, o1] => rows_dot2_f32::<S>(

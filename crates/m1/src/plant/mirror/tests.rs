@@ -483,6 +483,8 @@ fn two_threads_give_the_same_values_to_the_bit() {
         (&tmt, SegmentModel::voice_coil(), 520, 1, true, false),
         (&keck, SegmentModel::piezo(), 60, 2, true, false),
     ] {
+        // The Gram matrices in 24-bit fixed point with the shapes so too (the largest
+        // models' defaults); at 520 modes the shapes so by default.
         let cell = CellModel::new(layout, &CellParams::default())
             .expect("cell")
             .modes()
@@ -505,6 +507,13 @@ fn two_threads_give_the_same_values_to_the_bit() {
         one.set_two_threads(false);
         one.set_gram_packed(packed);
         one.set_gram_fixed24(fixed24);
+        assert_eq!(
+            one.shapes_fixed24(),
+            modes >= FIXED24_SHAPES_MIN_MODES && Fixed24::vectorised()
+        );
+        if fixed24 {
+            one.set_shapes_fixed24(true);
+        }
         let mut two = one.clone();
         two.set_two_threads(true);
         assert!(two.two_threads() && !one.two_threads());
@@ -578,9 +587,16 @@ fn correction_in_fewer_bits_matches_double() {
         ("voice coil", SegmentModel::voice_coil(), eight),
         ("piezo", SegmentModel::piezo(), CorrectionStorage::Half),
     ] {
-        let base =
+        let mut base =
             CoupledMirror::new(tmt.n_segments(), model, cell.clone(), modes, 0.02, 1).expect("m");
         assert!(base.coupling_single() && !base.gram_fixed24());
+        // The shapes in 24-bit fixed point from FIXED24_SHAPES_MIN_MODES (checked below, as a
+        // form of their own).
+        assert_eq!(
+            base.shapes_fixed24(),
+            modes >= FIXED24_SHAPES_MIN_MODES && Fixed24::vectorised()
+        );
+        base.set_shapes_fixed24(false);
         assert_eq!(base.correction_storage(), default, "{name}");
         // The bounds that chose it: 8 bits within FIXED8_CORRECTION_MAX_BOUND for the voice
         // coil (measured 6.6e-7), not for the piezo (1.4e-4), whose half precision has 6.2e-8;
@@ -609,7 +625,9 @@ fn correction_in_fewer_bits_matches_double() {
         double.set_coupling_single(false);
         let mut fixed = base.clone();
         fixed.set_gram_fixed24(true);
-        assert!(fixed.gram_fixed24());
+        assert!(fixed.gram_fixed24() && !fixed.shapes_fixed24());
+        let mut shapes = fixed.clone();
+        shapes.set_shapes_fixed24(true);
         let m = [
             double,
             single,
@@ -617,17 +635,18 @@ fn correction_in_fewer_bits_matches_double() {
             with(CorrectionStorage::Fixed8),
             base.clone(),
             fixed,
+            shapes,
         ];
         let na = base.n_actuators();
         let fw = wind(na);
         let load: Vec<f64> = (0..na).map(|i| (i % 7) as f64).collect();
         for case in ["wind, command and pier", "static load", "pier vibration"] {
             let mut m = m.clone();
-            let mut worst = [0.0f64; 5];
+            let mut worst = [0.0f64; 6];
             let mut max_z = 0.0f64;
             // Whether each form's response differs from single precision's (half, 8 bits)
             // and from the default correction's (the 24-bit Gram matrices): each was read.
-            let mut differs = [false; 3];
+            let mut differs = [false; 4];
             let mut z = vec![vec![0.0; na]; m.len()];
             for k in 0..300 {
                 let s = (k as f64 * 0.05).sin();
@@ -654,16 +673,18 @@ fn correction_in_fewer_bits_matches_double() {
                 differs[0] |= z[1] != z[2];
                 differs[1] |= z[1] != z[3];
                 differs[2] |= z[4] != z[5];
+                differs[3] |= z[5] != z[6];
             }
             assert!(max_z > 0.0);
-            let [single_err, half_err, fixed8_err, _, fixed_err] = worst.map(|w| w / max_z);
+            let [single_err, half_err, fixed8_err, _, fixed_err, shapes_err] =
+                worst.map(|w| w / max_z);
             eprintln!(
                 "{name}, {case}: worst z against double precision, of its largest: single \
                  {single_err:.2e}, correction in half precision {half_err:.2e}, in 8 bits \
                  {fixed8_err:.2e}, and the Gram matrices in 24-bit fixed point (with the \
-                 default correction) {fixed_err:.2e}"
+                 default correction) {fixed_err:.2e}, with the shapes so too {shapes_err:.2e}"
             );
-            assert_eq!(differs, [true; 3], "{name}, {case}: a form not read");
+            assert_eq!(differs, [true; 4], "{name}, {case}: a form not read");
             // The 24-bit Gram matrices move the response about as much as single precision
             // does (measured here: the voice coil's pier vibration 1.95e-7 against 9.8e-8, the
             // piezo's static load 2.1e-7 against 1.4e-7 and pier vibration 2.6e-7 against
@@ -673,6 +694,31 @@ fn correction_in_fewer_bits_matches_double() {
                 fixed_err <= 5e-7 && fixed_err <= 2.0 * single_err + 1e-7,
                 "{name}, {case}: {fixed_err:e} {single_err:e}"
             );
+            // The mode shapes in 24-bit fixed point on top of that, no more than twice single
+            // precision either (measured: the voice coil 9.8e-9, 3.0e-7 and 2.3e-7 in the three
+            // cases, the piezo 5.5e-8, 3.0e-7 and 3.4e-7; scaled by rows instead of columns,
+            // the voice coil's static load 6.4e-7).
+            assert!(
+                shapes_err <= 5e-7 && shapes_err <= 2.0 * single_err + 1e-7,
+                "{name}, {case}: {shapes_err:e} {single_err:e}"
+            );
+            // The cell's outputs, from the same shapes (two columns per kind), within
+            // single precision's rounding of those from the shapes in single precision.
+            let [.., fixed, shapes] = &mut m;
+            let (zc, fc) = fixed.cell_outputs();
+            let (zc, fc) = (zc.to_vec(), fc.to_vec());
+            let (zs, fs) = shapes.cell_outputs();
+            for (a, b) in [(&zc, zs), (&fc, fs)] {
+                let top = a.iter().fold(0.0f64, |t, x| t.max(x.abs()));
+                let worst = a
+                    .iter()
+                    .zip(b)
+                    .fold(0.0f64, |w, (x, y)| w.max((x - y).abs()));
+                assert!(
+                    top > 0.0 && worst <= 1e-6 * top,
+                    "{name}, {case}: {worst:e} of {top:e}"
+                );
+            }
             // The correction in fewer bits, where its bound allows them, no more than single
             // precision.
             let mut checked = vec![("half precision", half_err)];
@@ -765,6 +811,25 @@ fn streamed_bytes_follow_the_gram_storage() {
     assert_eq!(reads("mode shapes by rows"), [0.1]);
     assert_eq!(reads("mode shapes by columns"), [1.0]);
     assert_eq!(reads("Gram matrices"), [1.0]);
+    // The shapes by rows in 24-bit fixed point: three quarters of their bytes in single
+    // precision (and the padding the kernels read past the last entry); the columns' copy the
+    // pass back reads up to COLUMN_PASS_MAX_MODES modes stays in single precision.
+    let rows_bytes = |m: &CoupledMirror| {
+        let s = m.streamed_per_step(m.tick_period(), 10).expect("one tick");
+        let rows: Vec<_> = s
+            .iter()
+            .filter(|(name, ..)| name.starts_with("mode shapes by rows"))
+            .map(|&(name, bytes, _)| (name, bytes))
+            .collect();
+        assert_eq!(rows.len(), 1);
+        rows[0]
+    };
+    let (name, single) = rows_bytes(&m);
+    assert!(name.ends_with("(single precision)") && !m.shapes_fixed24());
+    m.set_shapes_fixed24(true);
+    let (name, fixed) = rows_bytes(&m);
+    assert!(name.ends_with("24-bit fixed point") && m.shapes_fixed24());
+    assert_eq!(4 * (fixed - Fixed24::PAD), 3 * single);
 }
 
 /// The automatic choice of threads: only between SHARED_CACHE_MIN_MODES and
@@ -831,8 +896,8 @@ fn the_automatic_choice_of_threads_changes_no_value() {
     assert!(h > 0.0 && h < 1e6, "hand-over {h} ns");
 }
 
-/// A mirror with the large models' forms (two threads, the Gram matrices by half in 24-bit
-/// fixed point, the correction in 8-bit fixed point) goes on after a round trip through its
+/// A mirror with the large models' forms (two threads, the Gram matrices by half and the mode
+/// shapes in 24-bit fixed point, the correction in 8-bit fixed point) goes on after a round trip through its
 /// serialised state (as an FMU's state is saved and restored, by `postcard`) with the outputs of
 /// the original, to the bit, its inputs changing at every step.
 #[test]
@@ -842,6 +907,7 @@ fn a_restored_mirror_goes_on_with_the_large_forms() {
     m.set_two_threads(true);
     m.set_gram_packed(true);
     m.set_gram_fixed24(true);
+    m.set_shapes_fixed24(true);
     m.set_correction_storage(CorrectionStorage::Fixed8);
     let na = m.n_actuators();
     let f = wind(na);
@@ -849,7 +915,7 @@ fn a_restored_mirror_goes_on_with_the_large_forms() {
     m.advance(1e-3, &u, &f, 1e-9).expect("step");
     let bytes = postcard::to_stdvec(&m).expect("serialised");
     let mut restored: CoupledMirror = postcard::from_bytes(&bytes).expect("deserialised");
-    assert!(restored.gram_fixed24() && restored.two_threads());
+    assert!(restored.gram_fixed24() && restored.shapes_fixed24() && restored.two_threads());
     assert_eq!(restored.correction_storage(), CorrectionStorage::Fixed8);
     for k in 0..5 {
         let p = 1e-9 * (k as f64).cos();

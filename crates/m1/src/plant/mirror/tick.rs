@@ -6,7 +6,7 @@
 use super::coupled::{ChannelMaps, CoupledMirror, LowCorrection};
 use pulp::WithSimd;
 
-use super::projection::{Reconstruct, ReconstructCols};
+use super::projection::{Reconstruct, ReconstructCols, Shapes};
 use crate::linalg::kernels::{
     SourceMasks, axpy, rows_dot, rows_dot_f32, rows_dot2_f32, rows_map, state_map,
 };
@@ -447,7 +447,10 @@ impl CoupledMirror {
             }
         }
         let mut outs = std::mem::take(&mut self.out);
-        let (phic, cols) = (&self.phic32[..], &self.cols32[..2 * ld]);
+        let (phic, cols) = (
+            Shapes::new(self.shapes_24.as_deref(), &self.phic32),
+            &self.cols32[..2 * ld],
+        );
         let (phit, ldt) = (&self.phit32[..], self.ldt);
         // Rows `rows` of the displacement: by the shapes' columns where they are kept, else by
         // their rows.
@@ -542,7 +545,7 @@ impl CoupledMirror {
             let (_, rest) = outs.split_at_mut(na);
             let (o1, o2) = rest.split_at_mut(na);
             Reconstruct::<2> {
-                phic: &self.phic32,
+                phic: Shapes::new(self.shapes_24.as_deref(), &self.phic32),
                 ld,
                 n,
                 rows: 0..na,
