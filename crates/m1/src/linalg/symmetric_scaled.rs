@@ -61,6 +61,16 @@ pub enum ScaledPath {
 }
 
 impl ScaledPath {
+    /// `path` instead of this one where the encoding `E` runs on it here (`true`), else
+    /// unchanged (`false`).
+    fn set<E: Encoding>(&mut self, path: ScaledPath) -> bool {
+        let ok = E::available(path);
+        if ok {
+            *self = path;
+        }
+        ok
+    }
+
     /// Whether this processor has the path's base features (AVX-512F; AVX2, FMA and F16C).
     fn base_available(self) -> bool {
         match self {
@@ -343,11 +353,7 @@ impl<E: Encoding> SymScaled<E> {
     /// Runs the products on `path` instead of the detected one (for tests and comparisons):
     /// `false`, and nothing changed, if this processor cannot run it.
     pub fn set_path(&mut self, path: ScaledPath) -> bool {
-        let ok = E::available(path);
-        if ok {
-            self.path = path;
-        }
-        ok
+        self.path.set::<E>(path)
     }
 
     /// Entry `(i, j)` of `A` as stored (either triangle).

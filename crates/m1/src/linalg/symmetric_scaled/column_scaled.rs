@@ -102,11 +102,7 @@ impl<E: Encoding> ColumnScaled<E> {
     /// Runs the products on `path` instead of the detected one (for tests and comparisons):
     /// `false`, and nothing changed, if this processor cannot run it.
     pub fn set_path(&mut self, path: ScaledPath) -> bool {
-        let ok = E::available(path);
-        if ok {
-            self.path = path;
-        }
-        ok
+        self.path.set::<E>(path)
     }
 
     /// Entry `(i, j)` as stored.
