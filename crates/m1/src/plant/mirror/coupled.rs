@@ -163,7 +163,7 @@ pub const FIXED24_GRAM_MIN_MODES: usize = 700;
 
 /// Retained modes from which [`CoupledMirror`] streams the mode shapes in 24-bit fixed point
 /// ([`CoupledMirror::set_shapes_fixed24`]), where the processor decodes them with vector
-/// instructions ([`Encoding::vectorised`]): TMT on two threads at 1000 modes 648-689 against
+/// instructions ([`Encoding::vectorised`]): TMT on two threads at 1000 modes 610-689 against
 /// 685-711 us per step, at 700 modes 371-395 against 388-415, at 500 modes 252-257 against
 /// 263-271; at 300 modes, where the shapes are half a core's L2 per core, 123-126 against
 /// 119-129 (BENCHMARKS.md, twenty-eighth round).
@@ -259,7 +259,7 @@ pub struct CoupledMirror {
     /// the modes, outputs back): half the memory traffic, relative error about 1e-7. Rows are
     /// `ld32` long, zero-padded to whole vectors so that the passes have no scalar tail.
     pub(super) phic32: Vec<f32>,
-    /// The same by rows in 24-bit fixed point (each row scaled by its largest entry), read
+    /// The same by rows in 24-bit fixed point (each mode's column scaled by its largest entry), read
     /// instead of `phic32` by the passes between the channels and the modes when present
     /// ([`Self::set_shapes_fixed24`]).
     #[serde(default)]
@@ -825,7 +825,7 @@ impl CoupledMirror {
     /// Streams the mode shapes of the passes between the channels and the modes (the inputs
     /// onto the modes, the mirror's displacement and the cell's outputs back) by rows in 24-bit
     /// fixed point ([`ColumnScaled`]: three quarters of single precision's traffic, each entry
-    /// within `6e-8` of its row's largest) (`true`, the default from
+    /// within `6e-8` of its column's largest) (`true`, the default from
     /// [`FIXED24_SHAPES_MIN_MODES`] modes where the processor decodes them with vector
     /// instructions) or in single precision (`false`). Up to [`COLUMN_PASS_MAX_MODES`] modes
     /// the displacement's pass back reads the shapes' single-precision columns either way.
@@ -943,7 +943,7 @@ impl CoupledMirror {
     }
 
     /// Whether a step takes any of the large models' forms (two threads, the Gram matrices by
-    /// half, the correction in two parts or in half precision).
+    /// half, the correction in two parts or in fewer bits).
     pub(super) fn large_forms(&self) -> bool {
         self.two_threads
             || self.gram_packed.is_some()

@@ -8,7 +8,7 @@ use crate::linalg::kernels::{cols_dot_f32, rows_axpy2_f32, rows_dot_f32, rows_do
 use crate::linalg::symmetric_scaled::{ColumnScaled, Fixed24};
 
 /// The mode shapes by channel rows as the passes read them: in single precision (rows `ld`
-/// long, zero-padded), or scaled by rows in 24-bit fixed point
+/// long, zero-padded), or in 24-bit fixed point with each mode's column scaled
 /// ([`super::CoupledMirror::set_shapes_fixed24`]).
 #[derive(Clone, Copy)]
 pub(super) enum Shapes<'a> {
@@ -121,8 +121,7 @@ impl<const C: usize> pulp::WithSimd for Reconstruct<'_, C> {
                 Shapes::Single(a) => &a[lo * ld..],
                 Shapes::Fixed24(a) => {
                     let x: [&[f32]; C] = std::array::from_fn(|c| &cols[c * ld..(c + 1) * ld]);
-                    let mut o = out.each_mut().map(|o| &mut o[at.clone()]);
-                    a.dot::<C>(lo..hi, x, o.each_mut().map(|o| &mut **o));
+                    a.dot::<C>(lo..hi, x, out.each_mut().map(|o| &mut o[at.clone()]));
                     continue;
                 }
             };
