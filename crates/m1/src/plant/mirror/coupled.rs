@@ -155,19 +155,33 @@ pub const PACKED_GRAM_MIN_MODES: usize = 700;
 
 /// Retained modes from which [`CoupledMirror`] streams the Gram matrices by their upper block
 /// triangles in 24-bit fixed point ([`CoupledMirror::set_gram_fixed24`]), where the processor
-/// decodes them with vector instructions ([`Encoding::vectorised`]): TMT on two threads at 1000
-/// modes 825-850 against 835-920 us per step, at 700 modes 465-481 against
-/// 478-505; at 500 modes, where they are whole in single precision, 300-312 against 290-303
-/// (BENCHMARKS.md, twenty-sixth round).
+/// decodes them with one byte permutation per vector ([`Fixed24::permuted`]): on the project's
+/// Intel VM (AVX-512 with VBMI), TMT on two threads at 1000 modes 825-850 against 835-920 us
+/// per step, at 700 modes 465-481 against 478-505; at 500 modes, where they are whole in single
+/// precision, 300-312 against 290-303 (BENCHMARKS.md, twenty-sixth round). On the AVX2 path
+/// their decoding costs more than the traffic it saves: on an AMD EPYC (Zen 1) VM, TMT on two
+/// threads at 1000 modes 1680-1730 us per step in 24 bits against 1510-1532 in single
+/// precision, at 850 modes 1288-1318 against 1138-1163, at 700 modes 902-916 against 790-817
+/// (twenty-ninth round).
 pub const FIXED24_GRAM_MIN_MODES: usize = 700;
 
 /// Retained modes from which [`CoupledMirror`] streams the mode shapes in 24-bit fixed point
-/// ([`CoupledMirror::set_shapes_fixed24`]), where the processor decodes them with vector
-/// instructions ([`Encoding::vectorised`]): TMT on two threads at 1000 modes 610-689 against
-/// 685-711 us per step, at 700 modes 371-395 against 388-415, at 500 modes 252-257 against
-/// 263-271; at 300 modes, where the shapes are half a core's L2 per core, 123-126 against
-/// 119-129 (BENCHMARKS.md, twenty-eighth round).
+/// ([`CoupledMirror::set_shapes_fixed24`]) where the processor decodes them with one byte
+/// permutation per vector ([`Fixed24::permuted`]): on the project's Intel VM (AVX-512 with
+/// VBMI), TMT on two threads at 1000 modes 610-689 against 685-711 us per step, at 700 modes
+/// 371-395 against 388-415, at 500 modes 252-257 against 263-271; at 300 modes, where the
+/// shapes are half a core's L2 per core, 123-126 against 119-129 (BENCHMARKS.md,
+/// twenty-eighth round). Elsewhere from [`FIXED24_SHAPES_AVX2_MIN_MODES`].
 pub const FIXED24_SHAPES_MIN_MODES: usize = 500;
+
+/// Retained modes from which [`CoupledMirror`] streams the mode shapes in 24-bit fixed point
+/// where the processor decodes them on the AVX2 path (two loads, an insert, a byte shuffle and
+/// a conversion per eight entries): on an AMD EPYC (Zen 1) VM, TMT on two threads with the
+/// Gram matrices in single precision at 1000 modes 1510-1532 us per step against 1598-1658 in
+/// single precision, at 850 modes 1138-1163 against 1190-1216; at 700 modes 790-817 against
+/// 780-789 and at 500 modes 477-545 against 449-510, where single precision is faster
+/// (BENCHMARKS.md, twenty-ninth round).
+pub const FIXED24_SHAPES_AVX2_MIN_MODES: usize = 800;
 
 /// Most coupled ticks whose free part [`CoupledMirror`] composes into one map (a chunk): the
 /// default 1 ms TMT step (five ticks) is one chunk; the composed map's rows grow with the
@@ -741,8 +755,8 @@ impl CoupledMirror {
             free_z: vec![0.0; na],
         };
         mirror.set_gram_packed(r >= PACKED_GRAM_MIN_MODES);
-        mirror.set_gram_fixed24(r >= FIXED24_GRAM_MIN_MODES && Fixed24::vectorised());
-        mirror.set_shapes_fixed24(r >= FIXED24_SHAPES_MIN_MODES && Fixed24::vectorised());
+        mirror.set_gram_fixed24(Self::gram_fixed24_default(r));
+        mirror.set_shapes_fixed24(Self::shapes_fixed24_default(r));
         if r >= HALF_CORRECTION_MIN_MODES {
             mirror.set_correction_storage(mirror.correction_default());
         }
@@ -798,8 +812,7 @@ impl CoupledMirror {
     /// Streams the Gram matrices by their upper block triangles in 24-bit fixed point
     /// ([`SymPacked24`]: three quarters of the traffic of [`Self::set_gram_packed`]'s single
     /// precision, each entry within about `6e-8 sqrt(max_j |G_ij| max_j |G_kj|)` of the
-    /// single-precision one) (`true`, the default from [`FIXED24_GRAM_MIN_MODES`] modes where
-    /// the processor decodes them with vector instructions) or not (`false`: the storage of
+    /// single-precision one) (`true`, the default by [`Self::gram_fixed24_default`]) or not (`false`: the storage of
     /// [`Self::set_gram_packed`]). Read instead of that storage by the single-precision
     /// one-pass solve of the large models' step ([`Self::set_coupling_single`]).
     pub fn set_gram_fixed24(&mut self, on: bool) {
@@ -822,12 +835,31 @@ impl CoupledMirror {
         self.gram_24.is_some()
     }
 
+    /// Whether a mirror of `r` retained modes streams the Gram matrices in 24-bit fixed point
+    /// by default on this processor: from [`FIXED24_GRAM_MIN_MODES`] modes where it decodes
+    /// them with one byte permutation per vector ([`Fixed24::permuted`]).
+    pub fn gram_fixed24_default(r: usize) -> bool {
+        r >= FIXED24_GRAM_MIN_MODES && Fixed24::permuted()
+    }
+
+    /// Whether a mirror of `r` retained modes streams the mode shapes in 24-bit fixed point by
+    /// default on this processor: from [`FIXED24_SHAPES_MIN_MODES`] modes where it decodes
+    /// them with one byte permutation per vector ([`Fixed24::permuted`]), from
+    /// [`FIXED24_SHAPES_AVX2_MIN_MODES`] where it decodes them with other vector instructions,
+    /// never on the scalar path.
+    pub fn shapes_fixed24_default(r: usize) -> bool {
+        if Fixed24::permuted() {
+            r >= FIXED24_SHAPES_MIN_MODES
+        } else {
+            r >= FIXED24_SHAPES_AVX2_MIN_MODES && Fixed24::vectorised()
+        }
+    }
+
     /// Streams the mode shapes of the passes between the channels and the modes (the inputs
     /// onto the modes, the mirror's displacement and the cell's outputs back) by rows in 24-bit
     /// fixed point ([`ColumnScaled`]: three quarters of single precision's traffic, each entry
-    /// within `6e-8` of its column's largest) (`true`, the default from
-    /// [`FIXED24_SHAPES_MIN_MODES`] modes where the processor decodes them with vector
-    /// instructions) or in single precision (`false`). Up to [`COLUMN_PASS_MAX_MODES`] modes
+    /// within `6e-8` of its column's largest) (`true`, the default by
+    /// [`Self::shapes_fixed24_default`]) or in single precision (`false`). Up to [`COLUMN_PASS_MAX_MODES`] modes
     /// the displacement's pass back reads the shapes' single-precision columns either way.
     pub fn set_shapes_fixed24(&mut self, on: bool) {
         if on && self.shapes_24.is_none() {

@@ -79,13 +79,15 @@
 //! copy, [`crate::linalg::kernels::cols_dot_f32`]): a channel's row of 60 modes is four vectors,
 //! whose reduction across the lanes cost as much as its products (TMT at 60 modes, the mirror
 //! step alone 7 % shorter; BENCHMARKS.md, twenty-second round).
-//! From [`FIXED24_SHAPES_MIN_MODES`] modes, where the processor decodes them with vector
-//! instructions, the shapes are streamed in 24-bit fixed point instead, each mode's column
-//! scaled by its largest entry ([`crate::linalg::symmetric_scaled::ColumnScaled`],
-//! [`CoupledMirror::set_shapes_fixed24`]): three quarters of single precision's traffic, the
-//! response within twice what single precision moves it (tested against double precision with
-//! the other storages), and TMT's step 3-5 % shorter at 500 to 1000 modes (BENCHMARKS.md,
-//! twenty-eighth round).
+//! From [`FIXED24_SHAPES_MIN_MODES`] modes where the processor decodes them with one byte
+//! permutation per vector (AVX-512 VBMI), from [`FIXED24_SHAPES_AVX2_MIN_MODES`] on the AVX2
+//! path ([`CoupledMirror::shapes_fixed24_default`]), the shapes are streamed in 24-bit fixed
+//! point instead, each mode's column scaled by its largest entry
+//! ([`crate::linalg::symmetric_scaled::ColumnScaled`], [`CoupledMirror::set_shapes_fixed24`]):
+//! three quarters of single precision's traffic, the response within twice what single
+//! precision moves it (tested against double precision with the other storages), and TMT's
+//! step 3-5 % shorter at 500 to 1000 modes on the Intel VM (BENCHMARKS.md, twenty-eighth
+//! round), 4-8 % at 850 to 1000 on an AMD EPYC (Zen 1, twenty-ninth round).
 //!
 //! **The coupled solve per tick.** With $W = (I - M B_1)^{-1}$ the solve reads
 //! $u_{n+1} = h' + W G \psi$, where $G = [G_p, G_t]$ are the Gram matrices of the shapes'
@@ -110,14 +112,16 @@
 //! shorter; BENCHMARKS.md, twenty-seventh round), in half precision otherwise (the piezo,
 //! whose correction is 200 times larger: 1.125). Either way the mirror's response moves by no
 //! more than single precision itself moves it (tested against double precision for a static
-//! load and a pier vibration as well as wind). The Gram matrices need more than half precision: the response to a pier
-//! vibration is a small difference of large terms, and their rounding to half precision moved
-//! it by 1e-4 of its largest value. From [`FIXED24_GRAM_MIN_MODES`] modes, where the processor
-//! decodes it with vector instructions, they are stored in 24-bit fixed point, scaled as the
-//! correction is ([`crate::linalg::symmetric_scaled::SymPacked24`], each entry within about 6e-8
-//! of its row's and column's scale), three quarters of single precision's traffic: the
-//! response moves by at most twice what single precision moves it (tested against double
-//! precision as the correction is), and TMT's step at 1000 modes is 1-8 % shorter on two
+//! load and a pier vibration as well as wind). The Gram matrices need more than half
+//! precision: the response to a pier vibration is a small difference of large terms, and their
+//! rounding to half precision moved it by 1e-4 of its largest value. From
+//! [`FIXED24_GRAM_MIN_MODES`] modes, where the processor decodes them with one byte permutation
+//! per vector (AVX-512 VBMI; on the AVX2 path the decoding costs more than the traffic it
+//! saves, [`CoupledMirror::gram_fixed24_default`]), they are stored in 24-bit fixed point,
+//! scaled as the correction is ([`crate::linalg::symmetric_scaled::SymPacked24`], each entry
+//! within about 6e-8 of its row's and column's scale), three quarters of single precision's
+//! traffic: the response moves by at most twice what single precision moves it (tested against
+//! double precision as the correction is), and TMT's step at 1000 modes is 1-8 % shorter on two
 //! threads, 7-12 % on one (BENCHMARKS.md, twenty-sixth round). Below
 //! [`SINGLE_COUPLING_MIN_MODES`] the double-precision matrix fits a core's L1 cache with room
 //! to spare, and the conversions to single precision cost more than the traffic they save. In single precision (each vector lane sums about `2r / 8`
@@ -188,8 +192,9 @@ mod tick;
 
 pub use coupled::{
     COLUMN_PASS_MAX_MODES, CorrectionStorage, CoupledMirror, FIXED8_CORRECTION_MAX_BOUND,
-    FIXED24_GRAM_MIN_MODES, FIXED24_SHAPES_MIN_MODES, HALF_CORRECTION_MIN_MODES,
-    PACKED_GRAM_MIN_MODES, SHARED_CACHE_MIN_MODES, SINGLE_COUPLING_MIN_MODES, THREADS_CHECK_STEPS,
-    THREADS_TRIAL_BLOCK, THREADS_TRIAL_STEPS, THREADS_TRIAL_WARM, TWO_THREADS_MIN_MODES,
+    FIXED24_GRAM_MIN_MODES, FIXED24_SHAPES_AVX2_MIN_MODES, FIXED24_SHAPES_MIN_MODES,
+    HALF_CORRECTION_MIN_MODES, PACKED_GRAM_MIN_MODES, SHARED_CACHE_MIN_MODES,
+    SINGLE_COUPLING_MIN_MODES, THREADS_CHECK_STEPS, THREADS_TRIAL_BLOCK, THREADS_TRIAL_STEPS,
+    THREADS_TRIAL_WARM, TWO_THREADS_MIN_MODES,
 };
 pub use maps::foh_mode;

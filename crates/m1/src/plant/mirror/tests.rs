@@ -509,7 +509,7 @@ fn two_threads_give_the_same_values_to_the_bit() {
         one.set_gram_fixed24(fixed24);
         assert_eq!(
             one.shapes_fixed24(),
-            modes >= FIXED24_SHAPES_MIN_MODES && Fixed24::vectorised()
+            CoupledMirror::shapes_fixed24_default(modes)
         );
         if fixed24 {
             one.set_shapes_fixed24(true);
@@ -594,7 +594,7 @@ fn correction_in_fewer_bits_matches_double() {
         // form of their own).
         assert_eq!(
             base.shapes_fixed24(),
-            modes >= FIXED24_SHAPES_MIN_MODES && Fixed24::vectorised()
+            CoupledMirror::shapes_fixed24_default(modes)
         );
         base.set_shapes_fixed24(false);
         assert_eq!(base.correction_storage(), default, "{name}");
