@@ -812,9 +812,10 @@ impl CoupledMirror {
     /// Streams the Gram matrices by their upper block triangles in 24-bit fixed point
     /// ([`SymPacked24`]: three quarters of the traffic of [`Self::set_gram_packed`]'s single
     /// precision, each entry within about `6e-8 sqrt(max_j |G_ij| max_j |G_kj|)` of the
-    /// single-precision one) (`true`, the default by [`Self::gram_fixed24_default`]) or not (`false`: the storage of
-    /// [`Self::set_gram_packed`]). Read instead of that storage by the single-precision
-    /// one-pass solve of the large models' step ([`Self::set_coupling_single`]).
+    /// single-precision one) (`true`, the default by [`Self::gram_fixed24_default`]) or not
+    /// (`false`: the storage of [`Self::set_gram_packed`]). Read instead of that storage by the
+    /// single-precision one-pass solve of the large models' step
+    /// ([`Self::set_coupling_single`]).
     pub fn set_gram_fixed24(&mut self, on: bool) {
         let r = self.r;
         if on && self.gram_24.is_none() {
@@ -859,8 +860,9 @@ impl CoupledMirror {
     /// onto the modes, the mirror's displacement and the cell's outputs back) by rows in 24-bit
     /// fixed point ([`ColumnScaled`]: three quarters of single precision's traffic, each entry
     /// within `6e-8` of its column's largest) (`true`, the default by
-    /// [`Self::shapes_fixed24_default`]) or in single precision (`false`). Up to [`COLUMN_PASS_MAX_MODES`] modes
-    /// the displacement's pass back reads the shapes' single-precision columns either way.
+    /// [`Self::shapes_fixed24_default`]) or in single precision (`false`). Up to
+    /// [`COLUMN_PASS_MAX_MODES`] modes the displacement's pass back reads the shapes'
+    /// single-precision columns either way.
     pub fn set_shapes_fixed24(&mut self, on: bool) {
         if on && self.shapes_24.is_none() {
             let (r, phic) = (self.r, &self.phic);
