@@ -108,10 +108,13 @@ fn target_dir() -> PathBuf {
 
 fn run(cmd: &mut Command) -> Result<(), String> {
     eprintln!("+ {cmd:?}");
+    let start = std::time::Instant::now();
     let status = cmd
         .current_dir(root())
         .status()
         .map_err(|e| format!("cannot start {cmd:?}: {e}"))?;
+    // Each step's wall time, so that a CI log shows where the suite's time goes.
+    eprintln!("  ({:.0} s)", start.elapsed().as_secs_f64());
     if status.success() {
         Ok(())
     } else {
@@ -214,9 +217,15 @@ fn test(extra: &[String]) -> Result<(), String> {
         .env("M1CS_CACHE_DIR", &cache))?;
     // The API documentation builds without a warning (broken or private intra-doc links).
     doc(&[])?;
+    // One pytest worker per core (pytest-xdist): the suite is single-threaded Python for most
+    // of its time (fmpy's validation of the ELT and TMT descriptions above all), and
+    // work-stealing evens out its few long cases. Arguments after `test` come last, so an
+    // explicit `-n 0` runs it in one process.
+    let workers = std::thread::available_parallelism().map_or(1, |n| n.get());
     let mut pytest = Command::new(python);
     pytest
         .args(["-m", "pytest", "-q", "tests/python"])
+        .args(["-n", &workers.to_string(), "--dist", "worksteal"])
         .args(extra)
         .env("M1CS_FMU_DIR", target_dir().join("fmu"))
         .env("M1CS_CACHE_DIR", &cache);
