@@ -1,10 +1,12 @@
-//! Numerical building blocks: SIMD kernels, Krylov estimates, single right-hand-side LU
+//! Numerical building blocks: SIMD kernels, Krylov estimates, the extreme singular values of a
+//! dense matrix, single right-hand-side LU
 //! solves, the block Cholesky factor, block Lanczos for the lowest modes, the skyline Cholesky of the FE cell, the NPY/NPZ reader,
 //! periodic cubic interpolation, and the on-disk cache of computed arrays (the structure's
 //! modes, the wind's tables).
 
 pub mod blockchol;
 pub mod cache;
+pub mod extreme;
 pub mod interpolation;
 pub mod kernels;
 pub mod krylov;

@@ -153,3 +153,51 @@ fn bad_criteria_are_named() {
     let e = global_sweep(&g, &[1.0], &bad).unwrap_err();
     assert!(e.to_string().contains("allowance"), "{e}");
 }
+
+/// The extreme singular values by Lanczos ([`crate::linalg::extreme`]) against faer's full
+/// singular values on the TMT global loop of `m1cs csi`'s defaults (100 modes: W of
+/// dimension 230; 3 images each side), from the integrator-dominated low frequencies to the
+/// Nyquist frequency: the loop gain's largest and the return difference's smallest.
+#[test]
+fn tmt_global_loop_extremes_match_the_full_singular_values() {
+    use crate::linalg::extreme;
+    let layout = Layout::tmt();
+    let n = layout.n_segments();
+    let geometry = Geometry::new(&layout, GeometryParams::for_layout(&layout)).unwrap();
+    let cell = CellModel::new(&layout, &CellParams::default())
+        .unwrap()
+        .modes()
+        .unwrap();
+    let fm = FrequencyModel::new(n, SegmentModel::voice_coil(), cell, 100, 0.02).unwrap();
+    let controls = crate::control::controller::ControlModes::new(geometry).unwrap();
+    let params = ControllerParams::default();
+    let gl = crate::plant::monolithic::GlobalLoop::new(&fm, &controls, &params).unwrap();
+    // Values not bit for bit faer's come from Lanczos (its fallback returns faer's).
+    let (mut by_lanczos, mut values) = (0, 0);
+    for f in [0.02, 0.1, 0.5, 1.3, 3.0, 6.0, 8.9, 9.6, 12.0, 17.5, 9.99] {
+        let (l, _) = gl.loop_matrix(&fm, f, 3);
+        assert!(l.nrows() >= extreme::LANCZOS_FROM, "{}", l.nrows());
+        let sl = l.singular_values().unwrap();
+        let lmax = sl.iter().copied().fold(0.0f64, f64::max);
+        let got = extreme::largest_singular_value(l.as_ref()).unwrap();
+        by_lanczos += usize::from(got != lmax);
+        assert!(
+            (got - lmax).abs() <= 1e-9 * lmax,
+            "{f} Hz: sigma_max(L) {got} vs {lmax}"
+        );
+        let s = faer::Mat::<faer::c64>::identity(l.nrows(), l.nrows()) + &l;
+        let ss = s.singular_values().unwrap();
+        let smin = ss.iter().copied().fold(f64::INFINITY, f64::min);
+        let got = extreme::smallest_singular_value(s.as_ref()).unwrap();
+        by_lanczos += usize::from(got != smin);
+        values += 2;
+        assert!(
+            (got - smin).abs() <= 1e-9 * smin,
+            "{f} Hz: sigma_min(I + L) {got} vs {smin}"
+        );
+    }
+    assert!(
+        2 * by_lanczos > values,
+        "{by_lanczos} of {values} by Lanczos"
+    );
+}

@@ -13,6 +13,7 @@ use crate::analysis::csi::ZernikeChannels;
 use crate::aperture::geometry::Geometry;
 use crate::aperture::layout::Layout;
 use crate::control::controller::{ControlModes, ControllerParams, LoopGains, N_RADIAL34};
+use crate::linalg::extreme;
 use crate::plant::monolithic::{FrequencyModel, GlobalLoop, PlantOnW, hold};
 
 /// The global loop of a mirror on its structure, with its Zernike bases.
@@ -72,14 +73,12 @@ pub(super) fn extremes(m: &Mat<c64>, n: usize, f: f64) -> Result<(f64, f64), M1E
         return Ok((0.0, 0.0));
     }
     let bad = || M1Error::Numerical(format!("SVD of the global loop failed at {f} Hz"));
-    let a = Mat::from_fn(n, n, |i, j| m[(i, j)]);
-    let sl = a.singular_values().map_err(|_| bad())?;
+    let a = m.as_ref().submatrix(0, 0, n, n);
+    let l = extreme::largest_singular_value(a).ok_or_else(bad)?;
     let b = Mat::from_fn(n, n, |i, j| {
         m[(i, j)] + if i == j { c(1.0) } else { c(0.0) }
     });
-    let ss = b.singular_values().map_err(|_| bad())?;
-    let l = sl.iter().copied().fold(0.0f64, f64::max);
-    let s = 1.0 / ss.iter().copied().fold(f64::INFINITY, f64::min);
+    let s = 1.0 / extreme::smallest_singular_value(b.as_ref()).ok_or_else(bad)?;
     if l.is_finite() && s.is_finite() {
         Ok((l, s))
     } else {

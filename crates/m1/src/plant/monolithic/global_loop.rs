@@ -9,6 +9,7 @@ use std::f64::consts::TAU;
 
 use super::{FrequencyModel, cis, hold};
 use crate::M1Error;
+use crate::linalg::extreme;
 
 /// The global edge-sensor loop in the frequency domain: the controller of
 /// [`crate::control::controller`] (integrators at its sample rate on four mode groups, output held) on
@@ -320,13 +321,11 @@ impl GlobalLoop {
         let (lw, scalars) = self.loop_from_plant(p, gains);
         let wdim = lw.nrows();
         let bad = || M1Error::InvalidInput(format!("SVD of the loop gain failed at {f} Hz"));
-        let sl = lw.singular_values().map_err(|_| bad())?;
+        let mut l_max = extreme::largest_singular_value(lw.as_ref()).ok_or_else(bad)?;
         let ident = Mat::<c64>::identity(wdim, wdim);
         let s_inv = &ident + &lw;
-        let ss = s_inv.singular_values().map_err(|_| bad())?;
-        let mut l_max = sl.iter().copied().fold(0.0f64, f64::max);
         // sigma_max(S) = 1 / sigma_min(I + L).
-        let mut s_max = 1.0 / ss.iter().copied().fold(f64::INFINITY, f64::min);
+        let mut s_max = 1.0 / extreme::smallest_singular_value(s_inv.as_ref()).ok_or_else(bad)?;
         for l in scalars.into_iter().flatten() {
             l_max = l_max.max(l.norm());
             s_max = s_max.max(1.0 / (c64::new(1.0, 0.0) + l).norm());
