@@ -5,7 +5,7 @@
 use faer::{Mat, c64};
 use serde::Serialize;
 
-use super::projected::{Kinds, Projected, modal_lu, sensitivity_max};
+use super::projected::{Kinds, Projected, modal_factor, sensitivity_max};
 use super::zernike::ZernikeChannels;
 use crate::M1Error;
 use crate::aperture::geometry::Geometry;
@@ -197,7 +197,7 @@ impl ActuatorLoop {
         warm: Option<&[c64]>,
     ) -> Result<Evaluated, M1Error> {
         let k = Kinds::new(self.fm.model(), f);
-        let lu = modal_lu(&self.fm, &k);
+        let lu = modal_factor(&self.fm, &k);
         let s = k.k_s * gain;
         let mz = self.zernike_projected.plant(&k, lu.as_ref())?;
         let zernike = self
@@ -241,7 +241,7 @@ impl ActuatorLoop {
         let ident = Mat::<f64>::identity(na, na);
         let p = Projected::new(&self.fm, &ident);
         let k = Kinds::new(self.fm.model(), f);
-        let m = p.plant(&k, modal_lu(&self.fm, &k).as_ref())?;
+        let m = p.plant(&k, modal_factor(&self.fm, &k).as_ref())?;
         sensitivity_max(&m, k.k_s, na)
     }
 
@@ -261,7 +261,7 @@ impl ActuatorLoop {
                 reason: "beyond the largest Zernike degree of the analysis",
             })?;
         let k = Kinds::new(self.fm.model(), f);
-        let lu = modal_lu(&self.fm, &k);
+        let lu = modal_factor(&self.fm, &k);
         let mz = self.zernike_projected.plant(&k, lu.as_ref())?;
         self.label_from_plant(&mz, f, nb, degree, gain)
     }

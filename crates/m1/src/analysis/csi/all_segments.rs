@@ -1,14 +1,14 @@
 //! The exact all-segment sensitivity of the actuator loop (module documentation, "All
 //! segments"): the two channel kinds' complements in closed form, the coupled subspace by
 //! Lanczos on $S_W^H S_W$ with the modal solves in the calling thread
-//! ([`crate::linalg::lu_solve`]).
+//! ([`crate::linalg::complex_symmetric`]).
 
 use faer::c64;
 
 use super::actuator_loop::ActuatorLoop;
 use super::projected::{Kinds, singular};
 use crate::M1Error;
-use crate::linalg::lu_solve;
+use crate::linalg::complex_symmetric::ModalFactor;
 use crate::plant::monolithic::ChannelTransfer;
 
 /// Lanczos steps at least from the generic start: enough for the top of the spectrum to be
@@ -117,6 +117,24 @@ impl ActuatorLoop {
         Ok((v.max(sw), Some(top)))
     }
 
+    /// The factors of the closed-loop modal stiffness for the servo `s` (scaled) and the
+    /// rigid-base return differences `e`: each kind's force per cell displacement with the
+    /// servo closed is $f_z - s f_u H p_{sz} / E$. Complex symmetric: $L D L^T$ where stable,
+    /// else LU ([`ModalFactor`]).
+    pub(super) fn closed_loop_factor(&self, k: &Kinds, s: c64, e: [c64; 2]) -> ModalFactor {
+        let beta = [0, 1].map(|kd| k.fu[kd] * k.hold * k.psz[kd] / e[kd]);
+        let zero = c64::new(0.0, 0.0);
+        let ct = |kd: usize| ChannelTransfer {
+            mirror: [zero; 3],
+            force: [zero, k.fz[kd] - s * beta[kd], zero],
+            stroke: [zero; 3],
+            drive: [zero; 3],
+            return_difference: zero,
+            loop_gain: zero,
+        };
+        ModalFactor::new(|| self.fm.modal_stiffness(k.frequency, &[ct(0), ct(1)]))
+    }
+
     /// $\sigma_{max}$ of the sensitivity on the coupled subspace (dimension $r_p + r_t > 0$)
     /// for the servo `s` (scaled) and the rigid-base return differences `e` of both kinds, with
     /// its top right singular vector; Lanczos starts from `warm` when given (of length w).
@@ -129,20 +147,8 @@ impl ActuatorLoop {
     ) -> Result<(f64, Vec<c64>), M1Error> {
         let one = c64::new(1.0, 0.0);
         let w = self.coupled_dimension();
-        // The closed-loop modal stiffness: each kind's force per cell displacement with the
-        // servo closed, f_z - s f_u H p_sz / E.
-        let beta = [0, 1].map(|kd| k.fu[kd] * k.hold * k.psz[kd] / e[kd]);
+        let lu = self.closed_loop_factor(k, s, e);
         let zero = c64::new(0.0, 0.0);
-        let ct = |kd: usize| ChannelTransfer {
-            mirror: [zero; 3],
-            force: [zero, k.fz[kd] - s * beta[kd], zero],
-            stroke: [zero; 3],
-            drive: [zero; 3],
-            return_difference: zero,
-            loop_gain: zero,
-        };
-        let kcl = self.fm.modal_stiffness(k.frequency, &[ct(0), ct(1)]);
-        let lu = kcl.partial_piv_lu();
         let rp = self.coupled_rank[0];
         let r = self.fm.n_modes();
         // S_W x = D x - X K_cl^-1 Y^T x in the coordinates of the coupled subspace, with per
@@ -193,7 +199,7 @@ impl ActuatorLoop {
             for (j, zj) in z.iter_mut().enumerate() {
                 *zj = cy[0] * a[0][j] + cy[1] * a[1][j];
             }
-            lu_solve::solve_in_place(&lu, &mut z, &mut work);
+            lu.solve_in_place(&mut z, &mut work);
             for (j, zj) in z.iter().enumerate() {
                 xr[j] = zj.re;
                 xi[j] = zj.im;
@@ -209,7 +215,7 @@ impl ActuatorLoop {
             for (j, z2j) in z2.iter_mut().enumerate() {
                 *z2j = c[0] * a[0][j] + c[1] * a[1][j] - c64::new(t0[j], t1[j]);
             }
-            lu_solve::solve_adjoint_in_place(&lu, &mut z2, &mut work);
+            lu.solve_adjoint_in_place(&mut z2, &mut work);
             for kd in 0..2 {
                 let (c1, c2) = (d[kd].conj() * cx[kd], cy[kd].conj());
                 for j in 0..r {

@@ -1,11 +1,11 @@
 //! The per-frequency pieces of the servo-open plant: the scalars of both channel kinds
-//! ([`Kinds`]), the LU factors of the modes' stiffness, the plant `B^T P B` projected on a real
+//! ([`Kinds`]), the factors of the modes' stiffness, the plant `B^T P B` projected on a real
 //! orthonormal basis, and the largest sensitivity singular value of a basis's leading vectors.
 
-use faer::linalg::solvers::{PartialPivLu, Solve};
 use faer::{Mat, c64};
 
 use crate::M1Error;
+use crate::linalg::complex_symmetric::ModalFactor;
 use crate::plant::monolithic::{
     ChannelTransfer, FrequencyModel, hold, open_channel, servo_transfer,
 };
@@ -52,9 +52,9 @@ impl Kinds {
     }
 }
 
-/// The LU factors of the open-servo modal stiffness $K_0$ at one frequency (`None` without
-/// modes).
-pub(super) fn modal_lu(fm: &FrequencyModel, k: &Kinds) -> Option<PartialPivLu<c64>> {
+/// The factors of the open-servo modal stiffness $K_0$ at one frequency (`None` without
+/// modes): complex symmetric, so $L D L^T$ where stable ([`ModalFactor`]).
+pub(super) fn modal_factor(fm: &FrequencyModel, k: &Kinds) -> Option<ModalFactor> {
     if fm.n_modes() == 0 {
         return None;
     }
@@ -69,10 +69,9 @@ pub(super) fn modal_lu(fm: &FrequencyModel, k: &Kinds) -> Option<PartialPivLu<c6
         return_difference: zero,
         loop_gain: zero,
     };
-    Some(
+    Some(ModalFactor::new(|| {
         fm.modal_stiffness(k.frequency, &[ct(0), ct(1)])
-            .partial_piv_lu(),
-    )
+    }))
 }
 
 pub(super) fn singular(f: f64) -> M1Error {
@@ -107,11 +106,7 @@ impl Projected {
     }
 
     /// `B^T P B` (nb x nb) at the frequency of `k`.
-    pub(super) fn plant(
-        &self,
-        k: &Kinds,
-        lu: Option<&PartialPivLu<c64>>,
-    ) -> Result<Mat<c64>, M1Error> {
+    pub(super) fn plant(&self, k: &Kinds, lu: Option<&ModalFactor>) -> Result<Mat<c64>, M1Error> {
         let nb = self.nb;
         let mut m = Mat::from_fn(nb, nb, |i, j| {
             k.p0[0] * self.g[0][(i, j)] + k.p0[1] * self.g[1][(i, j)]
@@ -120,7 +115,7 @@ impl Projected {
             let left = faer::Scale(k.psz[0]) * &self.c[0] + faer::Scale(k.psz[1]) * &self.c[1];
             let right = faer::Scale(k.fu[0] * k.hold) * &self.c[0]
                 + faer::Scale(k.fu[1] * k.hold) * &self.c[1];
-            let x = lu.solve(&right);
+            let x = lu.solve(right.as_ref());
             if x.col_iter()
                 .any(|c| c.iter().any(|v| !(v.re.is_finite() && v.im.is_finite())))
             {

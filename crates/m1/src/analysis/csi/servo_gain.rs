@@ -9,7 +9,7 @@ use serde::Serialize;
 
 use super::actuator_loop::ActuatorLoop;
 use super::frequency_sweep::{CsiSweep, argmax, log_grid};
-use super::projected::{Kinds, modal_lu, sensitivity_max};
+use super::projected::{Kinds, modal_factor, sensitivity_max};
 use crate::M1Error;
 use crate::plant::monolithic::{open_channel, servo_transfer};
 use crate::plant::segment::{Channel, SegmentModel};
@@ -251,7 +251,7 @@ impl<'a> GainSearch<'a> {
                 match sweep.zernike_plants.get(i) {
                     Some(m) if m.nrows() == nz && m.ncols() == nz => Ok((k, m.clone())),
                     _ => {
-                        let lu = modal_lu(&lp.fm, &k);
+                        let lu = modal_factor(&lp.fm, &k);
                         Ok((k, lp.zernike_projected.plant(&k, lu.as_ref())?))
                     }
                 }

@@ -4,7 +4,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use super::all_segments::{LANCZOS_STEPS, min_steps, start_vector};
-use super::projected::{Kinds, Projected, modal_lu};
+use super::projected::{Kinds, Projected, modal_factor};
 use super::*;
 use crate::aperture::geometry::{Geometry, GeometryParams};
 use crate::aperture::layout::Layout;
@@ -156,7 +156,7 @@ fn sensitivity_matches_the_closed_loop_response() {
     for f in [3.0, 9.4, 11.1, 40.0] {
         let k = Kinds::new(&model, f);
         let (k_r, _) = servo_transfer(&model, f);
-        let pm = p.plant(&k, modal_lu(fm, &k).as_ref()).unwrap();
+        let pm = p.plant(&k, modal_factor(fm, &k).as_ref()).unwrap();
         let a = Mat::from_fn(na, na, |i, j| {
             let d = if i == j { 1.0 } else { 0.0 };
             c64::new(d, 0.0) + k.k_s * pm[(i, j)]
@@ -325,5 +325,48 @@ fn clustered_top_is_within_the_documented_bound_of_the_dense_value() {
                 "{f} Hz {what}: {v} against dense {dense}"
             );
         }
+    }
+}
+
+/// On the TMT cell (300 modes) the modal stiffness is factored as $L D L^T$ without pivoting
+/// at every frequency of the sweep's band, servo open and closed (the growth test never sends
+/// it to the LU), and its solves equal those of faer's pivoted LU of the same matrix.
+#[test]
+fn tmt_modal_stiffness_is_factored_without_pivoting_over_the_band() {
+    use crate::plant::monolithic::ChannelTransfer;
+    let layout = Layout::tmt();
+    let n = layout.n_segments();
+    let geometry = Geometry::new(&layout, GeometryParams::for_layout(&layout)).unwrap();
+    let cell = crate::plant::structure::StructureSource::parse("tmt")
+        .unwrap()
+        .modes(&layout)
+        .unwrap();
+    let fm = FrequencyModel::new(n, SegmentModel::voice_coil(), cell, 300, 0.02).unwrap();
+    let lp = ActuatorLoop::new(fm, &layout, &geometry, 2, &[1]).unwrap();
+    let zero = c64::new(0.0, 0.0);
+    let one = c64::new(1.0, 0.0);
+    for f in log_grid(1.0, 300.0, 14) {
+        let k = Kinds::new(lp.fm.model(), f);
+        let open = modal_factor(&lp.fm, &k).unwrap();
+        let e = [one + k.k_s * k.p0[0], one + k.k_s * k.p0[1]];
+        let closed = lp.closed_loop_factor(&k, k.k_s, e);
+        assert!(open.is_ldlt() && closed.is_ldlt(), "{f} Hz");
+        // The open one's solve against faer's LU of K_0.
+        let ct = |kind: usize| ChannelTransfer {
+            mirror: [zero; 3],
+            force: [zero, k.fz[kind], zero],
+            stroke: [zero; 3],
+            drive: [zero; 3],
+            return_difference: zero,
+            loop_gain: zero,
+        };
+        let k0 = lp.fm.modal_stiffness(f, &[ct(0), ct(1)]);
+        let b = Mat::from_fn(300, 2, |i, j| {
+            c64::new((0.1 * (i + j) as f64).sin(), (0.3 * i as f64).cos())
+        });
+        let want = k0.partial_piv_lu().solve(&b);
+        let got = open.solve(b.as_ref());
+        let scale = want.norm_l2();
+        assert!((&got - &want).norm_l2() <= 1e-10 * scale, "{f} Hz");
     }
 }

@@ -1,0 +1,436 @@
+//! Factorisation of the modes' complex symmetric stiffness $K = K^T$ (not Hermitian) for the
+//! frequency sweeps: $K = L D L^T$ without pivoting (half the arithmetic of an LU) where that is
+//! stable, faer's partially pivoted LU where it is not ([`ModalFactor`]).
+//!
+//! The modal stiffness of the frequency model, $D(\omega) - \sum_k c_k(\omega) \Phi_k^T \Phi_k$
+//! with a diagonal $D$ and complex scalars $c_k$, is complex symmetric. Elimination without
+//! pivoting needs no row exchange to keep it symmetric, and costs $n^3/3$ complex multiply-adds
+//! against $2n^3/3$ for the LU; it is backward stable when its factors do not grow (for
+//! example where the Hermitian part of $e^{i\theta} K$ is definite for some $\theta$, as for a
+//! complex multiple of a positive definite matrix: bounded growth). The factors' growth is
+//! checked after the factorisation: with $|L| |D| |L^T|$ the product of the entries' moduli,
+//! the backward error is at most a small multiple of $n \varepsilon \| |L| |D| |L^T| \|$, so the
+//! factorisation is kept when $\| |L| |D| |L^T| \|_\infty \le$ [`GROWTH_LIMIT`] $\|K\|_\infty$
+//! and every pivot is finite and non-zero; otherwise the LU is computed instead.
+//!
+//! The factorisation is blocked: each panel of [`PANEL`] columns is eliminated column by
+//! column over its whole height (vector updates), the trailing lower triangle updated by the
+//! panel in one matrix product (faer's triangular matmul, the flops' bulk).
+//!
+//! Solves with one right-hand side read each column of $L$ once per triangle in its storage
+//! order (like [`super::lu_solve`]); $K^{-H} b = \overline{K^{-1} \bar b}$ for a symmetric $K$.
+
+use faer::linalg::matmul::triangular::{BlockStructure, matmul as tri_matmul};
+use faer::linalg::solvers::{PartialPivLu, Solve};
+use faer::{Accum, Mat, MatMut, MatRef, Par, c64};
+use pulp::Simd;
+
+use super::lu_solve;
+
+/// Columns per panel of the blocked factorisation.
+pub const PANEL: usize = 48;
+/// The largest $\| |L| |D| |L^T| \|_\infty / \|K\|_\infty$ kept: beyond it the LU is used.
+pub const GROWTH_LIMIT: f64 = 64.0;
+
+/// The factors of a complex symmetric matrix: $L D L^T$ where stable, else faer's LU.
+#[derive(Debug)]
+pub enum ModalFactor {
+    /// Unit lower triangle $L$ strictly below the diagonal, $D$ on it (column-major).
+    Ldlt(Mat<c64>),
+    /// Partially pivoted LU (the fallback).
+    Lu(PartialPivLu<c64>),
+}
+
+/// `y += s a`.
+#[inline(always)]
+fn axpy<S: Simd>(simd: S, s: c64, a: &[c64], y: &mut [c64]) {
+    let (ah, at) = S::as_simd_c64s(a);
+    let (yh, yt) = S::as_mut_simd_c64s(y);
+    let sv = simd.splat_c64s(s);
+    for (yv, &av) in yh.iter_mut().zip(ah) {
+        *yv = simd.mul_add_c64s(sv, av, *yv);
+    }
+    for (yv, &av) in yt.iter_mut().zip(at) {
+        *yv += s * av;
+    }
+}
+
+/// `sum_i a_i w_i` (no conjugation).
+#[inline(always)]
+fn dot<S: Simd>(simd: S, a: &[c64], w: &[c64]) -> c64 {
+    let (ah, at) = S::as_simd_c64s(a);
+    let (wh, wt) = S::as_simd_c64s(w);
+    let zero = simd.splat_c64s(c64::new(0.0, 0.0));
+    let mut acc = [zero; 4];
+    let mut chunks = ah.chunks_exact(4).zip(wh.chunks_exact(4));
+    for (ac, wc) in &mut chunks {
+        for k in 0..4 {
+            acc[k] = simd.mul_add_c64s(ac[k], wc[k], acc[k]);
+        }
+    }
+    let done = ah.len() / 4 * 4;
+    for (k, (&av, &wv)) in ah[done..].iter().zip(&wh[done..]).enumerate() {
+        acc[k] = simd.mul_add_c64s(av, wv, acc[k]);
+    }
+    let mut s = (simd.reduce_sum_c64s(acc[0]) + simd.reduce_sum_c64s(acc[1]))
+        + (simd.reduce_sum_c64s(acc[2]) + simd.reduce_sum_c64s(acc[3]));
+    for (&a, &w) in at.iter().zip(wt) {
+        s += a * w;
+    }
+    s
+}
+
+/// Column `j` of the column-major `m` from row `from` on.
+#[inline(always)]
+fn col_mut(m: &mut Mat<c64>, j: usize, from: usize) -> &mut [c64] {
+    let n = m.nrows();
+    match m.as_mut().col_mut(j).try_as_col_major_mut() {
+        Some(c) => &mut c.as_slice_mut()[from..n],
+        None => &mut [],
+    }
+}
+
+/// Column `j` of `m` from row `from` on.
+#[inline(always)]
+fn col(m: MatRef<'_, c64>, j: usize, from: usize) -> &[c64] {
+    let n = m.nrows();
+    match m.col(j).try_as_col_major() {
+        Some(c) => &c.as_slice()[from..n],
+        None => &[],
+    }
+}
+
+/// Eliminates the panel of columns `k..k + kb` of `a` over its whole height (the lower
+/// triangle holds the matrix updated by the previous panels). `false` on a zero or
+/// non-finite pivot.
+struct Panel<'a> {
+    a: &'a mut Mat<c64>,
+    k: usize,
+    kb: usize,
+}
+
+impl pulp::WithSimd for Panel<'_> {
+    type Output = bool;
+    #[inline(always)]
+    fn with_simd<S: Simd>(self, simd: S) -> bool {
+        let Panel { a, k, kb } = self;
+        let n = a.nrows();
+        let mut lcol = vec![c64::new(0.0, 0.0); n];
+        for j in k..k + kb {
+            let d = a[(j, j)];
+            if !(d.norm() > 0.0 && d.re.is_finite() && d.im.is_finite()) {
+                return false;
+            }
+            let inv = c64::new(1.0, 0.0) / d;
+            // v = the column below the pivot (D_j L_j), then L_j = v / d.
+            lcol[j + 1..n].copy_from_slice(col(a.as_ref(), j, j + 1));
+            for x in col_mut(a, j, j + 1) {
+                *x *= inv;
+            }
+            // The panel's remaining columns: A[c.., c] -= L_cj v[c..].
+            for c in j + 1..k + kb {
+                let s = -a[(c, j)];
+                axpy(simd, s, &lcol[c..n], col_mut(a, c, c));
+            }
+        }
+        true
+    }
+}
+
+/// `|re| + |im|`: the modulus within a factor sqrt(2), the same measure for the matrix and its
+/// factors in the growth test.
+#[inline(always)]
+fn modulus(x: c64) -> f64 {
+    x.re.abs() + x.im.abs()
+}
+
+/// `|L| |D| |L^T| 1` row by row, largest entry (the factors' growth, module documentation).
+fn growth(f: MatRef<'_, c64>) -> f64 {
+    let n = f.nrows();
+    // u = |L^T| 1: u_j = 1 + sum_{i > j} |L_ij|; then v = |D| u; then |L| v.
+    let v: Vec<f64> = (0..n)
+        .map(|j| {
+            let below: f64 = col(f, j, j + 1).iter().map(|&x| modulus(x)).sum();
+            (1.0 + below) * modulus(f[(j, j)])
+        })
+        .collect();
+    // w = |L| v, L unit lower: w_i = v_i + sum_{j < i} |L_ij| v_j.
+    let mut w = v.clone();
+    for j in 0..n {
+        let vj = v[j];
+        for (wi, x) in w[j + 1..].iter_mut().zip(col(f, j, j + 1)) {
+            *wi += modulus(*x) * vj;
+        }
+    }
+    w.into_iter().fold(0.0, f64::max)
+}
+
+impl ModalFactor {
+    /// The factors of the complex symmetric matrix `build` returns (only its lower triangle is
+    /// read): $L D L^T$ when its growth passes the test (module documentation), else faer's LU
+    /// of the matrix built a second time (the factorisation overwrites the first).
+    ///
+    /// # Panics
+    /// If the matrix is not square (a programming error).
+    pub fn new(build: impl Fn() -> Mat<c64>) -> Self {
+        let mut f = build();
+        assert_eq!(f.nrows(), f.ncols(), "ModalFactor: a square matrix");
+        let n = f.nrows();
+        // ||K||_inf from the lower triangle (K symmetric).
+        let mut rows = vec![0.0f64; n];
+        for j in 0..n {
+            for (i, x) in col(f.as_ref(), j, j).iter().enumerate() {
+                let m = modulus(*x);
+                rows[j + i] += m;
+                if i > 0 {
+                    rows[j] += m;
+                }
+            }
+        }
+        let knorm = rows.iter().copied().fold(0.0, f64::max);
+        if Self::ldlt_in_place(&mut f) {
+            let g = growth(f.as_ref());
+            if g.is_finite() && g <= GROWTH_LIMIT * knorm {
+                return Self::Ldlt(f);
+            }
+        }
+        // The fallback reads the whole matrix: mirror the lower triangle first.
+        let mut full = build();
+        for j in 0..n {
+            for i in j + 1..n {
+                full[(j, i)] = full[(i, j)];
+            }
+        }
+        Self::Lu(full.partial_piv_lu())
+    }
+
+    /// Blocked $L D L^T$ in place (module documentation); `false` on a zero or non-finite
+    /// pivot.
+    fn ldlt_in_place(a: &mut Mat<c64>) -> bool {
+        let n = a.nrows();
+        let arch = pulp::Arch::new();
+        // W = L21 D1 of each panel, in one buffer.
+        let mut wbuf = Mat::<c64>::zeros(n, PANEL.min(n));
+        let mut k = 0;
+        while k < n {
+            let kb = PANEL.min(n - k);
+            if !arch.dispatch(Panel { a: &mut *a, k, kb }) {
+                return false;
+            }
+            let rest = n - k - kb;
+            if rest > 0 {
+                // A22 (lower) -= W L21^T.
+                let (left, right) = a.as_mut().split_at_col_mut(k + kb);
+                let l21 = left.as_ref().submatrix(k + kb, k, rest, kb);
+                let mut w = wbuf.as_mut().submatrix_mut(0, 0, rest, kb);
+                for j in 0..kb {
+                    let d = left.as_ref()[(k + j, k + j)];
+                    for i in 0..rest {
+                        w[(i, j)] = l21[(i, j)] * d;
+                    }
+                }
+                let a22: MatMut<'_, c64> = right.submatrix_mut(k + kb, 0, rest, rest);
+                tri_matmul(
+                    a22,
+                    BlockStructure::TriangularLower,
+                    Accum::Add,
+                    w.as_ref(),
+                    BlockStructure::Rectangular,
+                    l21.transpose(),
+                    BlockStructure::Rectangular,
+                    c64::new(-1.0, 0.0),
+                    Par::Seq,
+                );
+            }
+            k += kb;
+        }
+        true
+    }
+
+    /// Whether the stable $L D L^T$ was kept (else the LU).
+    pub fn is_ldlt(&self) -> bool {
+        matches!(self, Self::Ldlt(_))
+    }
+
+    /// `x <- K^-1 x` (`work` resized and overwritten by the LU path).
+    ///
+    /// # Panics
+    /// If `x`'s length is not the order (a programming error).
+    pub fn solve_in_place(&self, x: &mut [c64], work: &mut Vec<c64>) {
+        match self {
+            Self::Ldlt(f) => {
+                assert_eq!(
+                    x.len(),
+                    f.nrows(),
+                    "ModalFactor: wrong right-hand side length"
+                );
+                pulp::Arch::new().dispatch(Substitute { f: f.as_ref(), x });
+            }
+            Self::Lu(lu) => lu_solve::solve_in_place(lu, x, work),
+        }
+    }
+
+    /// `x <- K^-H x`: for a symmetric K, `conj(K^-1 conj(x))`.
+    ///
+    /// # Panics
+    /// If `x`'s length is not the order (a programming error).
+    pub fn solve_adjoint_in_place(&self, x: &mut [c64], work: &mut Vec<c64>) {
+        match self {
+            Self::Ldlt(_) => {
+                for v in x.iter_mut() {
+                    *v = v.conj();
+                }
+                self.solve_in_place(x, work);
+                for v in x.iter_mut() {
+                    *v = v.conj();
+                }
+            }
+            Self::Lu(lu) => lu_solve::solve_adjoint_in_place(lu, x, work),
+        }
+    }
+
+    /// `K^-1 B` for many right-hand sides.
+    pub fn solve(&self, b: MatRef<'_, c64>) -> Mat<c64> {
+        match self {
+            Self::Ldlt(f) => {
+                let mut x = b.to_owned();
+                let l = f.as_ref();
+                faer::linalg::triangular_solve::solve_unit_lower_triangular_in_place(
+                    l,
+                    x.as_mut(),
+                    Par::Seq,
+                );
+                for j in 0..x.ncols() {
+                    for i in 0..x.nrows() {
+                        x[(i, j)] /= f[(i, i)];
+                    }
+                }
+                faer::linalg::triangular_solve::solve_unit_upper_triangular_in_place(
+                    l.transpose(),
+                    x.as_mut(),
+                    Par::Seq,
+                );
+                x
+            }
+            Self::Lu(lu) => lu.solve(b),
+        }
+    }
+}
+
+/// The three passes of one $L D L^T$ solve.
+struct Substitute<'a> {
+    f: MatRef<'a, c64>,
+    x: &'a mut [c64],
+}
+
+impl pulp::WithSimd for Substitute<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn with_simd<S: Simd>(self, simd: S) {
+        let Substitute { f, x } = self;
+        let n = x.len();
+        // L y = b: column j removes y_j from the rows below.
+        for j in 0..n {
+            let (head, below) = x.split_at_mut(j + 1);
+            axpy(simd, -head[j], col(f, j, j + 1), below);
+        }
+        for (j, v) in x.iter_mut().enumerate() {
+            *v /= f[(j, j)];
+        }
+        // L^T x = z, from the last row up: x_j -= L[j+1.., j] . x[j+1..].
+        for j in (0..n).rev() {
+            let (head, done) = x.split_at_mut(j + 1);
+            head[j] -= dot(simd, col(f, j, j + 1), done);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `D - a G1 - b G2` with `G_k = R_k^T R_k` (as the modal stiffness is built).
+    fn modal_like(n: usize, a: c64, b: c64) -> Mat<c64> {
+        let r1 = Mat::<f64>::from_fn(n / 2, n, |i, j| {
+            ((i * 31 + j * 17) % 29) as f64 / 29.0 - 0.4
+        });
+        let r2 = Mat::<f64>::from_fn(n, n, |i, j| ((i * 13 + j * 7) % 23) as f64 / 23.0 - 0.5);
+        let (g1, g2) = (r1.transpose() * &r1, r2.transpose() * &r2);
+        Mat::from_fn(n, n, |i, j| {
+            let w2 = (1.0 + i as f64).powi(2);
+            let d = if i == j {
+                c64::new(w2 - 30.0, 0.04 * w2.sqrt() * 5.0)
+            } else {
+                c64::new(0.0, 0.0)
+            };
+            d - a * g1[(i, j)] - b * g2[(i, j)]
+        })
+    }
+
+    fn residual(k: &Mat<c64>, x: &[c64], b: &[c64]) -> f64 {
+        let n = b.len();
+        let xm = MatRef::from_column_major_slice(x, n, 1);
+        let r = k * xm;
+        let num: f64 = (0..n)
+            .map(|i| (r[(i, 0)] - b[i]).norm_sqr())
+            .sum::<f64>()
+            .sqrt();
+        let den: f64 = b.iter().map(|v| v.norm_sqr()).sum::<f64>().sqrt();
+        num / den
+    }
+
+    #[test]
+    fn ldlt_solves_match_the_matrix() {
+        let n = 203; // several panels and a ragged last one
+        let k = modal_like(n, c64::new(-40.0, 3.0), c64::new(-25.0, -1.0));
+        let f = ModalFactor::new(|| k.clone());
+        assert!(f.is_ldlt());
+        let b: Vec<c64> = (0..n)
+            .map(|i| c64::new((0.3 * i as f64).sin(), (0.7 * i as f64).cos()))
+            .collect();
+        let mut work = Vec::new();
+        let mut x = b.clone();
+        f.solve_in_place(&mut x, &mut work);
+        assert!(residual(&k, &x, &b) < 1e-12, "{}", residual(&k, &x, &b));
+        // K^H x = b.
+        let mut y = b.clone();
+        f.solve_adjoint_in_place(&mut y, &mut work);
+        let kh = k.adjoint().to_owned();
+        assert!(residual(&kh, &y, &b) < 1e-12);
+        // Many right-hand sides equal the single ones.
+        let bm = Mat::from_fn(n, 3, |i, j| b[i] * c64::new(1.0 + j as f64, -(j as f64)));
+        let xm = f.solve(bm.as_ref());
+        for i in 0..n {
+            assert!((xm[(i, 0)] - x[i]).norm() <= 1e-12 * (1.0 + x[i].norm()));
+            assert!(
+                (xm[(i, 2)] - x[i] * c64::new(3.0, -2.0)).norm() <= 1e-11 * (1.0 + x[i].norm())
+            );
+        }
+        // Agrees with faer's LU.
+        let lu = ModalFactor::Lu(k.partial_piv_lu());
+        let mut z = b.clone();
+        lu.solve_in_place(&mut z, &mut work);
+        for i in 0..n {
+            assert!((z[i] - x[i]).norm() <= 1e-10 * (1.0 + x[i].norm()));
+        }
+    }
+
+    #[test]
+    fn growth_sends_a_bad_pivot_order_to_the_lu() {
+        // [[eps, 1], [1, 1]] (symmetric): without pivoting the factors grow like 1/eps.
+        let n = 60;
+        let mut k = Mat::<c64>::identity(n, n);
+        k[(0, 0)] = c64::new(1e-12, 0.0);
+        k[(1, 0)] = c64::new(1.0, 0.0);
+        k[(0, 1)] = c64::new(1.0, 0.0);
+        let f = ModalFactor::new(|| k.clone());
+        assert!(!f.is_ldlt());
+        let b: Vec<c64> = (0..n).map(|i| c64::new(1.0, i as f64)).collect();
+        let mut x = b.clone();
+        f.solve_in_place(&mut x, &mut Vec::new());
+        assert!(residual(&k, &x, &b) < 1e-13);
+        // A zero pivot too.
+        k[(0, 0)] = c64::new(0.0, 0.0);
+        assert!(!ModalFactor::new(|| k.clone()).is_ldlt());
+    }
+}
