@@ -25,6 +25,7 @@ use faer::linalg::solvers::{PartialPivLu, Solve};
 use faer::{Accum, Mat, MatMut, MatRef, Par, c64};
 use pulp::Simd;
 
+use super::kernels::{axpy_c64, dot_c64};
 use super::lu_solve;
 
 /// Columns per panel of the blocked factorisation.
@@ -39,45 +40,6 @@ pub enum ModalFactor {
     Ldlt(Mat<c64>),
     /// Partially pivoted LU (the fallback).
     Lu(PartialPivLu<c64>),
-}
-
-/// `y += s a`.
-#[inline(always)]
-fn axpy<S: Simd>(simd: S, s: c64, a: &[c64], y: &mut [c64]) {
-    let (ah, at) = S::as_simd_c64s(a);
-    let (yh, yt) = S::as_mut_simd_c64s(y);
-    let sv = simd.splat_c64s(s);
-    for (yv, &av) in yh.iter_mut().zip(ah) {
-        *yv = simd.mul_add_c64s(sv, av, *yv);
-    }
-    for (yv, &av) in yt.iter_mut().zip(at) {
-        *yv += s * av;
-    }
-}
-
-/// `sum_i a_i w_i` (no conjugation).
-#[inline(always)]
-fn dot<S: Simd>(simd: S, a: &[c64], w: &[c64]) -> c64 {
-    let (ah, at) = S::as_simd_c64s(a);
-    let (wh, wt) = S::as_simd_c64s(w);
-    let zero = simd.splat_c64s(c64::new(0.0, 0.0));
-    let mut acc = [zero; 4];
-    let mut chunks = ah.chunks_exact(4).zip(wh.chunks_exact(4));
-    for (ac, wc) in &mut chunks {
-        for k in 0..4 {
-            acc[k] = simd.mul_add_c64s(ac[k], wc[k], acc[k]);
-        }
-    }
-    let done = ah.len() / 4 * 4;
-    for (k, (&av, &wv)) in ah[done..].iter().zip(&wh[done..]).enumerate() {
-        acc[k] = simd.mul_add_c64s(av, wv, acc[k]);
-    }
-    let mut s = (simd.reduce_sum_c64s(acc[0]) + simd.reduce_sum_c64s(acc[1]))
-        + (simd.reduce_sum_c64s(acc[2]) + simd.reduce_sum_c64s(acc[3]));
-    for (&a, &w) in at.iter().zip(wt) {
-        s += a * w;
-    }
-    s
 }
 
 /// Column `j` of the column-major `m` from row `from` on.
@@ -130,7 +92,7 @@ impl pulp::WithSimd for Panel<'_> {
             // The panel's remaining columns: A[c.., c] -= L_cj v[c..].
             for c in j + 1..k + kb {
                 let s = -a[(c, j)];
-                axpy(simd, s, &lcol[c..n], col_mut(a, c, c));
+                axpy_c64(simd, s, &lcol[c..n], col_mut(a, c, c));
             }
         }
         true
@@ -332,7 +294,7 @@ impl pulp::WithSimd for Substitute<'_> {
         // L y = b: column j removes y_j from the rows below.
         for j in 0..n {
             let (head, below) = x.split_at_mut(j + 1);
-            axpy(simd, -head[j], col(f, j, j + 1), below);
+            axpy_c64(simd, -head[j], col(f, j, j + 1), below);
         }
         for (j, v) in x.iter_mut().enumerate() {
             *v /= f[(j, j)];
@@ -340,7 +302,7 @@ impl pulp::WithSimd for Substitute<'_> {
         // L^T x = z, from the last row up: x_j -= L[j+1.., j] . x[j+1..].
         for j in (0..n).rev() {
             let (head, done) = x.split_at_mut(j + 1);
-            head[j] -= dot(simd, col(f, j, j + 1), done);
+            head[j] -= dot_c64(simd, col(f, j, j + 1), done);
         }
     }
 }

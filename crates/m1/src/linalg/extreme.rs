@@ -6,7 +6,8 @@
 //! $\sigma_{max}$ is its inverse). A bidiagonalisation costs about $\frac{16}{3} n^3$ complex
 //! multiply-adds in level-2 passes over the matrix; here:
 //! - $\sigma_{max}(A)^2$ is the top eigenvalue of $A^H A$, by Lanczos
-//!   ([`largest_hermitian_eigenpair`]) with products by $A$ and $A^H$;
+//!   ([`largest_hermitian_eigenpair`]) with products by $A$ and $A^H$ (both passes over the
+//!   columns);
 //! - $\sigma_{min}(A)^{-2}$ is the top eigenvalue of $A^{-H} A^{-1}$, by Lanczos with the two
 //!   solves of one LU factorisation ($\frac{2}{3} n^3$, in matrix-matrix blocks).
 //!
@@ -20,6 +21,7 @@
 use faer::linalg::solvers::PartialPivLu;
 use faer::{MatRef, c64};
 
+use super::kernels::{axpy_c64, dot_conj_c64};
 use super::krylov::largest_hermitian_eigenpair;
 use super::lu_solve;
 
@@ -51,17 +53,36 @@ fn full(a: MatRef<'_, c64>) -> Option<(f64, f64)> {
     Some((max, min))
 }
 
-/// `y = A x` (`a` n x n).
-fn apply(a: MatRef<'_, c64>, x: &[c64], y: &mut [c64], adjoint: bool) {
-    let n = x.len();
-    let xv = MatRef::from_column_major_slice(x, n, 1);
-    let yv = faer::MatMut::from_column_major_slice_mut(y, n, 1);
-    let one = c64::new(1.0, 0.0);
-    let (acc, par) = (faer::Accum::Replace, faer::Par::Seq);
-    if adjoint {
-        faer::linalg::matmul::matmul(yv, acc, a.adjoint(), xv, one, par);
-    } else {
-        faer::linalg::matmul::matmul(yv, acc, a, xv, one, par);
+/// `out = A^H A x` for a column-major `a` (n x n): `t = A x` by column axpys, then each
+/// `out_j` a conjugate dot product with column j; `a` is read twice, in storage order.
+struct GramProduct<'a> {
+    a: MatRef<'a, c64>,
+    x: &'a [c64],
+    t: &'a mut [c64],
+    out: &'a mut [c64],
+}
+
+impl pulp::WithSimd for GramProduct<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
+        let GramProduct { a, x, t, out } = self;
+        t.fill(c64::new(0.0, 0.0));
+        for (j, &xj) in x.iter().enumerate() {
+            axpy_c64(simd, xj, column(a, j), t);
+        }
+        for (j, o) in out.iter_mut().enumerate() {
+            *o = dot_conj_c64(simd, column(a, j), t);
+        }
+    }
+}
+
+/// Column `j` of `a` as a slice (`a` column-major, checked by the caller).
+#[inline(always)]
+fn column(a: MatRef<'_, c64>, j: usize) -> &[c64] {
+    match a.col(j).try_as_col_major() {
+        Some(c) => c.as_slice(),
+        None => &[],
     }
 }
 
@@ -78,10 +99,23 @@ pub fn largest_singular_value(a: MatRef<'_, c64>) -> Option<f64> {
     if n < LANCZOS_FROM {
         return full(a).map(|s| s.0);
     }
+    // Column-major storage for the passes (faer's owned matrices are).
+    let owned;
+    let a = if a.row_stride() == 1 {
+        a
+    } else {
+        owned = a.to_owned();
+        owned.as_ref()
+    };
     let mut t = vec![c64::new(0.0, 0.0); n];
+    let arch = pulp::Arch::new();
     let p = largest_hermitian_eigenpair(n, (MIN_STEPS, MAX_STEPS), &start(n), TOL, |x, out| {
-        apply(a, x, &mut t, false);
-        apply(a, &t, out, true);
+        arch.dispatch(GramProduct {
+            a,
+            x,
+            t: &mut t,
+            out,
+        });
     });
     if p.converged && p.value.is_finite() {
         Some(p.value.max(0.0).sqrt())

@@ -18,6 +18,7 @@
 //! plain sum to rounding (about 1e-16 relative), not bit for bit, and may differ in the last
 //! bits between processors with different vector widths.
 
+use faer::c64;
 use pulp::Simd;
 use serde::{Deserialize, Serialize};
 
@@ -982,6 +983,75 @@ pub fn axpy(out: &mut [f64], a: f64, x: &[f64]) {
     for (o, xi) in out.iter_mut().zip(x) {
         *o += a * xi;
     }
+}
+
+// Complex vectors (the dense solves' passes: `lu_solve`, `complex_symmetric`, `extreme`).
+
+/// `y += s a`.
+#[inline(always)]
+pub fn axpy_c64<S: Simd>(simd: S, s: c64, a: &[c64], y: &mut [c64]) {
+    let (ah, at) = S::as_simd_c64s(a);
+    let (yh, yt) = S::as_mut_simd_c64s(y);
+    let sv = simd.splat_c64s(s);
+    for (yv, &av) in yh.iter_mut().zip(ah) {
+        *yv = simd.mul_add_c64s(sv, av, *yv);
+    }
+    for (yv, &av) in yt.iter_mut().zip(at) {
+        *yv += s * av;
+    }
+}
+
+/// `sum_i conj(a_i) w_i`.
+#[inline(always)]
+pub fn dot_conj_c64<S: Simd>(simd: S, a: &[c64], w: &[c64]) -> c64 {
+    let (ah, at) = S::as_simd_c64s(a);
+    let (wh, wt) = S::as_simd_c64s(w);
+    let zero = simd.splat_c64s(c64::new(0.0, 0.0));
+    // Four independent sums: a complex multiply-add is two dependent fused operations.
+    let mut acc = [zero; 4];
+    let mut chunks = ah.chunks_exact(4).zip(wh.chunks_exact(4));
+    for (ac, wc) in &mut chunks {
+        for k in 0..4 {
+            acc[k] = simd.conj_mul_add_c64s(ac[k], wc[k], acc[k]);
+        }
+    }
+    let done = ah.len() / 4 * 4;
+    for (k, (&av, &wv)) in ah[done..].iter().zip(&wh[done..]).enumerate() {
+        acc[k] = simd.conj_mul_add_c64s(av, wv, acc[k]);
+    }
+    let (s0, s1) = (acc[0], acc[1]);
+    let (s2, s3) = (acc[2], acc[3]);
+    let mut s = (simd.reduce_sum_c64s(s0) + simd.reduce_sum_c64s(s1))
+        + (simd.reduce_sum_c64s(s2) + simd.reduce_sum_c64s(s3));
+    for (&a, &w) in at.iter().zip(wt) {
+        s += a.conj() * w;
+    }
+    s
+}
+
+/// `sum_i a_i w_i` (no conjugation).
+#[inline(always)]
+pub fn dot_c64<S: Simd>(simd: S, a: &[c64], w: &[c64]) -> c64 {
+    let (ah, at) = S::as_simd_c64s(a);
+    let (wh, wt) = S::as_simd_c64s(w);
+    let zero = simd.splat_c64s(c64::new(0.0, 0.0));
+    let mut acc = [zero; 4];
+    let mut chunks = ah.chunks_exact(4).zip(wh.chunks_exact(4));
+    for (ac, wc) in &mut chunks {
+        for k in 0..4 {
+            acc[k] = simd.mul_add_c64s(ac[k], wc[k], acc[k]);
+        }
+    }
+    let done = ah.len() / 4 * 4;
+    for (k, (&av, &wv)) in ah[done..].iter().zip(&wh[done..]).enumerate() {
+        acc[k] = simd.mul_add_c64s(av, wv, acc[k]);
+    }
+    let mut s = (simd.reduce_sum_c64s(acc[0]) + simd.reduce_sum_c64s(acc[1]))
+        + (simd.reduce_sum_c64s(acc[2]) + simd.reduce_sum_c64s(acc[3]));
+    for (&a, &w) in at.iter().zip(wt) {
+        s += a * w;
+    }
+    s
 }
 
 #[cfg(test)]

@@ -17,6 +17,8 @@ use faer::c64;
 use faer::linalg::solvers::PartialPivLu;
 use pulp::Simd;
 
+use super::kernels::{axpy_c64, dot_conj_c64};
+
 /// Rows `from..to` of column `j` of `m`, contiguous: the callers check first that `m` has a
 /// unit row stride ([`contiguous`]), as faer's owned matrices do.
 #[inline(always)]
@@ -42,48 +44,6 @@ fn faer_solve(lu: &PartialPivLu<c64>, x: &mut [c64], adjoint: bool) {
     } else {
         lu.solve_in_place(rhs);
     }
-}
-
-/// `y += s a`.
-#[inline(always)]
-fn axpy<S: Simd>(simd: S, s: c64, a: &[c64], y: &mut [c64]) {
-    let (ah, at) = S::as_simd_c64s(a);
-    let (yh, yt) = S::as_mut_simd_c64s(y);
-    let sv = simd.splat_c64s(s);
-    for (yv, &av) in yh.iter_mut().zip(ah) {
-        *yv = simd.mul_add_c64s(sv, av, *yv);
-    }
-    for (yv, &av) in yt.iter_mut().zip(at) {
-        *yv += s * av;
-    }
-}
-
-/// `sum_i conj(a_i) w_i`.
-#[inline(always)]
-fn dot_conj<S: Simd>(simd: S, a: &[c64], w: &[c64]) -> c64 {
-    let (ah, at) = S::as_simd_c64s(a);
-    let (wh, wt) = S::as_simd_c64s(w);
-    let zero = simd.splat_c64s(c64::new(0.0, 0.0));
-    // Four independent sums: a complex multiply-add is two dependent fused operations.
-    let mut acc = [zero; 4];
-    let mut chunks = ah.chunks_exact(4).zip(wh.chunks_exact(4));
-    for (ac, wc) in &mut chunks {
-        for k in 0..4 {
-            acc[k] = simd.conj_mul_add_c64s(ac[k], wc[k], acc[k]);
-        }
-    }
-    let done = ah.len() / 4 * 4;
-    for (k, (&av, &wv)) in ah[done..].iter().zip(&wh[done..]).enumerate() {
-        acc[k] = simd.conj_mul_add_c64s(av, wv, acc[k]);
-    }
-    let (s0, s1) = (acc[0], acc[1]);
-    let (s2, s3) = (acc[2], acc[3]);
-    let mut s = (simd.reduce_sum_c64s(s0) + simd.reduce_sum_c64s(s1))
-        + (simd.reduce_sum_c64s(s2) + simd.reduce_sum_c64s(s3));
-    for (&a, &w) in at.iter().zip(wt) {
-        s += a.conj() * w;
-    }
-    s
 }
 
 /// `x <- K^-1 x` with `lu` the factorisation of `K` (n x n, `x` of length n); `work` is
@@ -155,27 +115,27 @@ impl pulp::WithSimd for Passes<'_> {
             // U^H w = b (lower triangular): row i of U^H is column i of U conjugated.
             for i in 0..n {
                 let (done, rest) = x.split_at_mut(i);
-                let s = dot_conj(simd, col(u, i, 0, i), done);
+                let s = dot_conj_c64(simd, col(u, i, 0, i), done);
                 rest[0] = (rest[0] - s) / col(u, i, i, i + 1)[0].conj();
             }
             // L^H v = w (upper triangular, unit diagonal), from the last row up.
             for i in (0..n).rev() {
                 let (head, done) = x.split_at_mut(i + 1);
-                head[i] -= dot_conj(simd, col(l, i, i + 1, n), done);
+                head[i] -= dot_conj_c64(simd, col(l, i, i + 1, n), done);
             }
         } else {
             // L y = P b, unit diagonal: column j removes y_j from the rows below it.
             for j in 0..n {
                 let (head, below) = x.split_at_mut(j + 1);
                 let yj = head[j];
-                axpy(simd, -yj, col(l, j, j + 1, n), below);
+                axpy_c64(simd, -yj, col(l, j, j + 1, n), below);
             }
             // U x = y: column j removes x_j = y_j / U_jj from the rows above it.
             for j in (0..n).rev() {
                 let (above, rest) = x.split_at_mut(j);
                 let xj = rest[0] / col(u, j, j, j + 1)[0];
                 rest[0] = xj;
-                axpy(simd, -xj, col(u, j, 0, j), above);
+                axpy_c64(simd, -xj, col(u, j, 0, j), above);
             }
         }
     }
