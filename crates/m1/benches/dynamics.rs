@@ -3,7 +3,10 @@
 //! one r x r complex LU), the exact all-segment servo-loop sensitivity (`ActuatorLoop`:
 //! closed-loop modal stiffness and Lanczos) at a separated peak (10.49 Hz) and in the band where
 //! the top singular values cluster (40 Hz), and one global-loop point (`GlobalCsi::point`:
-//! Zernike bases to degree 8 and all segments, 3 images each side).
+//! Zernike bases to degree 8 and all segments, 3 images each side). And the factorisation of
+//! the closed-loop modal stiffness (complex symmetric, 300 and 1000 modes, at 10.49 Hz):
+//! `ModalFactor` ($L D L^T$ without pivoting, its growth test) against faer's pivoted LU of the
+//! same matrix, one thread each.
 #![allow(clippy::expect_used, clippy::unwrap_used, clippy::panic)]
 use criterion::{Criterion, criterion_group, criterion_main};
 use m1::analysis::csi::ActuatorLoop;
@@ -11,6 +14,7 @@ use m1::analysis::global_csi::GlobalCsi;
 use m1::aperture::geometry::{Geometry, GeometryParams};
 use m1::aperture::layout::Layout;
 use m1::control::controller::ControllerParams;
+use m1::linalg::complex_symmetric::ModalFactor;
 use m1::plant::monolithic::FrequencyModel;
 use m1::plant::segment::SegmentModel;
 use m1::plant::structure::{CellModel, CellParams};
@@ -45,6 +49,24 @@ fn bench(c: &mut Criterion) {
         }
     }
     g.finish();
+    // One thread each: faer's LU would otherwise split its products over the pool.
+    let par = faer::get_global_parallelism();
+    faer::set_global_parallelism(faer::Par::Seq);
+    let mut g = c.benchmark_group("tmt_modal_factor");
+    g.sample_size(10);
+    for r in [300usize, 1000] {
+        let fm = FrequencyModel::new(n, SegmentModel::voice_coil(), cell.clone(), r, 0.02).unwrap();
+        let k = fm.modal_stiffness(10.49, &fm.channels(10.49));
+        assert!(ModalFactor::new(|| k.clone()).is_ldlt());
+        g.bench_function(format!("ldlt/{r}_modes"), |b| {
+            b.iter(|| black_box(ModalFactor::new(|| k.clone())))
+        });
+        g.bench_function(format!("faer_lu/{r}_modes"), |b| {
+            b.iter(|| black_box(k.partial_piv_lu()))
+        });
+    }
+    g.finish();
+    faer::set_global_parallelism(par);
 }
 
 criterion_group!(benches, bench);
