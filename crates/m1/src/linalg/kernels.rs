@@ -1004,52 +1004,44 @@ pub fn axpy_c64<S: Simd>(simd: S, s: c64, a: &[c64], y: &mut [c64]) {
 /// `sum_i conj(a_i) w_i`.
 #[inline(always)]
 pub fn dot_conj_c64<S: Simd>(simd: S, a: &[c64], w: &[c64]) -> c64 {
-    let (ah, at) = S::as_simd_c64s(a);
-    let (wh, wt) = S::as_simd_c64s(w);
-    let zero = simd.splat_c64s(c64::new(0.0, 0.0));
-    // Four independent sums: a complex multiply-add is two dependent fused operations.
-    let mut acc = [zero; 4];
-    let mut chunks = ah.chunks_exact(4).zip(wh.chunks_exact(4));
-    for (ac, wc) in &mut chunks {
-        for k in 0..4 {
-            acc[k] = simd.conj_mul_add_c64s(ac[k], wc[k], acc[k]);
-        }
-    }
-    let done = ah.len() / 4 * 4;
-    for (k, (&av, &wv)) in ah[done..].iter().zip(&wh[done..]).enumerate() {
-        acc[k] = simd.conj_mul_add_c64s(av, wv, acc[k]);
-    }
-    let (s0, s1) = (acc[0], acc[1]);
-    let (s2, s3) = (acc[2], acc[3]);
-    let mut s = (simd.reduce_sum_c64s(s0) + simd.reduce_sum_c64s(s1))
-        + (simd.reduce_sum_c64s(s2) + simd.reduce_sum_c64s(s3));
-    for (&a, &w) in at.iter().zip(wt) {
-        s += a.conj() * w;
-    }
-    s
+    dot_c64_with::<S, true>(simd, a, w)
 }
 
 /// `sum_i a_i w_i` (no conjugation).
 #[inline(always)]
 pub fn dot_c64<S: Simd>(simd: S, a: &[c64], w: &[c64]) -> c64 {
+    dot_c64_with::<S, false>(simd, a, w)
+}
+
+/// `sum_i a_i w_i`, `a` conjugated when `CONJ`.
+#[inline(always)]
+fn dot_c64_with<S: Simd, const CONJ: bool>(simd: S, a: &[c64], w: &[c64]) -> c64 {
     let (ah, at) = S::as_simd_c64s(a);
     let (wh, wt) = S::as_simd_c64s(w);
     let zero = simd.splat_c64s(c64::new(0.0, 0.0));
+    let fma = |x, y, acc| {
+        if CONJ {
+            simd.conj_mul_add_c64s(x, y, acc)
+        } else {
+            simd.mul_add_c64s(x, y, acc)
+        }
+    };
+    // Four independent sums: a complex multiply-add is two dependent fused operations.
     let mut acc = [zero; 4];
     let mut chunks = ah.chunks_exact(4).zip(wh.chunks_exact(4));
     for (ac, wc) in &mut chunks {
         for k in 0..4 {
-            acc[k] = simd.mul_add_c64s(ac[k], wc[k], acc[k]);
+            acc[k] = fma(ac[k], wc[k], acc[k]);
         }
     }
     let done = ah.len() / 4 * 4;
     for (k, (&av, &wv)) in ah[done..].iter().zip(&wh[done..]).enumerate() {
-        acc[k] = simd.mul_add_c64s(av, wv, acc[k]);
+        acc[k] = fma(av, wv, acc[k]);
     }
     let mut s = (simd.reduce_sum_c64s(acc[0]) + simd.reduce_sum_c64s(acc[1]))
         + (simd.reduce_sum_c64s(acc[2]) + simd.reduce_sum_c64s(acc[3]));
     for (&a, &w) in at.iter().zip(wt) {
-        s += a * w;
+        s += if CONJ { a.conj() * w } else { a * w };
     }
     s
 }

@@ -6,10 +6,9 @@
 use faer::c64;
 
 use super::actuator_loop::ActuatorLoop;
-use super::projected::{Kinds, singular};
+use super::projected::{Kinds, singular, stiffness_with_forces};
 use crate::M1Error;
 use crate::linalg::complex_symmetric::ModalFactor;
-use crate::plant::monolithic::ChannelTransfer;
 
 /// Lanczos steps at least from the generic start: enough for the top of the spectrum to be
 /// reached before the residual test is trusted.
@@ -122,17 +121,8 @@ impl ActuatorLoop {
     /// servo closed is $f_z - s f_u H p_{sz} / E$. Complex symmetric: $L D L^T$ where stable,
     /// else LU ([`ModalFactor`]).
     pub(super) fn closed_loop_factor(&self, k: &Kinds, s: c64, e: [c64; 2]) -> ModalFactor {
-        let beta = [0, 1].map(|kd| k.fu[kd] * k.hold * k.psz[kd] / e[kd]);
-        let zero = c64::new(0.0, 0.0);
-        let ct = |kd: usize| ChannelTransfer {
-            mirror: [zero; 3],
-            force: [zero, k.fz[kd] - s * beta[kd], zero],
-            stroke: [zero; 3],
-            drive: [zero; 3],
-            return_difference: zero,
-            loop_gain: zero,
-        };
-        ModalFactor::new(|| self.fm.modal_stiffness(k.frequency, &[ct(0), ct(1)]))
+        let forces = [0, 1].map(|kd| k.fz[kd] - s * (k.fu[kd] * k.hold * k.psz[kd] / e[kd]));
+        ModalFactor::new(|| stiffness_with_forces(&self.fm, k.frequency, forces))
     }
 
     /// $\sigma_{max}$ of the sensitivity on the coupled subspace (dimension $r_p + r_t > 0$)

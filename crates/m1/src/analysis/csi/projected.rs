@@ -52,25 +52,29 @@ impl Kinds {
     }
 }
 
+/// The modal stiffness at `f` (Hz) with each channel kind's cell force per cell displacement
+/// `forces` (piston, tilt): `modal_stiffness` reads it from `force[1]`.
+pub(super) fn stiffness_with_forces(fm: &FrequencyModel, f: f64, forces: [c64; 2]) -> Mat<c64> {
+    let zero = c64::new(0.0, 0.0);
+    let ct = |kind: usize| ChannelTransfer {
+        mirror: [zero; 3],
+        force: [zero, forces[kind], zero],
+        stroke: [zero; 3],
+        drive: [zero; 3],
+        return_difference: zero,
+        loop_gain: zero,
+    };
+    fm.modal_stiffness(f, &[ct(0), ct(1)])
+}
+
 /// The factors of the open-servo modal stiffness $K_0$ at one frequency (`None` without
 /// modes): complex symmetric, so $L D L^T$ where stable ([`ModalFactor`]).
 pub(super) fn modal_factor(fm: &FrequencyModel, k: &Kinds) -> Option<ModalFactor> {
     if fm.n_modes() == 0 {
         return None;
     }
-    // `modal_stiffness` reads the cell force per cell displacement of each kind from
-    // `force[1]`: give it the open channel's.
-    let zero = c64::new(0.0, 0.0);
-    let ct = |kind: usize| ChannelTransfer {
-        mirror: [zero; 3],
-        force: [zero, k.fz[kind], zero],
-        stroke: [zero; 3],
-        drive: [zero; 3],
-        return_difference: zero,
-        loop_gain: zero,
-    };
     Some(ModalFactor::new(|| {
-        fm.modal_stiffness(k.frequency, &[ct(0), ct(1)])
+        stiffness_with_forces(fm, k.frequency, k.fz)
     }))
 }
 

@@ -31,6 +31,19 @@ fn keck(modes: usize, model: SegmentModel) -> (ActuatorLoop, Layout) {
     (lp, layout)
 }
 
+/// The TMT mirror on its built-in cell with `modes` modes, Zernike bases to degree 2.
+fn tmt_loop(modes: usize) -> ActuatorLoop {
+    let layout = Layout::tmt();
+    let n = layout.n_segments();
+    let geometry = Geometry::new(&layout, GeometryParams::for_layout(&layout)).unwrap();
+    let cell = crate::plant::structure::StructureSource::parse("tmt")
+        .unwrap()
+        .modes(&layout)
+        .unwrap();
+    let fm = FrequencyModel::new(n, SegmentModel::voice_coil(), cell, modes, 0.02).unwrap();
+    ActuatorLoop::new(fm, &layout, &geometry, 2, &[1]).unwrap()
+}
+
 /// On a rigid base every segment basis and all segments give exactly the larger of the two
 /// channels' 1 / |1 + K_s p0| (both kinds are in every segment basis); Zernike degree 0
 /// (global piston, piston channels only) gives the piston channel's. A Zernike basis of
@@ -292,15 +305,7 @@ fn warm_start_finds_a_top_orthogonal_to_the_previous_one() {
 /// accuracy); above it, 1e-7 (the dense reference's own round-off).
 #[test]
 fn clustered_top_is_within_the_documented_bound_of_the_dense_value() {
-    let layout = Layout::tmt();
-    let n = layout.n_segments();
-    let geometry = Geometry::new(&layout, GeometryParams::for_layout(&layout)).unwrap();
-    let cell = crate::plant::structure::StructureSource::parse("tmt")
-        .unwrap()
-        .modes(&layout)
-        .unwrap();
-    let fm = FrequencyModel::new(n, SegmentModel::voice_coil(), cell, 1000, 0.02).unwrap();
-    let lp = ActuatorLoop::new(fm, &layout, &geometry, 2, &[1]).unwrap();
+    let lp = tmt_loop(1000);
     assert_eq!(lp.lanczos_steps(), LANCZOS_STEPS);
     let more = lp.clone().with_lanczos_steps(120).unwrap();
     assert!(lp.clone().with_lanczos_steps(11).is_err());
@@ -333,17 +338,7 @@ fn clustered_top_is_within_the_documented_bound_of_the_dense_value() {
 /// it to the LU), and its solves equal those of faer's pivoted LU of the same matrix.
 #[test]
 fn tmt_modal_stiffness_is_factored_without_pivoting_over_the_band() {
-    use crate::plant::monolithic::ChannelTransfer;
-    let layout = Layout::tmt();
-    let n = layout.n_segments();
-    let geometry = Geometry::new(&layout, GeometryParams::for_layout(&layout)).unwrap();
-    let cell = crate::plant::structure::StructureSource::parse("tmt")
-        .unwrap()
-        .modes(&layout)
-        .unwrap();
-    let fm = FrequencyModel::new(n, SegmentModel::voice_coil(), cell, 300, 0.02).unwrap();
-    let lp = ActuatorLoop::new(fm, &layout, &geometry, 2, &[1]).unwrap();
-    let zero = c64::new(0.0, 0.0);
+    let lp = tmt_loop(300);
     let one = c64::new(1.0, 0.0);
     for f in log_grid(1.0, 300.0, 14) {
         let k = Kinds::new(lp.fm.model(), f);
@@ -352,15 +347,7 @@ fn tmt_modal_stiffness_is_factored_without_pivoting_over_the_band() {
         let closed = lp.closed_loop_factor(&k, k.k_s, e);
         assert!(open.is_ldlt() && closed.is_ldlt(), "{f} Hz");
         // The open one's solve against faer's LU of K_0.
-        let ct = |kind: usize| ChannelTransfer {
-            mirror: [zero; 3],
-            force: [zero, k.fz[kind], zero],
-            stroke: [zero; 3],
-            drive: [zero; 3],
-            return_difference: zero,
-            loop_gain: zero,
-        };
-        let k0 = lp.fm.modal_stiffness(f, &[ct(0), ct(1)]);
+        let k0 = super::projected::stiffness_with_forces(&lp.fm, f, k.fz);
         let b = Mat::from_fn(300, 2, |i, j| {
             c64::new((0.1 * (i + j) as f64).sin(), (0.3 * i as f64).cos())
         });
