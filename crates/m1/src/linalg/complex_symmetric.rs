@@ -11,7 +11,9 @@
 //! checked after the factorisation: with $|L| |D| |L^T|$ the product of the entries' moduli,
 //! the backward error is at most a small multiple of $n \varepsilon \| |L| |D| |L^T| \|$, so the
 //! factorisation is kept when $\| |L| |D| |L^T| \|_\infty \le$ [`GROWTH_LIMIT`] $\|K\|_\infty$
-//! and every pivot is finite and non-zero; otherwise the LU is computed instead.
+//! and every pivot is finite and non-zero; otherwise the LU is computed instead. (Both norms
+//! take $|\mathrm{re}| + |\mathrm{im}|$ as an entry's size, within $\sqrt 2$ of its modulus
+//! and cheaper.)
 //!
 //! The factorisation is blocked: each panel of [`PANEL`] columns is eliminated column by
 //! column over its whole height (vector updates), the trailing lower triangle updated by the
