@@ -27,7 +27,7 @@ use faer::linalg::solvers::{PartialPivLu, Solve};
 use faer::{Accum, Mat, MatMut, MatRef, Par, c64};
 use pulp::Simd;
 
-use super::kernels::{axpy_c64, dot_c64};
+use super::kernels::{axpy_c64, column_c64, dot_c64};
 use super::lu_solve;
 
 /// Columns per panel of the blocked factorisation.
@@ -54,16 +54,6 @@ fn col_mut(m: &mut Mat<c64>, j: usize, from: usize) -> &mut [c64] {
     }
 }
 
-/// Column `j` of `m` from row `from` on.
-#[inline(always)]
-fn col(m: MatRef<'_, c64>, j: usize, from: usize) -> &[c64] {
-    let n = m.nrows();
-    match m.col(j).try_as_col_major() {
-        Some(c) => &c.as_slice()[from..n],
-        None => &[],
-    }
-}
-
 /// Eliminates the panel of columns `k..k + kb` of `a` over its whole height (the lower
 /// triangle holds the matrix updated by the previous panels). `false` on a zero or
 /// non-finite pivot.
@@ -87,7 +77,7 @@ impl pulp::WithSimd for Panel<'_> {
             }
             let inv = c64::new(1.0, 0.0) / d;
             // v = the column below the pivot (D_j L_j), then L_j = v / d.
-            lcol[j + 1..n].copy_from_slice(col(a.as_ref(), j, j + 1));
+            lcol[j + 1..n].copy_from_slice(column_c64(a.as_ref(), j, j + 1, n));
             for x in col_mut(a, j, j + 1) {
                 *x *= inv;
             }
@@ -114,7 +104,7 @@ fn growth(f: MatRef<'_, c64>) -> f64 {
     // u = |L^T| 1: u_j = 1 + sum_{i > j} |L_ij|; then v = |D| u; then |L| v.
     let v: Vec<f64> = (0..n)
         .map(|j| {
-            let below: f64 = col(f, j, j + 1).iter().map(|&x| modulus(x)).sum();
+            let below: f64 = column_c64(f, j, j + 1, n).iter().map(|&x| modulus(x)).sum();
             (1.0 + below) * modulus(f[(j, j)])
         })
         .collect();
@@ -122,7 +112,7 @@ fn growth(f: MatRef<'_, c64>) -> f64 {
     let mut w = v.clone();
     for j in 0..n {
         let vj = v[j];
-        for (wi, x) in w[j + 1..].iter_mut().zip(col(f, j, j + 1)) {
+        for (wi, x) in w[j + 1..].iter_mut().zip(column_c64(f, j, j + 1, n)) {
             *wi += modulus(*x) * vj;
         }
     }
@@ -143,7 +133,7 @@ impl ModalFactor {
         // ||K||_inf from the lower triangle (K symmetric).
         let mut rows = vec![0.0f64; n];
         for j in 0..n {
-            for (i, x) in col(f.as_ref(), j, j).iter().enumerate() {
+            for (i, x) in column_c64(f.as_ref(), j, j, n).iter().enumerate() {
                 let m = modulus(*x);
                 rows[j + i] += m;
                 if i > 0 {
@@ -296,7 +286,7 @@ impl pulp::WithSimd for Substitute<'_> {
         // L y = b: column j removes y_j from the rows below.
         for j in 0..n {
             let (head, below) = x.split_at_mut(j + 1);
-            axpy_c64(simd, -head[j], col(f, j, j + 1), below);
+            axpy_c64(simd, -head[j], column_c64(f, j, j + 1, n), below);
         }
         for (j, v) in x.iter_mut().enumerate() {
             *v /= f[(j, j)];
@@ -304,7 +294,7 @@ impl pulp::WithSimd for Substitute<'_> {
         // L^T x = z, from the last row up: x_j -= L[j+1.., j] . x[j+1..].
         for j in (0..n).rev() {
             let (head, done) = x.split_at_mut(j + 1);
-            head[j] -= dot_c64(simd, col(f, j, j + 1), done);
+            head[j] -= dot_c64(simd, column_c64(f, j, j + 1, n), done);
         }
     }
 }

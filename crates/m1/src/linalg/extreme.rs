@@ -21,7 +21,7 @@
 use faer::linalg::solvers::PartialPivLu;
 use faer::{MatRef, c64};
 
-use super::kernels::{axpy_c64, dot_conj_c64};
+use super::kernels::{axpy_c64, column_c64, dot_conj_c64};
 use super::krylov::largest_hermitian_eigenpair;
 use super::lu_solve;
 
@@ -69,25 +69,16 @@ impl pulp::WithSimd for GramProduct<'_> {
         let GramProduct { a, x, t, out } = self;
         t.fill(c64::new(0.0, 0.0));
         for (j, &xj) in x.iter().enumerate() {
-            axpy_c64(simd, xj, column(a, j), t);
+            axpy_c64(simd, xj, column_c64(a, j, 0, a.nrows()), t);
         }
         for (j, o) in out.iter_mut().enumerate() {
-            *o = dot_conj_c64(simd, column(a, j), t);
+            *o = dot_conj_c64(simd, column_c64(a, j, 0, a.nrows()), t);
         }
-    }
-}
-
-/// Column `j` of `a` as a slice (`a` column-major, checked by the caller).
-#[inline(always)]
-fn column(a: MatRef<'_, c64>, j: usize) -> &[c64] {
-    match a.col(j).try_as_col_major() {
-        Some(c) => c.as_slice(),
-        None => &[],
     }
 }
 
 /// $\sigma_{max}$ of the square matrix `a` (module documentation); `None` if it is not square
-/// or the fallback SVD fails. A non-finite entry gives a non-finite value.
+/// or the fallback SVD fails (as it may on a non-finite entry).
 pub fn largest_singular_value(a: MatRef<'_, c64>) -> Option<f64> {
     let n = a.nrows();
     if a.ncols() != n {

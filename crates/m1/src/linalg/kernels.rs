@@ -987,6 +987,16 @@ pub fn axpy(out: &mut [f64], a: f64, x: &[f64]) {
 
 // Complex vectors (the dense solves' passes: `lu_solve`, `complex_symmetric`, `extreme`).
 
+/// Rows `from..to` of column `j` of the column-major `m` as a slice (empty if the column is
+/// not contiguous: the callers check the storage first, as faer's owned matrices are).
+#[inline(always)]
+pub fn column_c64(m: faer::MatRef<'_, c64>, j: usize, from: usize, to: usize) -> &[c64] {
+    match m.col(j).try_as_col_major() {
+        Some(c) => &c.as_slice()[from..to],
+        None => &[],
+    }
+}
+
 /// `y += s a`.
 #[inline(always)]
 pub fn axpy_c64<S: Simd>(simd: S, s: c64, a: &[c64], y: &mut [c64]) {

@@ -17,17 +17,7 @@ use faer::c64;
 use faer::linalg::solvers::PartialPivLu;
 use pulp::Simd;
 
-use super::kernels::{axpy_c64, dot_conj_c64};
-
-/// Rows `from..to` of column `j` of `m`, contiguous: the callers check first that `m` has a
-/// unit row stride ([`contiguous`]), as faer's owned matrices do.
-#[inline(always)]
-fn col(m: MatRef<'_, c64>, j: usize, from: usize, to: usize) -> &[c64] {
-    match m.col(j).try_as_col_major() {
-        Some(c) => &c.as_slice()[from..to],
-        None => &[],
-    }
-}
+use super::kernels::{axpy_c64, column_c64, dot_conj_c64};
 
 /// Whether every column of both factors is contiguous (the passes below read them as slices).
 fn contiguous(lu: &PartialPivLu<c64>) -> bool {
@@ -115,27 +105,27 @@ impl pulp::WithSimd for Passes<'_> {
             // U^H w = b (lower triangular): row i of U^H is column i of U conjugated.
             for i in 0..n {
                 let (done, rest) = x.split_at_mut(i);
-                let s = dot_conj_c64(simd, col(u, i, 0, i), done);
-                rest[0] = (rest[0] - s) / col(u, i, i, i + 1)[0].conj();
+                let s = dot_conj_c64(simd, column_c64(u, i, 0, i), done);
+                rest[0] = (rest[0] - s) / column_c64(u, i, i, i + 1)[0].conj();
             }
             // L^H v = w (upper triangular, unit diagonal), from the last row up.
             for i in (0..n).rev() {
                 let (head, done) = x.split_at_mut(i + 1);
-                head[i] -= dot_conj_c64(simd, col(l, i, i + 1, n), done);
+                head[i] -= dot_conj_c64(simd, column_c64(l, i, i + 1, n), done);
             }
         } else {
             // L y = P b, unit diagonal: column j removes y_j from the rows below it.
             for j in 0..n {
                 let (head, below) = x.split_at_mut(j + 1);
                 let yj = head[j];
-                axpy_c64(simd, -yj, col(l, j, j + 1, n), below);
+                axpy_c64(simd, -yj, column_c64(l, j, j + 1, n), below);
             }
             // U x = y: column j removes x_j = y_j / U_jj from the rows above it.
             for j in (0..n).rev() {
                 let (above, rest) = x.split_at_mut(j);
-                let xj = rest[0] / col(u, j, j, j + 1)[0];
+                let xj = rest[0] / column_c64(u, j, j, j + 1)[0];
                 rest[0] = xj;
-                axpy_c64(simd, -xj, col(u, j, 0, j), above);
+                axpy_c64(simd, -xj, column_c64(u, j, 0, j), above);
             }
         }
     }
