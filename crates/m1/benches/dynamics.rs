@@ -6,9 +6,11 @@
 //! Zernike bases to degree 8 and all segments, 3 images each side). And the factorisation of
 //! the closed-loop modal stiffness (complex symmetric, 300 and 1000 modes, at 10.49 Hz):
 //! `ModalFactor` ($L D L^T$ without pivoting, its growth test) against faer's pivoted LU of the
-//! same matrix, one thread each.
+//! same matrix, one thread each; and a Lanczos step's pair of solves with each (`solve_pair`:
+//! the packed $L D L^T$, the LU's factors by columns).
 #![allow(clippy::expect_used, clippy::unwrap_used, clippy::panic)]
 use criterion::{Criterion, criterion_group, criterion_main};
+use faer::c64;
 use m1::analysis::csi::ActuatorLoop;
 use m1::analysis::global_csi::GlobalCsi;
 use m1::aperture::geometry::{Geometry, GeometryParams};
@@ -64,6 +66,24 @@ fn bench(c: &mut Criterion) {
         g.bench_function(format!("faer_lu/{r}_modes"), |b| {
             b.iter(|| black_box(k.partial_piv_lu()))
         });
+        // One Lanczos step's two solves (K^-1 x, then K^-H x): the packed L D L^T against
+        // faer's LU factors solved by columns (`lu_solve`, as the LU fallback does).
+        let rhs: Vec<c64> = (0..r)
+            .map(|i| c64::new((0.3 * i as f64).sin(), (0.7 * i as f64).cos()))
+            .collect();
+        let mut work = Vec::new();
+        let ldlt = ModalFactor::new(|| k.clone());
+        let lu = ModalFactor::Lu(k.partial_piv_lu());
+        for (name, f) in [("ldlt_packed", &ldlt), ("lu", &lu)] {
+            g.bench_function(format!("solve_pair/{name}/{r}_modes"), |b| {
+                let mut x = rhs.clone();
+                b.iter(|| {
+                    f.solve_in_place(&mut x, &mut work);
+                    f.solve_adjoint_in_place(&mut x, &mut work);
+                    black_box(x[0])
+                })
+            });
+        }
     }
     g.finish();
     faer::set_global_parallelism(par);

@@ -19,16 +19,21 @@
 //! column over its whole height (vector updates), the trailing lower triangle updated by the
 //! panel in one matrix product (faer's triangular matmul, the flops' bulk).
 //!
-//! Solves with one right-hand side read each column of $L$ once per triangle in its storage
-//! order (like [`super::lu_solve`]); $K^{-H} b = \overline{K^{-1} \bar b}$ for a symmetric $K$.
+//! Solves with one right-hand side use the factors repacked on the first such solve
+//! ([`PackedLdlt`]: one contiguous stream, real and imaginary parts apart); $K^{-H} b =
+//! \overline{K^{-1} \bar b}$ for a symmetric $K$. Solves with many use faer's triangular solves
+//! on the factors in place.
 
 use faer::linalg::matmul::triangular::{BlockStructure, matmul as tri_matmul};
 use faer::linalg::solvers::{PartialPivLu, Solve};
 use faer::{Accum, Mat, MatMut, MatRef, Par, c64};
 use pulp::Simd;
 
-use super::kernels::{axpy_c64, column_c64, dot_c64};
+use std::sync::OnceLock;
+
+use super::kernels::{axpy_c64, column_c64};
 use super::lu_solve;
+use super::packed_ldlt::PackedLdlt;
 
 /// Columns per panel of the blocked factorisation.
 pub const PANEL: usize = 48;
@@ -38,8 +43,13 @@ pub const GROWTH_LIMIT: f64 = 64.0;
 /// The factors of a complex symmetric matrix: $L D L^T$ where stable, else faer's LU.
 #[derive(Debug)]
 pub enum ModalFactor {
-    /// Unit lower triangle $L$ strictly below the diagonal, $D$ on it (column-major).
-    Ldlt(Mat<c64>),
+    /// $L D L^T$.
+    Ldlt {
+        /// Unit lower triangle $L$ strictly below the diagonal, $D$ on it (column-major).
+        f: Mat<c64>,
+        /// The same factors packed for single right-hand sides, made on the first one.
+        packed: OnceLock<PackedLdlt>,
+    },
     /// Partially pivoted LU (the fallback).
     Lu(PartialPivLu<c64>),
 }
@@ -145,7 +155,10 @@ impl ModalFactor {
         if Self::ldlt_in_place(&mut f) {
             let g = growth(f.as_ref());
             if g.is_finite() && g <= GROWTH_LIMIT * knorm {
-                return Self::Ldlt(f);
+                return Self::Ldlt {
+                    f,
+                    packed: OnceLock::new(),
+                };
             }
         }
         // The fallback reads the whole matrix: mirror the lower triangle first.
@@ -203,7 +216,7 @@ impl ModalFactor {
 
     /// Whether the stable $L D L^T$ was kept (else the LU).
     pub fn is_ldlt(&self) -> bool {
-        matches!(self, Self::Ldlt(_))
+        matches!(self, Self::Ldlt { .. })
     }
 
     /// `x <- K^-1 x` (`work` resized and overwritten by the LU path).
@@ -212,14 +225,9 @@ impl ModalFactor {
     /// If `x`'s length is not the order (a programming error).
     pub fn solve_in_place(&self, x: &mut [c64], work: &mut Vec<c64>) {
         match self {
-            Self::Ldlt(f) => {
-                assert_eq!(
-                    x.len(),
-                    f.nrows(),
-                    "ModalFactor: wrong right-hand side length"
-                );
-                pulp::Arch::new().dispatch(Substitute { f: f.as_ref(), x });
-            }
+            Self::Ldlt { f, packed } => packed
+                .get_or_init(|| PackedLdlt::new(f.as_ref()))
+                .solve_in_place(x, false),
             Self::Lu(lu) => lu_solve::solve_in_place(lu, x, work),
         }
     }
@@ -230,15 +238,9 @@ impl ModalFactor {
     /// If `x`'s length is not the order (a programming error).
     pub fn solve_adjoint_in_place(&self, x: &mut [c64], work: &mut Vec<c64>) {
         match self {
-            Self::Ldlt(_) => {
-                for v in x.iter_mut() {
-                    *v = v.conj();
-                }
-                self.solve_in_place(x, work);
-                for v in x.iter_mut() {
-                    *v = v.conj();
-                }
-            }
+            Self::Ldlt { f, packed } => packed
+                .get_or_init(|| PackedLdlt::new(f.as_ref()))
+                .solve_in_place(x, true),
             Self::Lu(lu) => lu_solve::solve_adjoint_in_place(lu, x, work),
         }
     }
@@ -246,7 +248,7 @@ impl ModalFactor {
     /// `K^-1 B` for many right-hand sides.
     pub fn solve(&self, b: MatRef<'_, c64>) -> Mat<c64> {
         match self {
-            Self::Ldlt(f) => {
+            Self::Ldlt { f, .. } => {
                 let mut x = b.to_owned();
                 let l = f.as_ref();
                 faer::linalg::triangular_solve::solve_unit_lower_triangular_in_place(
@@ -267,34 +269,6 @@ impl ModalFactor {
                 x
             }
             Self::Lu(lu) => lu.solve(b),
-        }
-    }
-}
-
-/// The three passes of one $L D L^T$ solve.
-struct Substitute<'a> {
-    f: MatRef<'a, c64>,
-    x: &'a mut [c64],
-}
-
-impl pulp::WithSimd for Substitute<'_> {
-    type Output = ();
-    #[inline(always)]
-    fn with_simd<S: Simd>(self, simd: S) {
-        let Substitute { f, x } = self;
-        let n = x.len();
-        // L y = b: column j removes y_j from the rows below.
-        for j in 0..n {
-            let (head, below) = x.split_at_mut(j + 1);
-            axpy_c64(simd, -head[j], column_c64(f, j, j + 1, n), below);
-        }
-        for (j, v) in x.iter_mut().enumerate() {
-            *v /= f[(j, j)];
-        }
-        // L^T x = z, from the last row up: x_j -= L[j+1.., j] . x[j+1..].
-        for j in (0..n).rev() {
-            let (head, done) = x.split_at_mut(j + 1);
-            head[j] -= dot_c64(simd, column_c64(f, j, j + 1, n), done);
         }
     }
 }

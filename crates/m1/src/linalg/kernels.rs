@@ -63,7 +63,7 @@ pub fn rows_dot<S: Simd, const L: usize>(
                 i += 4;
             }
             while i < m {
-                let [[v]] = dot_block_f64(simd, [row(i)], [x]);
+                let [[v]] = dot_block_f64(simd, [row(i)], [x], None);
                 put(&mut y[i], v);
                 i += 1;
             }
@@ -76,7 +76,11 @@ pub fn rows_dot<S: Simd, const L: usize>(
             };
             let mut i = 0;
             while i + 4 <= m {
-                let s = dot_block_f64(simd, [row(i), row(i + 1), row(i + 2), row(i + 3)], x);
+                // The next four rows prefetched a group ahead (the rows are long streams
+                // here: the CSI's coupled basis and Gram matrix).
+                let next = a.as_ptr().wrapping_add((i + 4) * lda);
+                let rows = [row(i), row(i + 1), row(i + 2), row(i + 3)];
+                let s = dot_block_f64(simd, rows, x, Some((next, lda)));
                 for (r, [a, b]) in s.into_iter().enumerate() {
                     put(&mut y0[i + r], a);
                     put(&mut y1[i + r], b);
@@ -84,7 +88,7 @@ pub fn rows_dot<S: Simd, const L: usize>(
                 i += 4;
             }
             while i < m {
-                let [[a, b]] = dot_block_f64(simd, [row(i)], x);
+                let [[a, b]] = dot_block_f64(simd, [row(i)], x, None);
                 put(&mut y0[i], a);
                 put(&mut y1[i], b);
                 i += 1;
@@ -114,6 +118,8 @@ pub fn prefetch<T>(p: *const T) {
 /// Single-precision values in a 64-byte cache line: the products prefetch every this many
 /// values along a row (once per line, whatever their vectors' width).
 pub const LINE_F32: usize = 16;
+/// Double-precision values in a 64-byte cache line.
+pub const LINE_F64: usize = 8;
 
 /// `y += A x` for a single-precision `A` (`m x k` row-major, row stride `lda`) and `x`, each
 /// row's products summed in single precision, by lane and then across the lanes (one vector
@@ -416,6 +422,7 @@ fn dot_block_f64<S: Simd, const R: usize, const L: usize>(
     simd: S,
     rows: [&[f64]; R],
     x: [&[f64]; L],
+    ahead: Option<(*const f64, usize)>,
 ) -> [[f64; L]; R] {
     let n = S::as_simd_f64s(x[0]).0.len();
     let xh: [&[S::f64s]; L] = std::array::from_fn(|l| &S::as_simd_f64s(x[l]).0[..n]);
@@ -424,6 +431,13 @@ fn dot_block_f64<S: Simd, const R: usize, const L: usize>(
     let zero = simd.splat_f64s(0.0);
     let mut acc = [[zero; L]; R];
     for c in 0..n {
+        if let Some((next, lda)) = ahead
+            && (c * S::F64_LANES).is_multiple_of(LINE_F64)
+        {
+            for j in 0..R {
+                prefetch(next.wrapping_add(j * lda + c * S::F64_LANES));
+            }
+        }
         let xv: [S::f64s; L] = at_column(&xh, c, zero);
         for (accr, rr) in acc.iter_mut().zip(&rh) {
             let a = rr[c];
@@ -495,11 +509,55 @@ pub fn rows_axpy<S: Simd, const L: usize>(
             c
         };
         let rows = idx.map(row);
-        axpy4(simd, rows, w(x0), &mut *y0);
-        if let Some(y1) = y1.as_deref_mut() {
-            axpy4(simd, rows, w(x1), y1);
+        let next = a.as_ptr().wrapping_add((i + 4) * lda);
+        match y1.as_deref_mut() {
+            None => axpy4(simd, rows, w(x0), &mut *y0),
+            Some(y1) => axpy4x2(simd, rows, [w(x0), w(x1)], [&mut *y0, y1], (next, lda)),
         }
         i += 4;
+    }
+}
+
+/// `y_l += sum_r c_l[r] row_r` for four rows and two outputs, in one pass over the rows, the
+/// next four (`next`, row stride `lda`) prefetched along (the CSI's coupled basis: rows of
+/// 8 kB, streams of their own).
+#[inline(always)]
+fn axpy4x2<S: Simd>(
+    simd: S,
+    rows: [&[f64]; 4],
+    c: [[f64; 4]; 2],
+    y: [&mut [f64]; 2],
+    (next, lda): (*const f64, usize),
+) {
+    let [y0, y1] = y;
+    let (yh0, yt0) = S::as_mut_simd_f64s(y0);
+    let (yh1, yt1) = S::as_mut_simd_f64s(y1);
+    let n = yh0.len();
+    let rh: [&[S::f64s]; 4] = std::array::from_fn(|r| &S::as_simd_f64s(rows[r]).0[..n]);
+    let cv = c.map(|cl| cl.map(|v| simd.splat_f64s(v)));
+    for j in 0..n {
+        if (j * S::F64_LANES).is_multiple_of(LINE_F64) {
+            for r in 0..4 {
+                prefetch(next.wrapping_add(r * lda + j * S::F64_LANES));
+            }
+        }
+        let (mut u, mut v) = (yh0[j], yh1[j]);
+        for r in 0..4 {
+            let a = rh[r][j];
+            u = simd.mul_add_f64s(a, cv[0][r], u);
+            v = simd.mul_add_f64s(a, cv[1][r], v);
+        }
+        yh0[j] = u;
+        yh1[j] = v;
+    }
+    for (l, yt) in [yt0, yt1].into_iter().enumerate() {
+        for (j, yv) in yt.iter_mut().enumerate() {
+            let at = n * S::F64_LANES + j;
+            *yv += rows[0][at] * c[l][0]
+                + rows[1][at] * c[l][1]
+                + rows[2][at] * c[l][2]
+                + rows[3][at] * c[l][3];
+        }
     }
 }
 

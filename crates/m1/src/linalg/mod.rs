@@ -14,6 +14,7 @@ pub mod krylov;
 pub mod lanczos;
 pub mod lu_solve;
 pub mod npy;
+pub mod packed_ldlt;
 pub mod pair;
 pub mod skyline;
 pub mod symmetric;
