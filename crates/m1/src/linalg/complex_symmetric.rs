@@ -245,6 +245,24 @@ impl ModalFactor {
         }
     }
 
+    /// `B^T K^-1 B` (complex symmetric): from the $L D L^T$ factors $W^T D^{-1} W$ with $W =
+    /// L^{-1} B$, one triangular solve where `K^-1 B` takes two; from the LU, `B^T (K^-1 B)`.
+    pub fn bilinear(&self, b: MatRef<'_, c64>) -> Mat<c64> {
+        match self {
+            Self::Ldlt { f, .. } => {
+                let mut w = b.to_owned();
+                faer::linalg::triangular_solve::solve_unit_lower_triangular_in_place(
+                    f.as_ref(),
+                    w.as_mut(),
+                    Par::Seq,
+                );
+                let v = Mat::from_fn(w.nrows(), w.ncols(), |i, j| w[(i, j)] / f[(i, i)]);
+                w.transpose() * v
+            }
+            Self::Lu(lu) => b.transpose() * lu.solve(b),
+        }
+    }
+
     /// `K^-1 B` for many right-hand sides.
     pub fn solve(&self, b: MatRef<'_, c64>) -> Mat<c64> {
         match self {
@@ -334,8 +352,19 @@ mod tests {
                 (xm[(i, 2)] - x[i] * c64::new(3.0, -2.0)).norm() <= 1e-11 * (1.0 + x[i].norm())
             );
         }
-        // Agrees with faer's LU.
+        // B^T K^-1 B from the factors equals B^T times the solves, for either factors.
         let lu = ModalFactor::Lu(k.partial_piv_lu());
+        let want = bm.transpose() * &xm;
+        for fac in [&f, &lu] {
+            let got = fac.bilinear(bm.as_ref());
+            for i in 0..3 {
+                for j in 0..3 {
+                    let e = (got[(i, j)] - want[(i, j)]).norm();
+                    assert!(e <= 1e-11 * want[(i, j)].norm(), "{i} {j} {e:e}");
+                }
+            }
+        }
+        // Agrees with faer's LU.
         let mut z = b.clone();
         lu.solve_in_place(&mut z, &mut work);
         for i in 0..n {

@@ -85,12 +85,16 @@ pub(super) fn singular(f: f64) -> M1Error {
 }
 
 /// A real orthonormal basis of channel space in the pieces the plant needs:
-/// `C_k = Phi_k^T B_k` (r x nb) and `G_k = B_k^T B_k` (nb x nb) per channel kind.
+/// `C_k = Phi_k^T B_k` (r x nb) and `G_k = B_k^T B_k` (nb x nb) per channel kind; for a basis
+/// whose every vector lies in one kind's channels (the segment bases' unit vectors), each
+/// vector's kind and `C_p + C_t`.
 #[derive(Debug, Clone)]
 pub(super) struct Projected {
     nb: usize,
     c: [Mat<c64>; 2],
     pub(super) g: [Mat<f64>; 2],
+    /// `(kind of each vector, C_p + C_t)` when every vector has one kind.
+    single_kind: Option<(Vec<usize>, Mat<c64>)>,
 }
 
 impl Projected {
@@ -106,7 +110,34 @@ impl Projected {
             Mat::from_fn(x.nrows(), nb, |i, j| c64::new(x[(i, j)], 0.0))
         });
         let g = rows.map(|(r0, nr)| b.subrows(r0, nr).transpose() * b.subrows(r0, nr));
-        Self { nb, c, g }
+        let has = |(r0, nr): (usize, usize), j: usize| (r0..r0 + nr).any(|i| b[(i, j)] != 0.0);
+        let kinds: Option<Vec<usize>> = (0..nb)
+            .map(|j| match (has(rows[0], j), has(rows[1], j)) {
+                (true, true) => None,
+                (false, true) => Some(1),
+                _ => Some(0),
+            })
+            .collect();
+        let single_kind = kinds.map(|k| (k, &c[0] + &c[1]));
+        Self {
+            nb,
+            c,
+            g,
+            single_kind,
+        }
+    }
+
+    /// Whether the basis's vectors each lie in one kind's channels (the cheaper plant).
+    #[cfg(test)]
+    pub(super) fn is_single_kind(&self) -> bool {
+        self.single_kind.is_some()
+    }
+
+    /// The same basis with the general plant (for tests: both forms agree).
+    #[cfg(test)]
+    pub(super) fn general(mut self) -> Self {
+        self.single_kind = None;
+        self
     }
 
     /// `B^T P B` (nb x nb) at the frequency of `k`.
@@ -115,18 +146,30 @@ impl Projected {
         let mut m = Mat::from_fn(nb, nb, |i, j| {
             k.p0[0] * self.g[0][(i, j)] + k.p0[1] * self.g[1][(i, j)]
         });
-        if let Some(lu) = lu {
+        let Some(lu) = lu else {
+            return Ok(m);
+        };
+        let coupling = if let Some((kind, c)) = &self.single_kind {
+            // Vector i of kind k_i: left_i = p_sz,k_i c_i, right_j = H f_u,k_j c_j, so the
+            // coupling is diag(p_sz) (C^T K^-1 C) diag(H f_u), C^T K^-1 C from the factors
+            // with one triangular solve.
+            let x = lu.bilinear(c.as_ref());
+            Mat::from_fn(nb, nb, |i, j| {
+                k.psz[kind[i]] * x[(i, j)] * (k.fu[kind[j]] * k.hold)
+            })
+        } else {
             let left = faer::Scale(k.psz[0]) * &self.c[0] + faer::Scale(k.psz[1]) * &self.c[1];
             let right = faer::Scale(k.fu[0] * k.hold) * &self.c[0]
                 + faer::Scale(k.fu[1] * k.hold) * &self.c[1];
-            let x = lu.solve(right.as_ref());
-            if x.col_iter()
-                .any(|c| c.iter().any(|v| !(v.re.is_finite() && v.im.is_finite())))
-            {
-                return Err(singular(k.frequency));
-            }
-            m += left.transpose() * x;
+            left.transpose() * lu.solve(right.as_ref())
+        };
+        if coupling
+            .col_iter()
+            .any(|c| c.iter().any(|v| !(v.re.is_finite() && v.im.is_finite())))
+        {
+            return Err(singular(k.frequency));
         }
+        m += coupling;
         Ok(m)
     }
 }

@@ -205,6 +205,36 @@ fn sensitivity_matches_the_closed_loop_response() {
     }
 }
 
+/// A basis of single-kind vectors (every actuator channel: the identity) takes the plant
+/// from one triangular solve of the symmetric form; it equals the general form's, and a basis
+/// mixing the kinds (the Zernike one) takes the general form (Keck, 30 modes).
+#[test]
+fn single_kind_plant_equals_the_general_one() {
+    let model = SegmentModel::voice_coil();
+    let (lp, _) = keck(30, model.clone());
+    let fm = lp.model();
+    let na = fm.n_actuators();
+    let p = Projected::new(fm, &Mat::<f64>::identity(na, na));
+    assert!(p.is_single_kind());
+    assert!(!lp.zernike_projected.is_single_kind());
+    let g = p.clone().general();
+    for f in [3.0, 11.1, 40.0] {
+        let k = Kinds::new(&model, f);
+        let lu = modal_factor(fm, &k);
+        let (a, b) = (
+            p.plant(&k, lu.as_ref()).unwrap(),
+            g.plant(&k, lu.as_ref()).unwrap(),
+        );
+        let scale = (0..na).map(|i| b[(i, i)].norm()).fold(0.0, f64::max);
+        for i in 0..na {
+            for j in 0..na {
+                let e = (a[(i, j)] - b[(i, j)]).norm();
+                assert!(e <= 1e-12 * scale, "{f} Hz ({i}, {j}): {e:e}");
+            }
+        }
+    }
+}
+
 /// The servo-gain search reads the Zernike plants the sweep kept; without them it factorises
 /// again at each band frequency: both give the same limit, bit for bit (Keck, 30 modes).
 #[test]
