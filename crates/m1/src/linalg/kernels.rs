@@ -1072,28 +1072,10 @@ pub fn axpy_c64<S: Simd>(simd: S, s: c64, a: &[c64], y: &mut [c64]) {
 /// `sum_i conj(a_i) w_i`.
 #[inline(always)]
 pub fn dot_conj_c64<S: Simd>(simd: S, a: &[c64], w: &[c64]) -> c64 {
-    dot_c64_with::<S, true>(simd, a, w)
-}
-
-/// `sum_i a_i w_i` (no conjugation).
-#[inline(always)]
-pub fn dot_c64<S: Simd>(simd: S, a: &[c64], w: &[c64]) -> c64 {
-    dot_c64_with::<S, false>(simd, a, w)
-}
-
-/// `sum_i a_i w_i`, `a` conjugated when `CONJ`.
-#[inline(always)]
-fn dot_c64_with<S: Simd, const CONJ: bool>(simd: S, a: &[c64], w: &[c64]) -> c64 {
     let (ah, at) = S::as_simd_c64s(a);
     let (wh, wt) = S::as_simd_c64s(w);
     let zero = simd.splat_c64s(c64::new(0.0, 0.0));
-    let fma = |x, y, acc| {
-        if CONJ {
-            simd.conj_mul_add_c64s(x, y, acc)
-        } else {
-            simd.mul_add_c64s(x, y, acc)
-        }
-    };
+    let fma = |x, y, acc| simd.conj_mul_add_c64s(x, y, acc);
     // Four independent sums: a complex multiply-add is two dependent fused operations.
     let mut acc = [zero; 4];
     let mut chunks = ah.chunks_exact(4).zip(wh.chunks_exact(4));
@@ -1109,7 +1091,7 @@ fn dot_c64_with<S: Simd, const CONJ: bool>(simd: S, a: &[c64], w: &[c64]) -> c64
     let mut s = (simd.reduce_sum_c64s(acc[0]) + simd.reduce_sum_c64s(acc[1]))
         + (simd.reduce_sum_c64s(acc[2]) + simd.reduce_sum_c64s(acc[3]));
     for (&a, &w) in at.iter().zip(wt) {
-        s += if CONJ { a.conj() * w } else { a * w };
+        s += a.conj() * w;
     }
     s
 }

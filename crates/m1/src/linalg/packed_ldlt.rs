@@ -15,7 +15,7 @@
 //!   pass, the previous block's same group in the backward one (whose blocks are visited
 //!   against the storage order, which the processor's own prefetchers do not follow).
 //!
-//! At order 1000 one solve (both passes, 8 MB of $L$) took 0.84 ms against 1.75 ms by columns
+//! At order 1000 one solve (both passes, 8 MB of $L$) took 0.77-0.92 ms against 1.75 ms by columns
 //! of the factor in place (BENCHMARKS.md, thirty-second round).
 
 use faer::{MatRef, c64};
