@@ -8,11 +8,13 @@
 //! storage order, with every right-hand side applied while a chunk of it is in registers.
 //!
 //! Matrices are **row-major** with a row stride `lda`: row `i` of an `m x k` matrix is
-//! `a[i * lda..i * lda + k]`. Two products are provided:
-//! - [`rows_dot`]: `y = A x` (or `y += A x`), a dot product per row, a block of rows at a time;
-//! - [`rows_axpy`]: `y = A^T x`, the rows combined a block at a time into `y`.
+//! `a[i * lda..i * lda + k]`. The products are of two kinds:
+//! - `y = A x` (or `y += A x`), a dot product per row, a block of rows at a time
+//!   ([`rows_dot`], [`rows_dot_f32`], [`rows_dot2_f32`]);
+//! - `y = A^T x`, the rows combined a block at a time into `y` ([`rows_axpy2_f32`]; the CSI's
+//!   upper trapezoidal basis in [`super::trapezoid`]).
 //!
-//! Both are generic over a [`pulp::Simd`] instruction set: call them inside
+//! They are generic over a [`pulp::Simd`] instruction set: call them inside
 //! [`pulp::Arch::dispatch`] so they run with the widest vectors the processor has, with a
 //! portable scalar fallback. The sums are ordered by vector lane, so results agree with a
 //! plain sum to rounding (about 1e-16 relative), not bit for bit, and may differ in the last
@@ -33,68 +35,34 @@ pub const fn padded_len(k: usize) -> usize {
     k.div_ceil(16) * 16
 }
 
-/// `y_l += A x_l` for `L` (1 or 2) right-hand sides; `A` is `m x k` row-major with row
-/// stride `lda`, `x_l` has length `k`, `y_l` length `m`.
+/// `y += A x`; `A` is `m x k` row-major with row stride `lda`, `x` has length `k`, `y`
+/// length `m`.
 ///
 /// # Panics
-/// If a slice is shorter than the dimensions say, or `L` is not 1 or 2 (programming errors).
+/// If a slice is shorter than the dimensions say (a programming error).
 #[inline(always)]
-pub fn rows_dot<S: Simd, const L: usize>(
+pub fn rows_dot<S: Simd>(
     simd: S,
     a: &[f64],
     lda: usize,
     m: usize,
     k: usize,
-    x: [&[f64]; L],
-    mut y: [&mut [f64]; L],
+    x: &[f64],
+    y: &mut [f64],
 ) {
-    let put = |y: &mut f64, v: f64| *y += v;
     let row = |i: usize| &a[i * lda..][..k];
-    match L {
-        1 => {
-            let x = x[0];
-            let y = &mut *y[0];
-            let mut i = 0;
-            while i + 4 <= m {
-                let s = dot4(simd, [row(i), row(i + 1), row(i + 2), row(i + 3)], x);
-                for r in 0..4 {
-                    put(&mut y[i + r], s[r]);
-                }
-                i += 4;
-            }
-            while i < m {
-                let [[v]] = dot_block_f64(simd, [row(i)], [x], None);
-                put(&mut y[i], v);
-                i += 1;
-            }
+    let mut i = 0;
+    while i + 4 <= m {
+        let s = dot4(simd, [row(i), row(i + 1), row(i + 2), row(i + 3)], x);
+        for r in 0..4 {
+            y[i + r] += s[r];
         }
-        2 => {
-            let x = [x[0], x[1]];
-            let [y0, y1] = match &mut y[..] {
-                [y0, y1] => [&mut **y0, &mut **y1],
-                _ => unreachable!(),
-            };
-            let mut i = 0;
-            while i + 4 <= m {
-                // The next four rows prefetched a group ahead (the rows are long streams
-                // here: the CSI's coupled basis and Gram matrix).
-                let next = a.as_ptr().wrapping_add((i + 4) * lda);
-                let rows = [row(i), row(i + 1), row(i + 2), row(i + 3)];
-                let s = dot_block_f64(simd, rows, x, Some((next, lda)));
-                for (r, [a, b]) in s.into_iter().enumerate() {
-                    put(&mut y0[i + r], a);
-                    put(&mut y1[i + r], b);
-                }
-                i += 4;
-            }
-            while i < m {
-                let [[a, b]] = dot_block_f64(simd, [row(i)], x, None);
-                put(&mut y0[i], a);
-                put(&mut y1[i], b);
-                i += 1;
-            }
-        }
-        _ => panic!("rows_dot: {L} right-hand sides (1 or 2 supported)"),
+        i += 4;
+    }
+    while i < m {
+        let [[v]] = dot_block_f64(simd, [row(i)], [x], None);
+        y[i] += v;
+        i += 1;
     }
 }
 
@@ -348,7 +316,7 @@ fn tail_dot(t: &[f32], x: &[f32]) -> f64 {
 
 /// Sum of the lanes of a vector.
 #[inline(always)]
-fn hsum<S: Simd>(v: S::f64s) -> f64 {
+pub(crate) fn hsum<S: Simd>(v: S::f64s) -> f64 {
     let lanes: &[f64] = pulp::bytemuck::cast_slice(std::slice::from_ref(&v));
     let mut s = 0.0;
     for x in lanes {
@@ -418,7 +386,7 @@ fn partial_at<S: Simd, const N: usize>(simd: S, slices: &[&[f64]; N], from: usiz
 /// Dot products of `R` rows with `L` vectors (`R L` independent accumulation chains), each
 /// summed by lane, across the lanes, then with the scalar tail.
 #[inline(always)]
-fn dot_block_f64<S: Simd, const R: usize, const L: usize>(
+pub(crate) fn dot_block_f64<S: Simd, const R: usize, const L: usize>(
     simd: S,
     rows: [&[f64]; R],
     x: [&[f64]; L],
@@ -458,71 +426,11 @@ fn dot_block_f64<S: Simd, const R: usize, const L: usize>(
     })
 }
 
-/// `y_l = A^T x_l` for `L` (1 or 2) right-hand sides; `A` is `m x k` row-major with row stride
-/// `lda`, `x_l` has length `m`, `y_l` length `k`.
-///
-/// # Panics
-/// If a slice is shorter than the dimensions say, or `L` is not 1 or 2 (programming errors).
-#[inline(always)]
-pub fn rows_axpy<S: Simd, const L: usize>(
-    simd: S,
-    a: &[f64],
-    lda: usize,
-    m: usize,
-    k: usize,
-    x: [&[f64]; L],
-    y: [&mut [f64]; L],
-) {
-    assert!(
-        L == 1 || L == 2,
-        "rows_axpy: {L} right-hand sides (1 or 2 supported)"
-    );
-    let mut y = y;
-    let (y0, y1) = match &mut y[..] {
-        [y0] => (&mut y0[..k], None),
-        [y0, y1] => (&mut y0[..k], Some(&mut y1[..k])),
-        _ => unreachable!(),
-    };
-    let (x0, x1) = (x[0], x[L - 1]);
-    y0.fill(0.0);
-    let mut y1 = y1;
-    if let Some(y1) = y1.as_deref_mut() {
-        y1.fill(0.0);
-    }
-    let row = |i: usize| &a[i * lda..][..k];
-    let mut i = 0;
-    while i < m {
-        // Four rows at a time (repeating the last with a zero weight at the end).
-        let idx = [
-            i,
-            (i + 1).min(m - 1),
-            (i + 2).min(m - 1),
-            (i + 3).min(m - 1),
-        ];
-        let w = |x: &[f64]| -> [f64; 4] {
-            let mut c = [0.0; 4];
-            for (r, cr) in c.iter_mut().enumerate() {
-                if i + r < m {
-                    *cr = x[i + r];
-                }
-            }
-            c
-        };
-        let rows = idx.map(row);
-        let next = a.as_ptr().wrapping_add((i + 4) * lda);
-        match y1.as_deref_mut() {
-            None => axpy4(simd, rows, w(x0), &mut *y0),
-            Some(y1) => axpy4x2(simd, rows, [w(x0), w(x1)], [&mut *y0, y1], (next, lda)),
-        }
-        i += 4;
-    }
-}
-
 /// `y_l += sum_r c_l[r] row_r` for four rows and two outputs, in one pass over the rows, the
 /// next four (`next`, row stride `lda`) prefetched along (the CSI's coupled basis: rows of
 /// 8 kB, streams of their own).
 #[inline(always)]
-fn axpy4x2<S: Simd>(
+pub(crate) fn axpy4x2<S: Simd>(
     simd: S,
     rows: [&[f64]; 4],
     c: [[f64; 4]; 2],
@@ -558,35 +466,6 @@ fn axpy4x2<S: Simd>(
                 + rows[2][at] * c[l][2]
                 + rows[3][at] * c[l][3];
         }
-    }
-}
-
-/// `y += sum_r c_r row_r` for four rows.
-#[inline(always)]
-fn axpy4<S: Simd>(simd: S, rows: [&[f64]; 4], c: [f64; 4], y: &mut [f64]) {
-    let (yh, yt) = S::as_mut_simd_f64s(y);
-    let n = yh.len();
-    let (r0, t0) = S::as_simd_f64s(rows[0]);
-    let (r1, t1) = S::as_simd_f64s(rows[1]);
-    let (r2, t2) = S::as_simd_f64s(rows[2]);
-    let (r3, t3) = S::as_simd_f64s(rows[3]);
-    let (r0, r1, r2, r3) = (&r0[..n], &r1[..n], &r2[..n], &r3[..n]);
-    let (c0, c1, c2, c3) = (
-        simd.splat_f64s(c[0]),
-        simd.splat_f64s(c[1]),
-        simd.splat_f64s(c[2]),
-        simd.splat_f64s(c[3]),
-    );
-    for j in 0..n {
-        let mut v = yh[j];
-        v = simd.mul_add_f64s(r0[j], c0, v);
-        v = simd.mul_add_f64s(r1[j], c1, v);
-        v = simd.mul_add_f64s(r2[j], c2, v);
-        v = simd.mul_add_f64s(r3[j], c3, v);
-        yh[j] = v;
-    }
-    for (j, yv) in yt.iter_mut().enumerate() {
-        *yv += t0[j] * c[0] + t1[j] * c[1] + t2[j] * c[2] + t3[j] * c[3];
     }
 }
 
@@ -688,69 +567,6 @@ fn axpy_rows_x2_f32<S: Simd, const R: usize>(
             }
         }
     }
-}
-
-/// `y = A^T x` for a real `m x k` row-major `A` (row stride `k`) and a complex `x` given as
-/// its real and imaginary parts (length `m`; `y` length `k`), dispatched to the processor's
-/// widest vectors: one pass over `A`.
-///
-/// # Panics
-/// If a slice is shorter than the dimensions say (a programming error).
-pub fn real_t_times_complex(a: &[f64], m: usize, k: usize, x: [&[f64]; 2], y: [&mut [f64]; 2]) {
-    struct Op<'a> {
-        a: &'a [f64],
-        m: usize,
-        k: usize,
-        x: [&'a [f64]; 2],
-        y: [&'a mut [f64]; 2],
-    }
-    impl pulp::WithSimd for Op<'_> {
-        type Output = ();
-        #[inline(always)]
-        fn with_simd<S: Simd>(self, simd: S) {
-            rows_axpy::<S, 2>(simd, self.a, self.k, self.m, self.k, self.x, self.y);
-        }
-    }
-    if m == 0 {
-        for yl in y {
-            yl[..k].fill(0.0);
-        }
-        return;
-    }
-    pulp::Arch::new().dispatch(Op { a, m, k, x, y });
-}
-
-/// `y = A x` for a real `m x k` row-major `A` (row stride `k`) and a complex `x` given as its
-/// real and imaginary parts (length `k`; `y` length `m`), dispatched to the processor's widest
-/// vectors: one pass over `A` for both parts.
-///
-/// # Panics
-/// If a slice is shorter than the dimensions say (a programming error).
-pub fn real_times_complex(a: &[f64], m: usize, k: usize, x: [&[f64]; 2], y: [&mut [f64]; 2]) {
-    struct Op<'a> {
-        a: &'a [f64],
-        m: usize,
-        k: usize,
-        x: [&'a [f64]; 2],
-        y: [&'a mut [f64]; 2],
-    }
-    impl pulp::WithSimd for Op<'_> {
-        type Output = ();
-        #[inline(always)]
-        fn with_simd<S: Simd>(self, simd: S) {
-            rows_dot::<S, 2>(simd, self.a, self.k, self.m, self.k, self.x, self.y);
-        }
-    }
-    let [y0, y1] = y;
-    y0[..m].fill(0.0);
-    y1[..m].fill(0.0);
-    pulp::Arch::new().dispatch(Op {
-        a,
-        m,
-        k,
-        x,
-        y: [y0, y1],
-    });
 }
 
 /// The same small linear map applied to many columns stored by state ("structure of
@@ -1465,33 +1281,14 @@ mod tests {
                 })
                 .collect();
             let mut y1 = vec![-1.0; m];
-            rows_dot::<S, 1>(simd, &a, lda, m, k, [&x[1]], [&mut y1]);
+            rows_dot::<S>(simd, &a, lda, m, k, &x[1], &mut y1);
             for i in 0..m {
                 assert!(
                     close(y1[i], want[1][i] - 1.0),
                     "{m}x{k} one right-hand side"
                 );
             }
-            let mut y2: Vec<Vec<f64>> = (0..2).map(|l| vec![2.0 - l as f64; m]).collect();
-            let [y20, y21] = &mut y2[..] else {
-                unreachable!()
-            };
-            rows_dot::<S, 2>(simd, &a, lda, m, k, [&x[2], &x[0]], [y20, y21]);
-            for i in 0..m {
-                assert!(close(y2[0][i], 2.0 + want[2][i]), "{m}x{k} two, first");
-                assert!(close(y2[1][i], 1.0 + want[0][i]), "{m}x{k} two, second");
-            }
-            // y = A^T x, two right-hand sides.
             let xt: Vec<Vec<f64>> = (0..2).map(|l| vec(m, l)).collect();
-            let mut t: Vec<Vec<f64>> = (0..2).map(|_| vec![f64::NAN; k]).collect();
-            let [t0, t1] = &mut t[..] else { unreachable!() };
-            rows_axpy::<S, 2>(simd, &a, lda, m, k, [&xt[0], &xt[1]], [t0, t1]);
-            for l in 0..2 {
-                for j in 0..k {
-                    let want: f64 = (0..m).map(|i| a[i * lda + j] * xt[l][i]).sum();
-                    assert!(close(t[l][j], want), "{m}x{k} transposed l={l}");
-                }
-            }
             // The single-precision kernels (NaN padding too), against the double-precision sums
             // of the rounded values: within 1e-6 of the sum of the terms' magnitudes.
             let a32: Vec<f32> = a.iter().map(|&v| v as f32).collect();

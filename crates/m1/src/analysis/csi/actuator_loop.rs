@@ -10,6 +10,7 @@ use super::zernike::ZernikeChannels;
 use crate::M1Error;
 use crate::aperture::geometry::Geometry;
 use crate::aperture::layout::Layout;
+use crate::linalg::trapezoid::UpperTrapezoid;
 use crate::plant::monolithic::FrequencyModel;
 
 /// The actuator servo loop of a mirror on its structure, with the bases of the analysis.
@@ -21,13 +22,15 @@ pub struct ActuatorLoop {
     /// Segment counts of the segment bases, ascending.
     pub(super) segment_counts: Vec<usize>,
     segments_projected: Projected,
-    /// The all-segment coupled subspace: `R_k = Q_k^T Phi_k` (rank_k x r, row-major) per
-    /// kind, with `Q_k` an orthonormal basis of the span of that kind's shapes.
-    pub(super) coupled_r: [Vec<f64>; 2],
+    /// The all-segment coupled subspace: `R_k = Q_k^T Phi_k` (rank_k x r, upper trapezoidal)
+    /// per kind, with `Q_k` an orthonormal basis of the span of that kind's shapes (the one
+    /// that makes `R_k` trapezoidal).
+    pub(super) coupled_r: [UpperTrapezoid; 2],
     /// The kept rank of each kind.
     pub(super) coupled_rank: [usize; 2],
-    /// `R_k^T R_k` (r x r, symmetric) per kind: the shapes' Gram matrices on the kept rank.
-    pub(super) coupled_gram: [Vec<f64>; 2],
+    /// `R_k^T R_k` (r x r, symmetric, by its upper part) per kind: the shapes' Gram matrices
+    /// on the kept rank.
+    pub(super) coupled_gram: [UpperTrapezoid; 2],
     /// Whether each kind has channels outside the span of its shapes.
     pub(super) complement: [bool; 2],
     /// The all-segment Lanczos's step limit ([`super::LANCZOS_STEPS`] by default).
@@ -120,7 +123,13 @@ impl ActuatorLoop {
             let v = svd.V();
             complement[kind] = keep.len() < nr;
             coupled_rank[kind] = keep.len();
-            coupled_r[kind] = Mat::from_fn(keep.len(), r, |i, j| sv[keep[i]] * v[(j, keep[i])]);
+            let rk = Mat::from_fn(keep.len(), r, |i, j| sv[keep[i]] * v[(j, keep[i])]);
+            // The same subspace in the coordinates that make R_k upper trapezoidal (R_k = U
+            // R'_k, U orthogonal): its products read only the upper part.
+            let rt = rk.qr();
+            let rt = rt.thin_R();
+            coupled_r[kind] =
+                Mat::from_fn(rt.nrows(), r, |i, j| if j >= i { rt[(i, j)] } else { 0.0 });
         }
         Ok(Self {
             fm,
@@ -128,8 +137,9 @@ impl ActuatorLoop {
             zernike_projected,
             segment_counts: counts,
             segments_projected,
-            coupled_gram: [0, 1].map(|k| row_major(&(coupled_r[k].transpose() * &coupled_r[k]))),
-            coupled_r: [0, 1].map(|k| row_major(&coupled_r[k])),
+            coupled_gram: [0, 1]
+                .map(|k| UpperTrapezoid::new((coupled_r[k].transpose() * &coupled_r[k]).as_ref())),
+            coupled_r: [0, 1].map(|k| UpperTrapezoid::new(coupled_r[k].as_ref())),
             coupled_rank,
             complement,
             lanczos_steps: super::LANCZOS_STEPS,
@@ -296,11 +306,4 @@ impl ActuatorLoop {
         let u: Vec<c64> = (0..nb).map(|i| v[(i, imin)]).collect();
         Ok(self.zernike.dominant(&u, degree))
     }
-}
-
-/// The entries of `m` row by row.
-fn row_major(m: &Mat<f64>) -> Vec<f64> {
-    (0..m.nrows())
-        .flat_map(|i| (0..m.ncols()).map(move |j| m[(i, j)]))
-        .collect()
 }

@@ -154,11 +154,7 @@ impl ActuatorLoop {
         let ranges = [0..rp, rp..w];
         let (rr, gram, rank) = (&self.coupled_r, &self.coupled_gram, self.coupled_rank);
         let wx = [cx[0].norm_sqr(), cx[1].norm_sqr()];
-        let gram_f: Vec<f64> = gram[0]
-            .iter()
-            .zip(&gram[1])
-            .map(|(p, t)| wx[0] * p + wx[1] * t)
-            .collect();
+        let gram_f = gram[0].scaled_sum(wx[0], &gram[1], wx[1]);
         let big = r.max(w);
         let mut buf = vec![0.0; 4 * big];
         // The solves sit in the Lanczos loop of one frequency, in this thread (the frequencies
@@ -175,13 +171,7 @@ impl ActuatorLoop {
             }
             for kd in 0..2 {
                 let rg = ranges[kd].clone();
-                crate::linalg::kernels::real_t_times_complex(
-                    &rr[kd],
-                    rank[kd],
-                    r,
-                    [&xr[rg.clone()], &xi[rg]],
-                    [&mut t0[..r], &mut t1[..r]],
-                );
+                rr[kd].t_times_complex([&xr[rg.clone()], &xi[rg]], [&mut t0[..r], &mut t1[..r]]);
                 for (j, aj) in a[kd].iter_mut().enumerate() {
                     *aj = c64::new(t0[j], t1[j]);
                 }
@@ -194,13 +184,7 @@ impl ActuatorLoop {
                 xr[j] = zj.re;
                 xi[j] = zj.im;
             }
-            crate::linalg::kernels::real_times_complex(
-                &gram_f,
-                r,
-                r,
-                [&xr[..r], &xi[..r]],
-                [&mut t0[..r], &mut t1[..r]],
-            );
+            gram_f.symmetric_times_complex([&xr[..r], &xi[..r]], [&mut t0[..r], &mut t1[..r]]);
             let c = [cx[0].conj() * d[0], cx[1].conj() * d[1]];
             for (j, z2j) in z2.iter_mut().enumerate() {
                 *z2j = c[0] * a[0][j] + c[1] * a[1][j] - c64::new(t0[j], t1[j]);
@@ -214,13 +198,7 @@ impl ActuatorLoop {
                     xi[j] = v.im;
                 }
                 let m = rank[kd];
-                crate::linalg::kernels::real_times_complex(
-                    &rr[kd],
-                    m,
-                    r,
-                    [&xr[..r], &xi[..r]],
-                    [&mut t0[..m], &mut t1[..m]],
-                );
+                rr[kd].times_complex([&xr[..r], &xi[..r]], [&mut t0[..m], &mut t1[..m]]);
                 let d2 = d[kd].norm_sqr();
                 let start = ranges[kd].start;
                 for (i, oi) in o[ranges[kd].clone()].iter_mut().enumerate() {

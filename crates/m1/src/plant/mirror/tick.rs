@@ -235,15 +235,7 @@ impl CoupledMirror {
                 }
                 .split(simd, pair::<LARGE>(&mut self.pair, self.two_threads));
             } else {
-                rows_dot::<S, 1>(
-                    simd,
-                    &self.wg,
-                    2 * r,
-                    r,
-                    2 * r,
-                    [&self.psi],
-                    [&mut self.u_new],
-                );
+                rows_dot::<S>(simd, &self.wg, 2 * r, r, 2 * r, &self.psi, &mut self.u_new);
             }
             // Modes at the end of the tick.
             let (u_new, cols) = (&self.u_new[..r], &self.cols[..r]);
