@@ -58,7 +58,15 @@ fn bench(c: &mut Criterion) {
     g.sample_size(10);
     for r in [300usize, 1000] {
         let fm = FrequencyModel::new(n, SegmentModel::voice_coil(), cell.clone(), r, 0.02).unwrap();
-        let k = fm.modal_stiffness(10.49, &fm.channels(10.49));
+        let ch = fm.channels(10.49);
+        // The stiffness whole (faer's LU reads it) and by its lower triangle (the L D L^T's).
+        g.bench_function(format!("stiffness/full/{r}_modes"), |b| {
+            b.iter(|| black_box(fm.modal_stiffness(black_box(10.49), &ch)))
+        });
+        g.bench_function(format!("stiffness/lower/{r}_modes"), |b| {
+            b.iter(|| black_box(fm.modal_stiffness_lower(black_box(10.49), &ch)))
+        });
+        let k = fm.modal_stiffness(10.49, &ch);
         assert!(ModalFactor::new(|| k.clone()).is_ldlt());
         g.bench_function(format!("ldlt/{r}_modes"), |b| {
             b.iter(|| black_box(ModalFactor::new(|| k.clone())))

@@ -52,8 +52,9 @@ impl Kinds {
     }
 }
 
-/// The modal stiffness at `f` (Hz) with each channel kind's cell force per cell displacement
-/// `forces` (piston, tilt): `modal_stiffness` reads it from `force[1]`.
+/// The modal stiffness's lower triangle (what [`ModalFactor`] reads) at `f` (Hz) with each
+/// channel kind's cell force per cell displacement `forces` (piston, tilt):
+/// `modal_stiffness_lower` reads it from `force[1]`.
 pub(super) fn stiffness_with_forces(fm: &FrequencyModel, f: f64, forces: [c64; 2]) -> Mat<c64> {
     let zero = c64::new(0.0, 0.0);
     let ct = |kind: usize| ChannelTransfer {
@@ -64,7 +65,7 @@ pub(super) fn stiffness_with_forces(fm: &FrequencyModel, f: f64, forces: [c64; 2
         return_difference: zero,
         loop_gain: zero,
     };
-    fm.modal_stiffness(f, &[ct(0), ct(1)])
+    fm.modal_stiffness_lower(f, &[ct(0), ct(1)])
 }
 
 /// The factors of the open-servo modal stiffness $K_0$ at one frequency (`None` without
