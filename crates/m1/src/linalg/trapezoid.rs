@@ -109,42 +109,7 @@ impl UpperTrapezoid {
     /// # Panics
     /// If a slice is shorter than the dimensions say (a programming error).
     pub fn t_times_complex(&self, x: [&[f64]; 2], y: [&mut [f64]; 2]) {
-        struct Op<'a> {
-            a: &'a UpperTrapezoid,
-            x: [&'a [f64]; 2],
-            y: [&'a mut [f64]; 2],
-        }
-        impl pulp::WithSimd for Op<'_> {
-            type Output = ();
-            #[inline(always)]
-            fn with_simd<S: Simd>(self, simd: S) {
-                let Op { a, x, y: [y0, y1] } = self;
-                let k = a.k;
-                y0[..k].fill(0.0);
-                y1[..k].fill(0.0);
-                for g in 0..a.offsets.len() {
-                    let (c0, rows, next) = a.group(g);
-                    if c0 == k {
-                        break;
-                    }
-                    let c = x.map(|xl| {
-                        std::array::from_fn(|r| {
-                            let i = GROUP * g + r;
-                            if i < a.m { xl[i] } else { 0.0 }
-                        })
-                    });
-                    let next_len = (k - c0).saturating_sub(GROUP).max(1);
-                    axpy4x2(
-                        simd,
-                        rows,
-                        c,
-                        [&mut y0[c0..k], &mut y1[c0..k]],
-                        (next, next_len),
-                    );
-                }
-            }
-        }
-        pulp::Arch::new().dispatch(Op { a: self, x, y });
+        self.dispatch(Product::Transposed, x, y);
     }
 
     /// `y = A z` for a complex `z` given as its real and imaginary parts (length `k`; `y`
@@ -153,37 +118,7 @@ impl UpperTrapezoid {
     /// # Panics
     /// If a slice is shorter than the dimensions say (a programming error).
     pub fn times_complex(&self, z: [&[f64]; 2], y: [&mut [f64]; 2]) {
-        struct Op<'a> {
-            a: &'a UpperTrapezoid,
-            z: [&'a [f64]; 2],
-            y: [&'a mut [f64]; 2],
-        }
-        impl pulp::WithSimd for Op<'_> {
-            type Output = ();
-            #[inline(always)]
-            fn with_simd<S: Simd>(self, simd: S) {
-                let Op { a, z, y: [y0, y1] } = self;
-                let k = a.k;
-                for g in 0..a.offsets.len() {
-                    let (c0, rows, next) = a.group(g);
-                    let next_len = (k - c0).saturating_sub(GROUP).max(1);
-                    let s = dot_block_f64(
-                        simd,
-                        rows,
-                        [&z[0][c0..k], &z[1][c0..k]],
-                        Some((next, next_len)),
-                    );
-                    for (r, [u, v]) in s.into_iter().enumerate() {
-                        let i = GROUP * g + r;
-                        if i < a.m {
-                            y0[i] = u;
-                            y1[i] = v;
-                        }
-                    }
-                }
-            }
-        }
-        pulp::Arch::new().dispatch(Op { a: self, z, y });
+        self.dispatch(Product::Direct, z, y);
     }
 
     /// `y = G z` for the symmetric `k x k` matrix `G` whose upper part this stores (made by
@@ -196,54 +131,134 @@ impl UpperTrapezoid {
     /// errors).
     pub fn symmetric_times_complex(&self, z: [&[f64]; 2], y: [&mut [f64]; 2]) {
         assert_eq!(self.m, self.k, "symmetric_times_complex: a square matrix");
+        self.dispatch(Product::Symmetric, z, y);
+    }
+
+    /// Runs `product` with the processor's widest vectors.
+    fn dispatch(&self, product: Product, v: [&[f64]; 2], y: [&mut [f64]; 2]) {
         struct Op<'a> {
             a: &'a UpperTrapezoid,
-            z: [&'a [f64]; 2],
+            product: Product,
+            v: [&'a [f64]; 2],
             y: [&'a mut [f64]; 2],
         }
         impl pulp::WithSimd for Op<'_> {
             type Output = ();
             #[inline(always)]
             fn with_simd<S: Simd>(self, simd: S) {
-                let Op { a, z, y: [y0, y1] } = self;
-                let k = a.k;
-                y0[..k].fill(0.0);
-                y1[..k].fill(0.0);
-                for g in 0..a.offsets.len() {
-                    let (c0, rows, next) = a.group(g);
-                    let nb = GROUP.min(k - c0);
-                    // The diagonal block: dot products only.
-                    let mut acc = [[0.0f64; 2]; GROUP];
-                    for (r, accr) in acc.iter_mut().enumerate().take(nb) {
-                        for j in 0..nb {
-                            accr[0] += rows[r][j] * z[0][c0 + j];
-                            accr[1] += rows[r][j] * z[1][c0 + j];
-                        }
-                    }
-                    // Right of it: the rows' dot products and the columns' shares in one pass.
-                    let zg: [[f64; GROUP]; 2] = std::array::from_fn(|l| {
-                        std::array::from_fn(|r| if r < nb { z[l][c0 + r] } else { 0.0 })
-                    });
-                    let right = rows.map(|row| &row[nb..]);
-                    let (t0, t1) = (&mut y0[c0 + nb..k], &mut y1[c0 + nb..k]);
-                    let next_len = (k - c0).saturating_sub(GROUP).max(1);
-                    let s = dot_axpy4x2(
-                        simd,
-                        right,
-                        [&z[0][c0 + nb..k], &z[1][c0 + nb..k]],
-                        zg,
-                        [t0, t1],
-                        (next, next_len),
-                    );
-                    for r in 0..nb {
-                        y0[c0 + r] += acc[r][0] + s[r][0];
-                        y1[c0 + r] += acc[r][1] + s[r][1];
-                    }
+                let Op { a, product, v, y } = self;
+                match product {
+                    Product::Transposed => a.t_times_simd(simd, v, y),
+                    Product::Direct => a.times_simd(simd, v, y),
+                    Product::Symmetric => a.symmetric_simd(simd, v, y),
                 }
             }
         }
-        pulp::Arch::new().dispatch(Op { a: self, z, y });
+        pulp::Arch::new().dispatch(Op {
+            a: self,
+            product,
+            v,
+            y,
+        });
     }
+
+    /// [`Self::t_times_complex`] with the vectors of `simd`.
+    #[inline(always)]
+    fn t_times_simd<S: Simd>(&self, simd: S, x: [&[f64]; 2], [y0, y1]: [&mut [f64]; 2]) {
+        let k = self.k;
+        y0[..k].fill(0.0);
+        y1[..k].fill(0.0);
+        for g in 0..self.offsets.len() {
+            let (c0, rows, next) = self.group(g);
+            if c0 == k {
+                break;
+            }
+            let c = x.map(|xl| {
+                std::array::from_fn(|r| {
+                    let i = GROUP * g + r;
+                    if i < self.m { xl[i] } else { 0.0 }
+                })
+            });
+            let next_len = (k - c0).saturating_sub(GROUP).max(1);
+            axpy4x2(
+                simd,
+                rows,
+                c,
+                [&mut y0[c0..k], &mut y1[c0..k]],
+                (next, next_len),
+            );
+        }
+    }
+
+    /// [`Self::times_complex`] with the vectors of `simd`.
+    #[inline(always)]
+    fn times_simd<S: Simd>(&self, simd: S, z: [&[f64]; 2], [y0, y1]: [&mut [f64]; 2]) {
+        let k = self.k;
+        for g in 0..self.offsets.len() {
+            let (c0, rows, next) = self.group(g);
+            let next_len = (k - c0).saturating_sub(GROUP).max(1);
+            let s = dot_block_f64(
+                simd,
+                rows,
+                [&z[0][c0..k], &z[1][c0..k]],
+                Some((next, next_len)),
+            );
+            for (r, [u, v]) in s.into_iter().enumerate() {
+                let i = GROUP * g + r;
+                if i < self.m {
+                    y0[i] = u;
+                    y1[i] = v;
+                }
+            }
+        }
+    }
+
+    /// [`Self::symmetric_times_complex`] with the vectors of `simd`.
+    #[inline(always)]
+    fn symmetric_simd<S: Simd>(&self, simd: S, z: [&[f64]; 2], [y0, y1]: [&mut [f64]; 2]) {
+        let k = self.k;
+        y0[..k].fill(0.0);
+        y1[..k].fill(0.0);
+        for g in 0..self.offsets.len() {
+            let (c0, rows, next) = self.group(g);
+            let nb = GROUP.min(k - c0);
+            // The diagonal block: dot products only.
+            let mut acc = [[0.0f64; 2]; GROUP];
+            for (r, accr) in acc.iter_mut().enumerate().take(nb) {
+                for j in 0..nb {
+                    accr[0] += rows[r][j] * z[0][c0 + j];
+                    accr[1] += rows[r][j] * z[1][c0 + j];
+                }
+            }
+            // Right of it: the rows' dot products and the columns' shares in one pass.
+            let zg: [[f64; GROUP]; 2] = std::array::from_fn(|l| {
+                std::array::from_fn(|r| if r < nb { z[l][c0 + r] } else { 0.0 })
+            });
+            let right = rows.map(|row| &row[nb..]);
+            let (t0, t1) = (&mut y0[c0 + nb..k], &mut y1[c0 + nb..k]);
+            let next_len = (k - c0).saturating_sub(GROUP).max(1);
+            let s = dot_axpy4x2(
+                simd,
+                right,
+                [&z[0][c0 + nb..k], &z[1][c0 + nb..k]],
+                zg,
+                [t0, t1],
+                (next, next_len),
+            );
+            for r in 0..nb {
+                y0[c0 + r] += acc[r][0] + s[r][0];
+                y1[c0 + r] += acc[r][1] + s[r][1];
+            }
+        }
+    }
+}
+
+/// The three products of an [`UpperTrapezoid`].
+#[derive(Debug, Clone, Copy)]
+enum Product {
+    Transposed,
+    Direct,
+    Symmetric,
 }
 
 /// For four rows of one length and two right-hand sides: returns the rows' dot products with
