@@ -56,7 +56,16 @@ fn any_change_changes_the_guid() {
         },
     );
     let big = guid_of("big", Options::default());
-    let all = [&base, &tau, &extra, &big];
+    // The model information is hashed too: another default step is another description.
+    let (t, _) = lag_table("small", Options::default()).unwrap();
+    let step = fmu::xml::guid(
+        &fmu::ModelInfo {
+            default_step: Lag::INFO.default_step * 2.0,
+            ..Lag::INFO
+        },
+        &t,
+    );
+    let all = [&base, &tau, &extra, &big, &step];
     for (i, a) in all.iter().enumerate() {
         for b in &all[i + 1..] {
             assert_ne!(a, b);

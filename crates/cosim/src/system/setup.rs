@@ -141,16 +141,24 @@ fn instantiate(
         boolean: port(Kind::Boolean, c, wiring, offsets),
         string: port(Kind::String, c, wiring, offsets),
     };
+    // Names of the Real variables by value reference, the first in document order of aliases
+    // (a map: the TMT edge sensors publish 2772 outputs).
+    let mut real_names = std::collections::HashMap::<u32, &str>::new();
+    for v in fmu.description.variables.iter() {
+        if v.var_type == VarType::Real {
+            real_names
+                .entry(v.value_reference)
+                .or_insert(v.name.as_str());
+        }
+    }
     let out_names = ports
         .real
         .out_vrs
         .iter()
         .map(|&vr| {
-            fmu.description
-                .variables
-                .iter()
-                .find(|v| v.value_reference == vr && v.var_type == VarType::Real)
-                .map_or_else(|| format!("vr {vr}"), |v| v.name.clone())
+            real_names
+                .get(&vr)
+                .map_or_else(|| format!("vr {vr}"), |n| (*n).to_string())
         })
         .collect();
     Ok(Running {

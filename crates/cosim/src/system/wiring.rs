@@ -5,7 +5,7 @@
 //! recorded outputs, each once, in the order first needed; the buffer holds them component
 //! after component.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 
 use wildmatch::WildMatch;
 
@@ -121,6 +121,9 @@ pub(super) struct Wiring {
     /// Per kind and component, its connected inputs: (value reference, source component, local
     /// slot of the source's output).
     pub(super) in_conn: [Vec<Vec<(u32, usize, usize)>>; 4],
+    /// Per kind and component, the value references of its connected inputs (to refuse a
+    /// second connection into one in constant time: the TMT mirror has 2952 of them).
+    connected: [Vec<HashSet<u32>>; 4],
     /// Every scalar connection: (source component, its output's value reference, destination
     /// component, its input's value reference, kind), in the order connected (initialisation
     /// walks these).
@@ -139,6 +142,7 @@ impl Wiring {
             out_vars: std::array::from_fn(|_| vec![Vec::new(); n]),
             slot_of: std::array::from_fn(|_| vec![HashMap::new(); n]),
             in_conn: std::array::from_fn(|_| vec![Vec::new(); n]),
+            connected: std::array::from_fn(|_| vec![HashSet::new(); n]),
             scalars: Vec::new(),
         };
         for conn in &system.connections {
@@ -181,10 +185,7 @@ impl Wiring {
         for (o, i) in outs.iter().zip(&ins) {
             check_pair(&what, conn, o, i)?;
             let k = Kind::of(i.var_type);
-            if self.in_conn[k as usize][b]
-                .iter()
-                .any(|x| x.0 == i.value_reference)
-            {
+            if !self.connected[k as usize][b].insert(i.value_reference) {
                 return Err(CosimError::Mismatch {
                     what,
                     reason: format!("{} is already connected", i.name),
