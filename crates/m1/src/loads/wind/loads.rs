@@ -1,6 +1,6 @@
 //! The tabulated wind loads of every segment in frozen flow.
 
-use super::spectrum::real_inverse_fft_rows;
+use super::spectrum::{inverse_fft_rows, packed};
 use super::*;
 use crate::linalg::cache::{Fingerprint, Store};
 use crate::linalg::interpolation::periodic_stencil;
@@ -594,37 +594,11 @@ fn synthesise(
 ) -> (f64, Vec<f64>) {
     let n = sp.samples;
 
-    // Filtered spectra: c H, c H_xi, c H_eta; and the expected variance of G_0.
     let psd = sp.discrete_psd();
     let spectrum = ScreenSpectrum::drawn(sp, &psd);
     let k: Vec<f64> = (0..n).map(|i| psd.wavenumber(i)).collect();
     let grid = PolygonGrid::new(hexagon, &k, &k);
-    let mut b0 = spectrum.coefficients;
-    let mut b1 = vec![Complex64::ZERO; n * n];
-    let mut b2 = vec![Complex64::ZERO; n * n];
-    // Per row in parallel, then summed in row order (the same sum whatever the threads).
-    let per_row: Vec<f64> = b0
-        .par_chunks_mut(n)
-        .zip(b1.par_chunks_mut(n))
-        .zip(b2.par_chunks_mut(n))
-        .enumerate()
-        .map(|(iy, ((r0, r1), r2))| {
-            let mut var = 0.0;
-            for ix in 0..n {
-                let c = r0[ix];
-                if c == Complex64::ZERO {
-                    continue;
-                }
-                let [h, hx, hy] = grid.at(ix, iy);
-                var += psd.bin(ix, iy) * h.norm_sqr();
-                r0[ix] = c * h;
-                r1[ix] = c * hx;
-                r2[ix] = c * hy;
-            }
-            var
-        })
-        .collect();
-    let variance: f64 = per_row.iter().sum();
+    let (coefficients, eta, variance) = filtered(&grid, &psd, spectrum.coefficients);
 
     // The rows of the grid the segments' stencils read, each transformed once.
     let stencils: Vec<([usize; 4], [f64; 4])> = centres
@@ -635,10 +609,13 @@ fn synthesise(
     rows.sort_unstable();
     rows.dedup();
     let mut tables = vec![0.0; 3 * stride * n];
+    // Row `r` of the grid is row `at(r)` of the transforms' output (`rows` is sorted).
+    let at = |r: &usize| rows.binary_search(r).unwrap_or_default();
     let mut fill = |q: usize, buf: &[Complex64], part: fn(&Complex64) -> f64| {
         for (i, ((rs, w), &c)) in stencils.iter().zip(origin).enumerate() {
             for (r, wr) in rs.iter().zip(w) {
-                let row = &buf[r * n..(r + 1) * n];
+                let k = at(r);
+                let row = &buf[k * n..(k + 1) * n];
                 // Sample j of segment i in row j - origin_i (mod n).
                 let (wrapped, from_origin) = row.split_at(c);
                 for (k, v) in from_origin.iter().chain(wrapped).enumerate() {
@@ -647,14 +624,171 @@ fn synthesise(
             }
         }
     };
-    let g01 = real_inverse_fft_rows(&b0, Some(&b1), n, &rows);
-    drop((b0, b1));
+    let g01 = inverse_fft_rows(&coefficients, n, &rows);
+    drop(coefficients);
     fill(0, &g01, |v| v.re);
     fill(1, &g01, |v| v.im);
     drop(g01);
-    let g2 = real_inverse_fft_rows(&b2, None, n, &rows);
+    let g2 = inverse_fft_rows(&eta, n, &rows);
     fill(2, &g2, |v| v.re);
     (variance, tables)
+}
+
+/// The screen's coefficients `c` (row-major, `n x n`, `n` even) filtered by the polygon of
+/// `grid`: the packed spectrum of `c H` and `c H_xi` ([`packed`]), `c H_eta`, and the
+/// expected variance of `G_0` (`sum psd |H|^2`). The coefficients become the packed spectrum
+/// in place; rows `p` and `n - p` are filtered together (the packing pairs bin `k` with `-k`),
+/// the pairs in parallel, the variance summed per row in row order (the same sum whatever the
+/// threads).
+fn filtered(
+    grid: &PolygonGrid,
+    psd: &super::spectrum::DiscretePsd,
+    mut coefficients: Vec<Complex64>,
+) -> (Vec<Complex64>, Vec<Complex64>, f64) {
+    let n = psd.n;
+    let mut eta = vec![Complex64::ZERO; n * n];
+    // Rows 0 ..= n/2 and n/2 + 1 .. n: rows p and n - p pair for 1 <= p < n/2, rows 0 and
+    // n/2 with themselves.
+    let lo = n / 2 + 1;
+    let pairs = n - lo;
+    let (c_lo, c_hi) = coefficients.split_at_mut(lo * n);
+    let (e_lo, e_hi) = eta.split_at_mut(lo * n);
+    let (c_self, c_pair) = c_lo.split_at_mut(n);
+    let (e_self, e_pair) = e_lo.split_at_mut(n);
+    let paired: Vec<(f64, f64)> = c_pair[..pairs * n]
+        .par_chunks_mut(n)
+        .zip(e_pair[..pairs * n].par_chunks_mut(n))
+        .zip(
+            c_hi.par_chunks_mut(n)
+                .rev()
+                .zip(e_hi.par_chunks_mut(n).rev()),
+        )
+        .enumerate()
+        .map_init(
+            || RowPair::new(n),
+            |rp, (i, ((cp, ep), (cq, eq)))| {
+                let p = i + 1;
+                rp.filter(grid, psd, (p, cp, ep), Some((n - p, cq, eq)))
+            },
+        )
+        .collect();
+    let mut per_row = vec![0.0; n];
+    for (i, (vp, vq)) in paired.into_iter().enumerate() {
+        per_row[i + 1] = vp;
+        per_row[n - i - 1] = vq;
+    }
+    let mut rp = RowPair::new(n);
+    per_row[0] = rp.filter(grid, psd, (0, c_self, e_self), None).0;
+    let (c_half, e_half) = (&mut c_pair[pairs * n..], &mut e_pair[pairs * n..]);
+    per_row[n / 2] = rp.filter(grid, psd, (n / 2, c_half, e_half), None).0;
+    (coefficients, eta, per_row.iter().sum())
+}
+
+/// One hexagon transform `[H, H_xi, H_eta]` per bin of a grid row.
+type RowTransforms = Vec<[Complex64; 3]>;
+
+/// Scratch of [`synthesise`]'s filtering of a pair of rows `p` and `q = -p`: the hexagon's
+/// transforms on both rows and each row's `c H` and `c H_xi`.
+struct RowPair {
+    h: [RowTransforms; 2],
+    a: [Vec<Complex64>; 2],
+    b: [Vec<Complex64>; 2],
+}
+
+impl RowPair {
+    fn new(n: usize) -> Self {
+        Self {
+            h: std::array::from_fn(|_| vec![[Complex64::ZERO; 3]; n]),
+            a: std::array::from_fn(|_| vec![Complex64::ZERO; n]),
+            b: std::array::from_fn(|_| vec![Complex64::ZERO; n]),
+        }
+    }
+
+    /// Filters row `p` (its coefficients `c` and the `c H_eta` row `e`) with its partner row
+    /// `q = n - p` (`None`: the row is its own partner, rows 0 and n/2): the coefficients
+    /// become the packed spectrum of `c H` and `c H_xi` and `e` receives `c H_eta` (bins with
+    /// `c = 0` are left as they are); returns each row's share of the variance of `G_0`.
+    /// With a centrally symmetric hexagon the partner row's transforms are row `p`'s at the
+    /// negated wavenumbers (`H(-k) = H(k)`, `H_xi(-k) = -H_xi(k)`, bit for bit).
+    #[allow(clippy::type_complexity)]
+    fn filter(
+        &mut self,
+        grid: &PolygonGrid,
+        psd: &super::spectrum::DiscretePsd,
+        (p, cp, ep): (usize, &mut [Complex64], &mut [Complex64]),
+        partner: Option<(usize, &mut [Complex64], &mut [Complex64])>,
+    ) -> (f64, f64) {
+        let n = cp.len();
+        let neg = |i: usize| (n - i) % n;
+        let [hp, hq] = &mut self.h;
+        let Some((q, cq, eq)) = partner else {
+            for (ix, h) in hp.iter_mut().enumerate() {
+                if cp[ix] != Complex64::ZERO || cp[neg(ix)] != Complex64::ZERO {
+                    *h = grid.at(ix, p);
+                }
+            }
+            let v = Self::products(hp, psd, p, cp, ep, &mut self.a[0], &mut self.b[0]);
+            let (a, b) = (&self.a[0], &self.b[0]);
+            for (ix, z) in cp.iter_mut().enumerate() {
+                *z = packed(a[ix], a[neg(ix)], b[ix], b[neg(ix)]);
+            }
+            return (v, v);
+        };
+        for (ix, h) in hp.iter_mut().enumerate() {
+            if cp[ix] != Complex64::ZERO || cq[neg(ix)] != Complex64::ZERO {
+                *h = grid.at(ix, p);
+            }
+        }
+        for (ix, h) in hq.iter_mut().enumerate() {
+            if cq[ix] != Complex64::ZERO || cp[neg(ix)] != Complex64::ZERO {
+                *h = if grid.symmetric {
+                    let [h0, hx, hy] = hp[neg(ix)];
+                    [h0, Complex64::new(0.0, -hx.im), Complex64::new(0.0, -hy.im)]
+                } else {
+                    grid.at(ix, q)
+                };
+            }
+        }
+        let [ap, aq] = &mut self.a;
+        let [bp, bq] = &mut self.b;
+        let vp = Self::products(hp, psd, p, cp, ep, ap, bp);
+        let vq = Self::products(hq, psd, q, cq, eq, aq, bq);
+        for (ix, z) in cp.iter_mut().enumerate() {
+            *z = packed(ap[ix], aq[neg(ix)], bp[ix], bq[neg(ix)]);
+        }
+        for (ix, z) in cq.iter_mut().enumerate() {
+            *z = packed(aq[ix], ap[neg(ix)], bq[ix], bp[neg(ix)]);
+        }
+        (vp, vq)
+    }
+
+    /// Row `iy`'s `a = c H`, `b = c H_xi` and `e = c H_eta` (`a = c`, `b = 0` and `e` left
+    /// where `c = 0`) from its transforms `h`, and its share of the variance.
+    fn products(
+        h: &[[Complex64; 3]],
+        psd: &super::spectrum::DiscretePsd,
+        iy: usize,
+        c: &[Complex64],
+        e: &mut [Complex64],
+        a: &mut [Complex64],
+        b: &mut [Complex64],
+    ) -> f64 {
+        let mut var = 0.0;
+        for ix in 0..c.len() {
+            let ci = c[ix];
+            if ci == Complex64::ZERO {
+                a[ix] = ci;
+                b[ix] = Complex64::ZERO;
+                continue;
+            }
+            let [h0, hx, hy] = h[ix];
+            var += psd.bin(ix, iy) * h0.norm_sqr();
+            a[ix] = ci * h0;
+            b[ix] = ci * hx;
+            e[ix] = ci * hy;
+        }
+        var
+    }
 }
 
 #[cfg(test)]
@@ -662,6 +796,66 @@ mod tests {
     use super::*;
     use crate::aperture::geometry::GeometryParams;
     use crate::aperture::layout::Layout;
+
+    /// The paired filtering is the bin-by-bin product of the coefficients with the polygon's
+    /// transforms, packed bin against negated bin, bit for bit: for the centrally symmetric
+    /// hexagon (the partner row's transforms derived) and for a polygon that is not (computed).
+    #[test]
+    fn rows_filtered_in_pairs_are_the_bin_by_bin_products() {
+        let sp = ScreenParams {
+            samples: 16,
+            size: 20.0,
+            ..ScreenParams::default()
+        };
+        let psd = sp.discrete_psd();
+        let n = psd.n;
+        let k: Vec<f64> = (0..n).map(|i| psd.wavenumber(i)).collect();
+        let hexagon: Vec<[f64; 2]> = (0..6)
+            .map(|j| {
+                let t = std::f64::consts::FRAC_PI_3 * j as f64 + 0.3;
+                [0.7 * t.cos(), 0.7 * t.sin()]
+            })
+            .collect();
+        let mut skewed = hexagon.clone();
+        skewed[2] = [skewed[2][0] + 0.1, skewed[2][1] - 0.05];
+        for (vertices, symmetric) in [(&hexagon, true), (&skewed, false)] {
+            let grid = PolygonGrid::new(vertices, &k, &k);
+            assert_eq!(grid.symmetric, symmetric);
+            let c = ScreenSpectrum::drawn(&sp, &psd).coefficients;
+            let (packed_c, eta, variance) = filtered(&grid, &psd, c.clone());
+            let neg = |i: usize| (n - i) % n;
+            let (mut a, mut b, mut e) = (c.clone(), vec![Complex64::ZERO; n * n], eta.clone());
+            let mut want_var = 0.0;
+            for iy in 0..n {
+                let mut row = 0.0;
+                for ix in 0..n {
+                    let i = iy * n + ix;
+                    if c[i] == Complex64::ZERO {
+                        e[i] = Complex64::ZERO;
+                        continue;
+                    }
+                    let [h, hx, hy] = grid.at(ix, iy);
+                    row += psd.bin(ix, iy) * h.norm_sqr();
+                    (a[i], b[i], e[i]) = (c[i] * h, c[i] * hx, c[i] * hy);
+                }
+                want_var += row;
+            }
+            for iy in 0..n {
+                for ix in 0..n {
+                    let (i, j) = (iy * n + ix, neg(iy) * n + neg(ix));
+                    let want = super::super::spectrum::packed(a[i], a[j], b[i], b[j]);
+                    assert_eq!(packed_c[i], want, "({ix}, {iy}) symmetric {symmetric}");
+                    assert_eq!(eta[i], e[i], "({ix}, {iy}) symmetric {symmetric}");
+                }
+            }
+            assert_eq!(
+                variance.to_bits(),
+                want_var.to_bits(),
+                "symmetric {symmetric}"
+            );
+            assert!(variance > 0.0);
+        }
+    }
 
     /// The vector widths (f64 lanes) the forces are run on: the processor's widest (0), and
     /// 1, 2 and 4 lanes as portable code (the widths of other processors).
