@@ -594,8 +594,9 @@ fn synthesise(
 ) -> (f64, Vec<f64>) {
     let n = sp.samples;
 
-    let psd = sp.discrete_psd();
-    let spectrum = ScreenSpectrum::drawn(sp, &psd);
+    // The generator's draws (one after the other) beside the spectrum's powers.
+    let (psd, draws) = rayon::join(|| sp.discrete_psd(), || ScreenSpectrum::normals(sp));
+    let spectrum = ScreenSpectrum::scaled(sp, &psd, draws);
     let k: Vec<f64> = (0..n).map(|i| psd.wavenumber(i)).collect();
     let grid = PolygonGrid::new(hexagon, &k, &k);
     let (coefficients, eta, variance) = filtered(&grid, &psd, spectrum.coefficients);
@@ -608,29 +609,40 @@ fn synthesise(
     let mut rows: Vec<usize> = stencils.iter().flat_map(|(r, _)| *r).collect();
     rows.sort_unstable();
     rows.dedup();
-    let mut tables = vec![0.0; 3 * stride * n];
     // Row `r` of the grid is row `at(r)` of the transforms' output (`rows` is sorted).
-    let at = |r: &usize| rows.binary_search(r).unwrap_or_default();
-    let mut fill = |q: usize, buf: &[Complex64], part: fn(&Complex64) -> f64| {
-        for (i, ((rs, w), &c)) in stencils.iter().zip(origin).enumerate() {
-            for (r, wr) in rs.iter().zip(w) {
-                let k = at(r);
-                let row = &buf[k * n..(k + 1) * n];
-                // Sample j of segment i in row j - origin_i (mod n).
-                let (wrapped, from_origin) = row.split_at(c);
-                for (k, v) in from_origin.iter().chain(wrapped).enumerate() {
-                    tables[(3 * k + q) * stride + i] += wr * SQRT_2 * part(v);
+    let at = |r: usize| rows.binary_search(&r).unwrap_or_default();
+    let read: Vec<([usize; 4], [f64; 4], usize)> = stencils
+        .iter()
+        .zip(origin)
+        .map(|((rs, w), &c)| (rs.map(at), w.map(|w| w * SQRT_2), c))
+        .collect();
+    // Sample k of segment i of field q from column (origin_i + k) mod n of its stencil's rows,
+    // the samples in parallel (each one's values for every segment side by side); each value
+    // summed over the stencil's rows in their order.
+    let mut tables = vec![0.0; 3 * stride * n];
+    let fill = |tables: &mut [f64], buf: &[Complex64], fields: &[Field]| {
+        tables
+            .par_chunks_mut(3 * stride)
+            .enumerate()
+            .for_each(|(k, t)| {
+                for &(q, part) in fields {
+                    for (i, (rs, w, c)) in read.iter().enumerate() {
+                        let col = (c + k) % n;
+                        let mut sum = 0.0;
+                        for (r, wr) in rs.iter().zip(w) {
+                            sum += wr * part(&buf[r * n + col]);
+                        }
+                        t[q * stride + i] = sum;
+                    }
                 }
-            }
-        }
+            });
     };
     let g01 = inverse_fft_rows(&coefficients, n, &rows);
     drop(coefficients);
-    fill(0, &g01, |v| v.re);
-    fill(1, &g01, |v| v.im);
+    fill(&mut tables, &g01, &[(0, |v| v.re), (1, |v| v.im)]);
     drop(g01);
     let g2 = inverse_fft_rows(&eta, n, &rows);
-    fill(2, &g2, |v| v.re);
+    fill(&mut tables, &g2, &[(2, |v| v.re)]);
     (variance, tables)
 }
 
@@ -683,6 +695,10 @@ fn filtered(
     per_row[n / 2] = rp.filter(grid, psd, (n / 2, c_half, e_half), None).0;
     (coefficients, eta, per_row.iter().sum())
 }
+
+/// A field of the tables (0: the integral of the screen, 1 and 2: its first moments) and how
+/// it reads a transformed value.
+type Field = (usize, fn(&Complex64) -> f64);
 
 /// One hexagon transform `[H, H_xi, H_eta]` per bin of a grid row.
 type RowTransforms = Vec<[Complex64; 3]>;

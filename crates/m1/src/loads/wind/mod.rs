@@ -140,8 +140,31 @@ pub const DEFAULT_PRESSURE_COEFFICIENT: f64 = 1.13;
 /// The 2-D von Karman spectrum `Phi(k)` (Pa^2 m^2 per (cycle/m)^2) of a field of variance
 /// `variance` and outer scale `outer_scale` (m), at wavenumber magnitude `k` (cycles/m).
 pub fn von_karman_psd(k: f64, variance: f64, outer_scale: f64) -> f64 {
-    let k0 = 1.0 / outer_scale;
-    variance * (BETA / 2.0 - 1.0) / PI * k0.powf(BETA - 2.0) * (k * k + k0 * k0).powf(-BETA / 2.0)
+    VonKarman::new(variance, outer_scale).at(k)
+}
+
+/// [`von_karman_psd`] of one variance and outer scale, its factor independent of `k` computed
+/// once: the same values, bit for bit, at half the powers.
+#[derive(Debug, Clone, Copy)]
+struct VonKarman {
+    /// `variance (beta/2 - 1) / pi k0^(beta - 2)`.
+    scale: f64,
+    /// `k0^2`.
+    k0_squared: f64,
+}
+
+impl VonKarman {
+    fn new(variance: f64, outer_scale: f64) -> Self {
+        let k0 = 1.0 / outer_scale;
+        Self {
+            scale: variance * (BETA / 2.0 - 1.0) / PI * k0.powf(BETA - 2.0),
+            k0_squared: k0 * k0,
+        }
+    }
+
+    fn at(self, k: f64) -> f64 {
+        self.scale * (k * k + self.k0_squared).powf(-BETA / 2.0)
+    }
 }
 
 /// rms pressure `sigma_p = Cp q` from the dynamic pressure `q = rho U^2 / 2` (Pa).
@@ -267,13 +290,14 @@ impl ScreenParams {
         // grid, by (|signed ix|, |signed iy|), serve every bin (a quarter of the power laws).
         let h = n / 2 + 1;
         let quarter = |l0: f64| -> Vec<f64> {
+            let vk = VonKarman::new(1.0, l0);
             let mut q = vec![0.0; h * h];
-            for (ay, row) in q.chunks_exact_mut(h).enumerate() {
+            q.par_chunks_mut(h).enumerate().for_each(|(ay, row)| {
                 for (ax, v) in row.iter_mut().enumerate() {
                     let (kx, ky) = (ax as f64 * dk, ay as f64 * dk);
-                    *v = von_karman_psd(kx.hypot(ky), 1.0, l0);
+                    *v = vk.at(kx.hypot(ky));
                 }
-            }
+            });
             q
         };
         let mut weights = Vec::new();

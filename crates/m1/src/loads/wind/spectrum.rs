@@ -77,17 +77,41 @@ impl ScreenSpectrum {
     /// [`Self::new`] on the screen's discrete spectrum `psd` ([`ScreenParams::discrete_psd`]
     /// of checked `params`), for a caller that needs it too.
     pub(super) fn drawn(params: &ScreenParams, psd: &DiscretePsd) -> ScreenSpectrum {
+        Self::scaled(params, psd, Self::normals(params))
+    }
+
+    /// The standard normal draws of [`Self::new`], two per bin in row-major bin order, as
+    /// `(g1, g2)` per bin: what the coefficients are before the spectrum scales them (so the
+    /// draws, which one generator makes in turn, can be made while the spectrum is computed).
+    pub(super) fn normals(params: &ScreenParams) -> Vec<Complex64> {
         let n = params.samples;
         let mut rng = StdRng::seed_from_u64(params.seed);
-        let mut coefficients = vec![Complex64::ZERO; n * n];
-        for iy in 0..n {
-            for ix in 0..n {
-                let g1: f64 = StandardNormal.sample(&mut rng);
-                let g2: f64 = StandardNormal.sample(&mut rng);
-                let a = (psd.bin(ix, iy) / 2.0).sqrt();
-                coefficients[iy * n + ix] = Complex64::new(a * g1, a * g2);
-            }
+        let mut draws = vec![Complex64::ZERO; n * n];
+        for g in &mut draws {
+            let g1: f64 = StandardNormal.sample(&mut rng);
+            let g2: f64 = StandardNormal.sample(&mut rng);
+            *g = Complex64::new(g1, g2);
         }
+        draws
+    }
+
+    /// The coefficients from the draws of [`Self::normals`]: bin `k`'s scaled by
+    /// `sqrt(psd_k / 2)` (rows in parallel).
+    pub(super) fn scaled(
+        params: &ScreenParams,
+        psd: &DiscretePsd,
+        mut coefficients: Vec<Complex64>,
+    ) -> ScreenSpectrum {
+        let n = params.samples;
+        coefficients
+            .par_chunks_mut(n)
+            .enumerate()
+            .for_each(|(iy, row)| {
+                for (ix, c) in row.iter_mut().enumerate() {
+                    let a = (psd.bin(ix, iy) / 2.0).sqrt();
+                    *c = Complex64::new(a * c.re, a * c.im);
+                }
+            });
         ScreenSpectrum {
             params: params.clone(),
             coefficients,
