@@ -205,12 +205,8 @@ fn sweep(a: &WindArgs, layout: &Layout) -> Result<Sweep, String> {
     let record: Vec<&str> = metrics.iter().copied().chain([mirror]).collect();
     // Every FMU opened once for all the runs (shared unpacked files, library and caches).
     let first = standard_system(&base, false)?;
-    let _open: Vec<cosim::Fmu> = first
-        .components
-        .iter()
-        .map(|c| cosim::Fmu::open(&c.fmu))
-        .collect::<Result<_, _>>()
-        .map_err(|e| e.to_string())?;
+    let paths: Vec<&std::path::Path> = first.components.iter().map(|c| c.fmu.as_path()).collect();
+    let _open = cosim::Fmu::open_all(&paths).map_err(|e| e.to_string())?;
     let mut rows = Vec::new();
     let mut maps: Vec<(String, Vec<f64>)> = Vec::new();
     for (i, &speed) in a.speeds.iter().enumerate() {

@@ -214,6 +214,18 @@ impl Fmu {
         Ok(fmu)
     }
 
+    /// [`Self::open`] for every archive of `paths`, in parallel (unpacking a TMT archive and
+    /// parsing its description take tens of milliseconds each); the result in the order of
+    /// `paths`, or the first error in that order.
+    ///
+    /// # Errors
+    /// As [`Self::open`].
+    pub fn open_all<P: AsRef<Path> + Sync>(paths: &[P]) -> Result<Vec<Self>> {
+        use rayon::prelude::*;
+        let opened: Vec<Result<Self>> = paths.par_iter().map(Self::open).collect();
+        opened.into_iter().collect()
+    }
+
     fn unpack(path: &Path) -> Result<Self> {
         let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("fmu");
         let dir = TempDir::new(stem)?;

@@ -142,6 +142,33 @@ fn missing_binary_and_missing_symbol_are_named() {
     }
 }
 
+/// Archives opened together come back in the order asked, and the first failure in that
+/// order is the one reported, whichever thread met it first.
+#[test]
+fn archives_opened_together_keep_their_order_and_the_first_error() {
+    let good = tiny_fmu("all-good", &tiny_xml(), &[], true);
+    let other = tiny_fmu(
+        "all-other",
+        &tiny_xml().replace("modelName=\"tiny\"", "modelName=\"tiny two\""),
+        &[],
+        true,
+    );
+    let opened = Fmu::open_all(&[&good, &other, &good]).unwrap();
+    let names: Vec<&str> = opened
+        .iter()
+        .map(|f| f.description.model_name.as_str())
+        .collect();
+    assert_eq!(names, ["tiny", "tiny two", "tiny"]);
+    let nobin = tiny_fmu("all-nobin", &tiny_xml(), &[], false);
+    let missing = Path::new("/nonexistent/all.fmu");
+    for _ in 0..4 {
+        match Fmu::open_all(&[good.as_path(), nobin.as_path(), missing]) {
+            Err(CosimError::MissingBinary { fmu, .. }) => assert_eq!(fmu, nobin),
+            other => panic!("expected the missing binary first, got {other:?}"),
+        }
+    }
+}
+
 #[test]
 fn malformed_and_rule_breaking_descriptions_are_named() {
     let file = Path::new("x/modelDescription.xml");

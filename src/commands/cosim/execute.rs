@@ -55,11 +55,7 @@ pub(super) fn open_fmus(runs: &[(String, System)]) -> Result<Vec<cosim::Fmu>, St
         .collect();
     paths.sort();
     paths.dedup();
-    paths
-        .into_iter()
-        .map(cosim::Fmu::open)
-        .collect::<Result<_, _>>()
-        .map_err(|e| e.to_string())
+    cosim::Fmu::open_all(&paths).map_err(|e| e.to_string())
 }
 
 /// What the runs recorded: the outcomes (their CSV written as they ran), and per run with a

@@ -84,22 +84,22 @@ fn check_experiment(system: &System) -> Result<()> {
     Ok(())
 }
 
-/// Opens each FMU once per distinct file: the FMUs, and per component the index of its own.
+/// Opens each FMU once per distinct file, the files in parallel ([`Fmu::open_all`]): the FMUs,
+/// and per component the index of its own.
 fn open_fmus(system: &System) -> Result<(Vec<Fmu>, Vec<usize>)> {
-    let mut fmus: Vec<Fmu> = Vec::new();
+    let mut paths: Vec<&std::path::Path> = Vec::new();
     let mut fmu_of = Vec::with_capacity(system.components.len());
     for c in &system.components {
-        let pos = fmus.iter().position(|f| f.path == c.fmu);
-        let k = match pos {
+        let k = match paths.iter().position(|p| *p == c.fmu.as_path()) {
             Some(k) => k,
             None => {
-                fmus.push(Fmu::open(&c.fmu)?);
-                fmus.len() - 1
+                paths.push(&c.fmu);
+                paths.len() - 1
             }
         };
         fmu_of.push(k);
     }
-    Ok((fmus, fmu_of))
+    Ok((Fmu::open_all(&paths)?, fmu_of))
 }
 
 /// Instantiates component `c`, sets up its experiment and parameters and enters
