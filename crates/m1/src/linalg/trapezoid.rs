@@ -94,13 +94,15 @@ impl UpperTrapezoid {
         self.data.len()
     }
 
-    /// Group `g`: its first column, its four rows, and where the next group starts.
-    fn group(&self, g: usize) -> (usize, [&[f64]; GROUP], *const f64) {
+    /// Group `g`: its first column, its four rows, and where the next group starts with its
+    /// rows' length (at least 1), for the kernels' prefetch.
+    fn group(&self, g: usize) -> (usize, [&[f64]; GROUP], (*const f64, usize)) {
         let c0 = (GROUP * g).min(self.k);
         let len = self.k - c0;
         let at = self.offsets[g];
         let rows = std::array::from_fn(|r| &self.data[at + r * len..at + (r + 1) * len]);
-        (c0, rows, self.data.as_ptr().wrapping_add(at + GROUP * len))
+        let next = self.data.as_ptr().wrapping_add(at + GROUP * len);
+        (c0, rows, (next, len.saturating_sub(GROUP).max(1)))
     }
 
     /// `y = A^T x` for a complex `x` given as its real and imaginary parts (length `m`; `y`
@@ -179,14 +181,7 @@ impl UpperTrapezoid {
                     if i < self.m { xl[i] } else { 0.0 }
                 })
             });
-            let next_len = (k - c0).saturating_sub(GROUP).max(1);
-            axpy4x2(
-                simd,
-                rows,
-                c,
-                [&mut y0[c0..k], &mut y1[c0..k]],
-                (next, next_len),
-            );
+            axpy4x2(simd, rows, c, [&mut y0[c0..k], &mut y1[c0..k]], next);
         }
     }
 
@@ -196,13 +191,7 @@ impl UpperTrapezoid {
         let k = self.k;
         for g in 0..self.offsets.len() {
             let (c0, rows, next) = self.group(g);
-            let next_len = (k - c0).saturating_sub(GROUP).max(1);
-            let s = dot_block_f64(
-                simd,
-                rows,
-                [&z[0][c0..k], &z[1][c0..k]],
-                Some((next, next_len)),
-            );
+            let s = dot_block_f64(simd, rows, [&z[0][c0..k], &z[1][c0..k]], Some(next));
             for (r, [u, v]) in s.into_iter().enumerate() {
                 let i = GROUP * g + r;
                 if i < self.m {
@@ -236,14 +225,13 @@ impl UpperTrapezoid {
             });
             let right = rows.map(|row| &row[nb..]);
             let (t0, t1) = (&mut y0[c0 + nb..k], &mut y1[c0 + nb..k]);
-            let next_len = (k - c0).saturating_sub(GROUP).max(1);
             let s = dot_axpy4x2(
                 simd,
                 right,
                 [&z[0][c0 + nb..k], &z[1][c0 + nb..k]],
                 zg,
                 [t0, t1],
-                (next, next_len),
+                next,
             );
             for r in 0..nb {
                 y0[c0 + r] += acc[r][0] + s[r][0];
