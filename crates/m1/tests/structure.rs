@@ -494,15 +494,16 @@ fn malformed_npz_files_give_clear_errors() {
     );
 }
 
-/// The retained modes solved alone (block Lanczos on the envelope factor) are the dense
-/// solve's lowest, to the dense solve's own accuracy: the frequencies to 1e-7 (2e-8 seen), and
-/// the retained modes' compliance at the attachments `sum_j phi_j phi_j^T / w_j^2`
-/// (independent of the basis chosen within a repeated frequency) to 5e-6. faer's dense
-/// eigenvectors of this problem are the looser of the two: their residual `|K x - lambda M x|`
-/// is up to 4e-4 of `lambda |M x|` for the lowest mode where block Lanczos reaches 1e-14, and
-/// the two differ by 1e-7 to 1e-6 per mode; the Keck test below checks the Lanczos modes
-/// against nalgebra's (backward-stable) dense solve to 1e-9. With the static correction the
-/// truncated model is exact at DC. The cache keeps the lowest modes apart from the full set.
+/// The retained modes solved alone (block Lanczos on the envelope factor; TMT's default 60 and
+/// the 300 of the dynamic studies) are the dense solve's lowest, to the dense solve's own
+/// accuracy: the frequencies to 1e-7 (2e-8 seen), and the retained modes' compliance at the
+/// attachments `sum_j phi_j phi_j^T / w_j^2` (independent of the basis chosen within a repeated
+/// frequency) to 5e-6. faer's dense eigenvectors of this problem are the looser of the two:
+/// their residual `|K x - lambda M x|` is up to 4e-4 of `lambda |M x|` for the lowest mode
+/// where block Lanczos reaches 1e-14, and the two differ by 1e-7 to 1e-6 per mode; the Keck
+/// test below checks the Lanczos modes against nalgebra's (backward-stable) dense solve to
+/// 1e-9. With the static correction the truncated model is exact at DC. The cache keeps the
+/// lowest modes apart from the full set.
 #[test]
 fn lowest_modes_alone_match_the_dense_solve_on_tmt() {
     let layout = Layout::tmt();
@@ -510,21 +511,10 @@ fn lowest_modes_alone_match_the_dense_solve_on_tmt() {
     let dense = cell
         .modes_in(&m1::linalg::cache::Store::off())
         .expect("every mode");
-    let r = 60;
-    let lowest = cell
-        .lowest_modes_in(r, &m1::linalg::cache::Store::off())
-        .expect("lowest modes");
-    assert_eq!(lowest.n_modes(), r, "only the retained modes are solved");
-    assert!(dense.n_modes() > 20 * r);
-    for j in 0..r {
-        let (a, b) = (lowest.frequencies[j], dense.frequencies[j]);
-        assert!((a - b).abs() < 1e-7 * b, "mode {j}: {a} Hz against {b} Hz");
-    }
-    // The cut at 60 falls between two frequencies, not inside a degenerate pair.
-    let (f59, f60) = (dense.frequencies[r - 1], dense.frequencies[r]);
-    assert!(f60 - f59 > 1e-3 * f59, "{f59} Hz, {f60} Hz");
     let na = cell.n_actuators();
-    let compliance = |m: &ModalModel| {
+    // The retained modes' compliance at the attachments, sum_j phi_j phi_j^T / w_j^2 over the
+    // first r.
+    let compliance = |m: &ModalModel, r: usize| {
         let n = m.n_modes();
         let mut g = vec![0.0; na * na];
         for j in 0..r {
@@ -538,8 +528,34 @@ fn lowest_modes_alone_match_the_dense_solve_on_tmt() {
         }
         g
     };
-    let e = rel_err(&compliance(&lowest), &compliance(&dense));
-    assert!(e < 5e-6, "retained compliance differs by {e:e}");
+    // The default 60 and the 300 of the dynamic studies, both solved alone (at most a quarter
+    // of the degrees of freedom).
+    for r in [300, 60] {
+        let lowest = cell
+            .lowest_modes_in(r, &m1::linalg::cache::Store::off())
+            .expect("lowest modes");
+        assert_eq!(lowest.n_modes(), r, "only the retained modes are solved");
+        assert!(dense.n_modes() > 4 * r);
+        for j in 0..r {
+            let (a, b) = (lowest.frequencies[j], dense.frequencies[j]);
+            assert!(
+                (a - b).abs() < 1e-7 * b,
+                "mode {j} of {r}: {a} Hz against {b} Hz"
+            );
+        }
+        // The cut falls between two frequencies, not inside a degenerate pair.
+        let (fa, fb) = (dense.frequencies[r - 1], dense.frequencies[r]);
+        assert!(fb - fa > 1e-3 * fa, "{fa} Hz, {fb} Hz");
+        let e = rel_err(&compliance(&lowest, r), &compliance(&dense, r));
+        assert!(
+            e < 5e-6,
+            "retained compliance of {r} modes differs by {e:e}"
+        );
+    }
+    let r = 60;
+    let lowest = cell
+        .lowest_modes_in(r, &m1::linalg::cache::Store::off())
+        .expect("lowest modes");
     let pier: Vec<f64> = (0..r)
         .map(|j| (lowest.phi_pier[j] / lowest.frequencies[j]).powi(2))
         .collect();
@@ -570,9 +586,9 @@ fn lowest_modes_alone_match_the_dense_solve_on_tmt() {
     assert_eq!(again.phi_cell, lowest.phi_cell);
     assert_eq!(again.phi_pier, lowest.phi_pier);
     let _ = std::fs::remove_dir_all(&dir);
-    // Past a tenth of the degrees of freedom, the dense solve's lowest (every mode).
+    // Past a quarter of the degrees of freedom, the dense solve's lowest (every mode).
     let many = cell
-        .lowest_modes_in(cell.ndof / 8, &m1::linalg::cache::Store::off())
+        .lowest_modes_in(cell.ndof / 3, &m1::linalg::cache::Store::off())
         .expect("many");
     assert_eq!(many.frequencies, dense.frequencies);
 }

@@ -15,8 +15,10 @@ use crate::linalg::lanczos;
 use crate::linalg::skyline::Skyline;
 
 /// [`CellModel::lowest_modes`] solves for the lowest `r` modes alone when `r` is at most
-/// `ndof / PARTIAL_FRACTION`; above, the dense eigensolve of every mode costs about as much.
-pub const PARTIAL_FRACTION: usize = 10;
+/// `ndof / PARTIAL_FRACTION`; above, the dense eigensolve of every mode costs about as much
+/// (TMT, 1477 degrees of freedom: 0.47 s for the 300 lowest against 0.79-0.91 s for all,
+/// `cargo bench -p m1 --bench setup`; 0.63-0.71 s for 369 or 450).
+pub const PARTIAL_FRACTION: usize = 4;
 
 /// One actuator attachment: `z = x[dof] + c[1] x[dof + 1] + c[2] x[dof + 2]` (`c[0] = 1`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -320,10 +322,10 @@ impl CellModel {
 
     /// The `r` lowest modes of the model (all of them if `r >= ndof`), with the exact static
     /// correction attached, as [`Self::modes`] but without the dense eigensolve of every mode
-    /// when `r` is at most a tenth of the degrees of freedom ([`PARTIAL_FRACTION`]; the two
-    /// cost about the same from an eighth): block Lanczos on the envelope factor of `K`
-    /// ([`crate::linalg::lanczos`]; about 60 ms for TMT's 60 lowest of 1477 modes, against
-    /// 0.4 s for all of them, `cargo bench -p m1 --bench setup`). The modes are cached as
+    /// when `r` is at most a quarter of the degrees of freedom ([`PARTIAL_FRACTION`]; the two
+    /// cost about the same from a third): block Lanczos on the envelope factor of `K`
+    /// ([`crate::linalg::lanczos`]; `cargo bench -p m1 --bench setup` measures TMT's 30, 60,
+    /// 147 and 300 lowest of 1477 modes against all of them). The modes are cached as
     /// [`Self::modes`]'s are, keyed by `r` too.
     ///
     /// The retained modes are the same as [`Self::modes`]'s lowest `r` up to the solvers'
