@@ -85,8 +85,9 @@ fn par_above(flops: usize) -> Par {
     }
 }
 
-/// The smallest product [`par_above`] runs in parallel: TMT's 300 modes' products from a
-/// Krylov dimension of about 350, not the default 60 modes' (at most 2.7e6).
+/// The smallest product [`par_above`] runs in parallel: TMT's 300 modes' projections from a
+/// Krylov dimension of about 350 (`2 n k b`, 16 columns a block), not the default 60 modes'
+/// (at most 4.5e6); both solves' final Ritz vectors (`2 n k r`: 3.4e7 at 60 modes).
 const PARALLEL_FLOPS: usize = 1 << 24;
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {
